@@ -1,0 +1,145 @@
+//! `nvtmm mesh …` subcommands.
+
+use nvtmm::mesh::arch::{generate, ArchParams};
+use nvtmm::mesh::io::{read_mesh_scaled, write_mesh};
+use nvtmm::mesh::quality::MeshQuality;
+use nvtmm::mesh::render::{render_surface, write_png, RenderOptions};
+use nvtmm::mesh::TetMesh;
+use std::path::Path;
+use std::time::Instant;
+
+type Result<T> = std::result::Result<T, Box<dyn std::error::Error>>;
+
+pub fn arch(nodes: usize, out: &Path) -> Result<()> {
+    let t0 = Instant::now();
+    let arch = generate(&ArchParams::default(), nodes)?;
+    let gen_s = t0.elapsed().as_secs_f64();
+    write_mesh(&arch.mesh, out)?;
+    let m = &arch.mesh;
+    println!(
+        "wrote {}: {} nodes, {} tets, {} surface triangles (grid {}x{}x{}), generated in {:.3} s",
+        out.display(),
+        m.num_nodes(),
+        m.tets().len(),
+        m.surface().len(),
+        arch.grid.axial,
+        arch.grid.circumferential,
+        arch.grid.layers,
+        gen_s
+    );
+    Ok(())
+}
+
+/// The `mesh info` summary; field names are a scripting contract.
+#[derive(serde::Serialize)]
+struct Info {
+    nodes: usize,
+    tets: usize,
+    edges: usize,
+    surface_triangles: usize,
+    volume_m3: f64,
+    inverted: usize,
+    isolated_nodes: usize,
+    min_dihedral_deg: f64,
+    max_dihedral_deg: f64,
+    max_aspect_ratio: f64,
+    mean_aspect_ratio: f64,
+    min_edge_m: f64,
+    max_edge_m: f64,
+    bbox_min: [f64; 3],
+    bbox_max: [f64; 3],
+    node_sets: std::collections::BTreeMap<String, usize>,
+}
+
+fn info_of(m: &TetMesh) -> Info {
+    let q = MeshQuality::of(m);
+    let (lo, hi) = m.bbox();
+    Info {
+        nodes: m.num_nodes(),
+        tets: m.tets().len(),
+        edges: m.edges().len(),
+        surface_triangles: m.surface().len(),
+        volume_m3: m.total_volume(),
+        inverted: m.report().inverted,
+        isolated_nodes: m.report().isolated_nodes,
+        min_dihedral_deg: q.min_dihedral_deg,
+        max_dihedral_deg: q.max_dihedral_deg,
+        max_aspect_ratio: q.max_aspect_ratio,
+        mean_aspect_ratio: q.mean_aspect_ratio,
+        min_edge_m: q.min_edge_m,
+        max_edge_m: q.max_edge_m,
+        bbox_min: [lo.x, lo.y, lo.z],
+        bbox_max: [hi.x, hi.y, hi.z],
+        node_sets: m.node_sets().iter().map(|(k, v)| (k.clone(), v.len())).collect(),
+    }
+}
+
+pub fn info(file: &Path, json: bool, scale: f64) -> Result<()> {
+    let m = read_mesh_scaled(file, scale)?;
+    let i = info_of(&m);
+    if json {
+        println!("{}", serde_json::to_string_pretty(&i)?);
+    } else {
+        println!("{}", file.display());
+        println!("  nodes              {}", i.nodes);
+        println!("  tets               {}", i.tets);
+        println!("  edges              {}", i.edges);
+        println!("  surface triangles  {}", i.surface_triangles);
+        println!("  volume             {:.6e} m^3", i.volume_m3);
+        println!("  inverted (fixed)   {}", i.inverted);
+        println!("  isolated nodes     {}", i.isolated_nodes);
+        println!(
+            "  dihedral angles    {:.2}° .. {:.2}°",
+            i.min_dihedral_deg, i.max_dihedral_deg
+        );
+        println!(
+            "  aspect ratio       max {:.3}, mean {:.3}",
+            i.max_aspect_ratio, i.mean_aspect_ratio
+        );
+        println!("  edge length        {:.3e} .. {:.3e} m", i.min_edge_m, i.max_edge_m);
+        println!("  bbox               {:?} .. {:?} m", i.bbox_min, i.bbox_max);
+        for (k, n) in &i.node_sets {
+            println!("  node set {k:<18} {n} nodes");
+        }
+    }
+    Ok(())
+}
+
+pub fn convert(input: &Path, output: &Path, scale: f64) -> Result<()> {
+    let m = read_mesh_scaled(input, scale)?;
+    write_mesh(&m, output)?;
+    println!(
+        "wrote {}: {} nodes, {} tets",
+        output.display(),
+        m.num_nodes(),
+        m.tets().len()
+    );
+    Ok(())
+}
+
+pub fn render(input: &str, out: &Path, width: u32, height: u32, azimuth: f64, elevation: f64) -> Result<()> {
+    let mesh = match input.strip_prefix("arch:") {
+        Some(n) => {
+            generate(
+                &ArchParams::default(),
+                n.parse().map_err(|_| format!("arch:N: '{n}' is not a node count"))?,
+            )?
+            .mesh
+        }
+        None => read_mesh_scaled(Path::new(input), 1.0)?,
+    };
+    if width == 0 || height == 0 || width > 8192 || height > 8192 {
+        return Err(format!("--width/--height must be in 1..=8192, got {width}x{height}").into());
+    }
+    let opt = RenderOptions {
+        width,
+        height,
+        azimuth_deg: azimuth,
+        elevation_deg: elevation,
+        ..Default::default()
+    };
+    let rgb = render_surface(&mesh, None, None, &opt);
+    write_png(out, width, height, &rgb).map_err(|e| format!("{}: {e}", out.display()))?;
+    println!("wrote {}", out.display());
+    Ok(())
+}

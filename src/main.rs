@@ -1,0 +1,105 @@
+//! The `nvtmm` command line.
+
+use clap::{Parser, Subcommand};
+use std::path::PathBuf;
+use std::process::ExitCode;
+
+mod cli_mesh;
+
+#[derive(Parser)]
+#[command(
+    name = "nvtmm",
+    version,
+    about = "Real-time nonlinear viscoelastic tensor-mass vessel simulator"
+)]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand)]
+enum Command {
+    /// Generate, inspect, convert and render tetrahedral meshes.
+    #[command(subcommand)]
+    Mesh(MeshCmd),
+}
+
+#[derive(Subcommand)]
+enum MeshCmd {
+    /// Generate the built-in aortic arch wall mesh.
+    Arch {
+        /// Target number of nodes (the result is within 1%).
+        #[arg(long, default_value_t = 5832)]
+        nodes: usize,
+        /// Output file; the format comes from the extension (.msh .vtk .vtu .node .ply .obj .stl).
+        #[arg(long)]
+        out: PathBuf,
+    },
+    /// Print a mesh's size, volume and element quality.
+    Info {
+        /// Mesh file (.msh .vtk .vtu .node/.ele).
+        file: PathBuf,
+        /// Print JSON instead of text.
+        #[arg(long)]
+        json: bool,
+        /// Multiply coordinates by this factor on reading (e.g. 0.001 for millimetres).
+        #[arg(long, default_value_t = 1.0)]
+        scale: f64,
+    },
+    /// Convert a mesh between formats (by extension).
+    Convert {
+        /// Input mesh.
+        input: PathBuf,
+        /// Output mesh.
+        output: PathBuf,
+        /// Multiply coordinates by this factor on reading (e.g. 0.001 for millimetres).
+        #[arg(long, default_value_t = 1.0)]
+        scale: f64,
+    },
+    /// Render a mesh's surface to a PNG picture.
+    Render {
+        /// Mesh file, or `arch:N` for the built-in arch with N nodes.
+        input: String,
+        /// Output PNG.
+        #[arg(long)]
+        out: PathBuf,
+        /// Image width (pixels).
+        #[arg(long, default_value_t = 900)]
+        width: u32,
+        /// Image height (pixels).
+        #[arg(long, default_value_t = 700)]
+        height: u32,
+        /// Camera azimuth about the vertical axis (degrees).
+        #[arg(long, default_value_t = -60.0, allow_hyphen_values = true)]
+        azimuth: f64,
+        /// Camera elevation (degrees).
+        #[arg(long, default_value_t = 15.0, allow_hyphen_values = true)]
+        elevation: f64,
+    },
+}
+
+fn main() -> ExitCode {
+    let cli = Cli::parse();
+    let result = match cli.command {
+        Command::Mesh(cmd) => match cmd {
+            MeshCmd::Arch { nodes, out } => cli_mesh::arch(nodes, &out),
+            MeshCmd::Info { file, json, scale } => cli_mesh::info(&file, json, scale),
+            MeshCmd::Convert { input, output, scale } => cli_mesh::convert(&input, &output, scale),
+            MeshCmd::Render {
+                input,
+                out,
+                width,
+                height,
+                azimuth,
+                elevation,
+            } => cli_mesh::render(&input, &out, width, height, azimuth, elevation),
+        },
+    };
+    match result {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("error: {e}");
+            ExitCode::FAILURE
+        }
+    }
+}
