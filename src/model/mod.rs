@@ -13,7 +13,10 @@
 //! edge, in the mesh's own numbering. No model here knows about time
 //! integration or linear solvers (see `solver`).
 
-// Submodules (fem, msm, nvtmm, tmm, viscoelastic) are added as they land.
+// Submodules (nvtmm, viscoelastic) are added as they land.
+pub mod fem;
+pub mod msm;
+pub mod tmm;
 
 use crate::mesh::{TetMesh, Vec3};
 use nalgebra::Matrix3;

@@ -1,0 +1,207 @@
+//! Element-by-element hyperelastic FEM on P1 tets: the paper's FEM baseline.
+//!
+//! Per tet, with rest volume V and shape-function gradients D_i:
+//! F = I + Σ_i u_i ⊗ D_i (eq. 1), P = ∂Ψ/∂F from [`crate::material::pk1`],
+//! nodal force f_p = −V P D_p (eq. 7), force derivative
+//! df_p = −V dP(F; Σ_q du_q ⊗ D_q) D_p (eq. 8), and the element tangent
+//! K_pq[:, b] = V · dP(F; e_b ⊗ D_q) · D_p, so K = −∂f/∂u. The energy is
+//! Σ V Ψ(F) (eq. 4 and 6 for StVK, eq. 9 for Neo-Hookean).
+//!
+//! Elements are evaluated in parallel (rayon, fixed-size chunks) into a
+//! per-element buffer and then scattered serially into the nodes, so results
+//! are bit-for-bit reproducible whatever the thread schedule.
+
+use super::{tet_pair_edges, BlockTangent, ForceModel, Mat3};
+use crate::material::{dpk1, energy_density, pk1, Lame, Law, Material};
+use crate::mesh::{TetMesh, Vec3};
+use rayon::prelude::*;
+use std::sync::Mutex;
+
+/// Elements per parallel task: large enough that rayon's overhead is small
+/// next to the work, small enough to balance two to eight cores on the arch.
+const CHUNK: usize = 256;
+
+/// Deformation gradient F = I + Σ_i u_i ⊗ D_i of a P1 tet (eq. 1), from the
+/// shape-function gradients `grads` and the displacements `u` of its nodes.
+#[inline]
+pub fn deformation_gradient(grads: &[Vec3; 4], u: &[Vec3; 4]) -> Mat3 {
+    let mut f = Mat3::identity();
+    for (ui, di) in u.iter().zip(grads) {
+        f += ui * di.transpose();
+    }
+    f
+}
+
+/// Gradient increment dF = Σ_i du_i ⊗ D_i (the same map as
+/// [`deformation_gradient`] without the identity).
+#[inline]
+pub fn gradient_increment(grads: &[Vec3; 4], du: &[Vec3; 4]) -> Mat3 {
+    let mut f = Mat3::zeros();
+    for (ui, di) in du.iter().zip(grads) {
+        f += ui * di.transpose();
+    }
+    f
+}
+
+/// Nodal internal forces f_p = −V P(F) D_p of one tet at deformation gradient `f`.
+#[inline]
+pub fn element_forces(law: Law, lame: Lame, volume: f64, grads: &[Vec3; 4], f: &Mat3) -> [Vec3; 4] {
+    let vp = pk1(law, lame, f) * (-volume);
+    grads.map(|d| vp * d)
+}
+
+/// Element tangent of one tet at `f`: block `[p][q]` is K_pq = −∂f_p/∂u_q,
+/// column b being V · dP(F; e_b ⊗ D_q) · D_p. Symmetric: K_qp = K_pqᵀ.
+pub fn element_stiffness(law: Law, lame: Lame, volume: f64, grads: &[Vec3; 4], f: &Mat3) -> [[Mat3; 4]; 4] {
+    let mut k = [[Mat3::zeros(); 4]; 4];
+    for q in 0..4 {
+        for b in 0..3 {
+            // e_b ⊗ D_q: row b is D_qᵀ.
+            let mut df = Mat3::zeros();
+            df.set_row(b, &grads[q].transpose());
+            let dp = dpk1(law, lame, f, &df) * volume;
+            for p in 0..4 {
+                k[p][q].set_column(b, &(dp * grads[p]));
+            }
+        }
+    }
+    k
+}
+
+/// The element-wise hyperelastic FEM force model (StVK or Neo-Hookean).
+#[derive(Debug)]
+pub struct Fem {
+    law: Law,
+    lame: Lame,
+    num_nodes: usize,
+    tets: Vec<[u32; 4]>,
+    grads: Vec<[Vec3; 4]>,
+    volumes: Vec<f64>,
+    pair_edges: Vec<[[u32; 4]; 4]>,
+    /// Per-element nodal results, reused between calls. A second caller that
+    /// finds it busy allocates its own (correct, just slower).
+    scratch: Mutex<Vec<[Vec3; 4]>>,
+}
+
+impl Fem {
+    /// Builds the model for `mesh` with the elastic constants of `material`
+    /// and the hyperelastic `law`. Copies the per-tet data it needs.
+    pub fn new(mesh: &TetMesh, material: &Material, law: Law) -> Fem {
+        Fem {
+            law,
+            lame: material.lame(),
+            num_nodes: mesh.num_nodes(),
+            tets: mesh.tets().to_vec(),
+            grads: mesh.grads().to_vec(),
+            volumes: mesh.volumes().to_vec(),
+            pair_edges: tet_pair_edges(mesh),
+            scratch: Mutex::new(vec![[Vec3::zeros(); 4]; mesh.tets().len()]),
+        }
+    }
+
+    /// The hyperelastic law.
+    pub fn law(&self) -> Law {
+        self.law
+    }
+
+    /// The Lamé coefficients (eq. 5).
+    pub fn lame(&self) -> Lame {
+        self.lame
+    }
+
+    #[inline]
+    fn gather(&self, t: usize, u: &[Vec3]) -> [Vec3; 4] {
+        self.tets[t].map(|i| u[i as usize])
+    }
+
+    #[inline]
+    fn f_of(&self, t: usize, u: &[Vec3]) -> Mat3 {
+        deformation_gradient(&self.grads[t], &self.gather(t, u))
+    }
+
+    /// Evaluates `elem` on every tet in parallel, then adds the four nodal
+    /// vectors of each tet into `out`.
+    fn scatter_elements<E>(&self, out: &mut [Vec3], elem: E)
+    where
+        E: Fn(usize) -> [Vec3; 4] + Sync,
+    {
+        let mut run = |buf: &mut Vec<[Vec3; 4]>| {
+            buf.resize(self.tets.len(), [Vec3::zeros(); 4]);
+            buf.par_chunks_mut(CHUNK).enumerate().for_each(|(c, chunk)| {
+                for (k, slot) in chunk.iter_mut().enumerate() {
+                    *slot = elem(c * CHUNK + k);
+                }
+            });
+            for (tet, fs) in self.tets.iter().zip(buf.iter()) {
+                for (&i, fi) in tet.iter().zip(fs) {
+                    out[i as usize] += fi;
+                }
+            }
+        };
+        match self.scratch.try_lock() {
+            Ok(mut buf) => run(&mut buf),
+            Err(_) => run(&mut Vec::new()),
+        }
+    }
+}
+
+impl ForceModel for Fem {
+    fn name(&self) -> &'static str {
+        match self.law {
+            Law::Stvk => "fem-stvk",
+            Law::NeoHookean => "fem-neohookean",
+        }
+    }
+
+    fn add_forces(&self, u: &[Vec3], out: &mut [Vec3]) {
+        debug_assert_eq!(u.len(), self.num_nodes);
+        self.scatter_elements(out, |t| {
+            element_forces(self.law, self.lame, self.volumes[t], &self.grads[t], &self.f_of(t, u))
+        });
+    }
+
+    fn add_df(&self, u: &[Vec3], du: &[Vec3], out: &mut [Vec3]) {
+        debug_assert_eq!(u.len(), self.num_nodes);
+        debug_assert_eq!(du.len(), self.num_nodes);
+        self.scatter_elements(out, |t| {
+            let g = &self.grads[t];
+            let f = self.f_of(t, u);
+            let df = gradient_increment(g, &self.gather(t, du));
+            let vdp = dpk1(self.law, self.lame, &f, &df) * (-self.volumes[t]);
+            g.map(|d| vdp * d)
+        });
+    }
+
+    fn add_stiffness(&self, u: &[Vec3], k: &mut BlockTangent) {
+        debug_assert_eq!(k.num_nodes(), self.num_nodes);
+        let blocks: Vec<[[Mat3; 4]; 4]> = (0..self.tets.len())
+            .into_par_iter()
+            .with_min_len(CHUNK)
+            .map(|t| element_stiffness(self.law, self.lame, self.volumes[t], &self.grads[t], &self.f_of(t, u)))
+            .collect();
+        for ((tet, pe), kt) in self.tets.iter().zip(&self.pair_edges).zip(&blocks) {
+            for p in 0..4 {
+                // K_qp = K_pqᵀ, so the upper triangle (p ≤ q) carries everything.
+                for q in p..4 {
+                    k.add_block(tet[p], tet[q], pe[p][q], &kt[p][q]);
+                }
+            }
+        }
+    }
+
+    fn energy(&self, u: &[Vec3]) -> f64 {
+        // Chunk sums collected in order, then summed serially: reproducible.
+        let partial: Vec<f64> = self
+            .volumes
+            .par_chunks(CHUNK)
+            .enumerate()
+            .map(|(c, vs)| {
+                vs.iter()
+                    .enumerate()
+                    .map(|(k, v)| v * energy_density(self.law, self.lame, &self.f_of(c * CHUNK + k, u)))
+                    .sum::<f64>()
+            })
+            .collect();
+        partial.iter().sum()
+    }
+}

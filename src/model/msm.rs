@@ -1,0 +1,149 @@
+//! Mass-spring model on the mesh edges: the paper's MSM baseline.
+//!
+//! Each edge e = (a, b) with rest length L_e is a nonlinear spring with energy
+//! W_e = ½ k_e (l − L_e)², l = |x_b − x_a|, x = X + u, so the force on b is
+//! f_b = −k_e (l − L_e) n with n = (x_b − x_a)/l, and f_a = −f_b.
+//!
+//! Spring stiffness from Young's modulus: Van Gelder's rule (A. Van Gelder,
+//! "Approximate simulation of elastic membranes by triangulated spring
+//! meshes", Journal of Graphics Tools 3(2), 1998), stiffness ∝ E · (element
+//! measure adjacent to the edge) / L², in its tetrahedral form
+//! k_e = E Σ_{tets t ∋ e} V_t / L_e². Van Gelder shows no spring network
+//! reproduces a given E and ν exactly (Lloyd, Székely and Harders, IEEE TVCG
+//! 14(1), 2008, show the same for tetrahedra); springs have no separate
+//! volumetric response, so the effective Poisson ratio is set by the mesh
+//! geometry, not by ν. `tests/msm_stiffness_is_of_fem_order.rs` measures the
+//! effective Young's modulus and Poisson ratio against FEM.
+//!
+//! Zero length: the energy has a cone point at l = 0, where n and the
+//! geometric stiffness (1 − L/l)(I − n nᵀ) do not exist. Below
+//! l = [`DEGENERATE_FRACTION`] · L the spring uses its rest direction for n
+//! and keeps only the axial stiffness k n nᵀ: forces and tangents stay finite
+//! (no NaN) and push the two nodes apart along the rest edge.
+
+use super::{BlockTangent, ForceModel, Mat3};
+use crate::material::Material;
+use crate::mesh::{TetMesh, Vec3};
+
+/// Below this fraction of its rest length a spring counts as collapsed (see
+/// the module docs).
+pub const DEGENERATE_FRACTION: f64 = 1e-9;
+
+/// The mass-spring force model.
+#[derive(Debug, Clone)]
+pub struct Msm {
+    edges: Vec<[u32; 2]>,
+    rest_len: Vec<f64>,
+    rest_dir: Vec<Vec3>,
+    stiffness: Vec<f64>,
+    rest: Vec<Vec3>,
+}
+
+impl Msm {
+    /// Builds springs on the edges of `mesh` with Van Gelder's tetrahedral
+    /// stiffness k_e = E Σ_{t ∋ e} V_t / L_e² for the Young's modulus of
+    /// `material` (its Poisson ratio cannot be represented; see module docs).
+    pub fn new(mesh: &TetMesh, material: &Material) -> Msm {
+        let rest = mesh.rest().to_vec();
+        let edges = mesh.edges().to_vec();
+        let mut adjacent_volume = vec![0.0; edges.len()];
+        for (te, v) in mesh.tet_edges().iter().zip(mesh.volumes()) {
+            for &e in te {
+                adjacent_volume[e as usize] += v;
+            }
+        }
+        let (mut rest_len, mut rest_dir, mut stiffness) = (Vec::new(), Vec::new(), Vec::new());
+        for (&[a, b], vol) in edges.iter().zip(&adjacent_volume) {
+            let d = rest[b as usize] - rest[a as usize];
+            // Mesh construction rejects coincident nodes of a tet, so L > 0.
+            let l = d.norm();
+            rest_len.push(l);
+            rest_dir.push(d / l);
+            stiffness.push(material.youngs_pa * vol / (l * l));
+        }
+        Msm {
+            edges,
+            rest_len,
+            rest_dir,
+            stiffness,
+            rest,
+        }
+    }
+
+    /// Spring stiffness k_e (N/m) per mesh edge.
+    pub fn stiffness(&self) -> &[f64] {
+        &self.stiffness
+    }
+
+    /// Rest length L_e (m) per mesh edge.
+    pub fn rest_lengths(&self) -> &[f64] {
+        &self.rest_len
+    }
+
+    /// Force on the high end b of edge `e` and the block K_bb = −∂f_b/∂x_b
+    /// (K_aa = K_bb, K_ab = −K_bb), at displacement `u`.
+    #[inline]
+    fn spring(&self, e: usize, u: &[Vec3]) -> (Vec3, Mat3) {
+        let [a, b] = self.edges[e].map(|i| i as usize);
+        let d = self.rest[b] - self.rest[a] + u[b] - u[a];
+        let (k, rl) = (self.stiffness[e], self.rest_len[e]);
+        let l = d.norm();
+        if l > DEGENERATE_FRACTION * rl {
+            let n = d / l;
+            let nn = n * n.transpose();
+            // K_bb = k [(L/l) n nᵀ + (1 − L/l) I].
+            let kb = (nn * (rl / l) + Mat3::identity() * (1.0 - rl / l)) * k;
+            (n * (-k * (l - rl)), kb)
+        } else {
+            let n = self.rest_dir[e];
+            (n * (-k * (l - rl)), n * n.transpose() * k)
+        }
+    }
+}
+
+impl ForceModel for Msm {
+    fn name(&self) -> &'static str {
+        "msm"
+    }
+
+    fn add_forces(&self, u: &[Vec3], out: &mut [Vec3]) {
+        debug_assert_eq!(u.len(), self.rest.len());
+        for (e, &[a, b]) in self.edges.iter().enumerate() {
+            let (fb, _) = self.spring(e, u);
+            out[b as usize] += fb;
+            out[a as usize] -= fb;
+        }
+    }
+
+    fn add_df(&self, u: &[Vec3], du: &[Vec3], out: &mut [Vec3]) {
+        debug_assert_eq!(u.len(), self.rest.len());
+        for (e, &[a, b]) in self.edges.iter().enumerate() {
+            let (_, kb) = self.spring(e, u);
+            let dfb = -(kb * (du[b as usize] - du[a as usize]));
+            out[b as usize] += dfb;
+            out[a as usize] -= dfb;
+        }
+    }
+
+    fn add_stiffness(&self, u: &[Vec3], k: &mut BlockTangent) {
+        debug_assert_eq!(k.num_nodes(), self.rest.len());
+        for (e, &[a, b]) in self.edges.iter().enumerate() {
+            let (_, kb) = self.spring(e, u);
+            k.diag[a as usize] += kb;
+            k.diag[b as usize] += kb;
+            k.add_block(a, b, e as u32, &(-kb));
+        }
+    }
+
+    fn energy(&self, u: &[Vec3]) -> f64 {
+        self.edges
+            .iter()
+            .enumerate()
+            .map(|(e, &[a, b])| {
+                let d = self.rest[b as usize] - self.rest[a as usize] + u[b as usize] - u[a as usize];
+                let s = d.norm() - self.rest_len[e];
+                0.5 * self.stiffness[e] * s * s
+            })
+            .sum()
+    }
+}
