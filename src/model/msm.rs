@@ -147,3 +147,44 @@ impl ForceModel for Msm {
             .sum()
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::collections::BTreeMap;
+
+    #[test]
+    fn collapsed_spring_stays_finite_and_pushes_apart() {
+        let rest = vec![Vec3::zeros(), Vec3::x(), Vec3::y(), Vec3::z()];
+        let mesh = TetMesh::new(rest.clone(), vec![[0, 1, 2, 3]], BTreeMap::new()).unwrap();
+        let msm = Msm::new(&mesh, &Material::aorta());
+        // Move node 1 onto node 0: edge (0, 1) has zero length.
+        let mut u = vec![Vec3::zeros(); 4];
+        u[1] = -Vec3::x();
+        let mut f = vec![Vec3::zeros(); 4];
+        msm.add_forces(&u, &mut f);
+        let mut df = vec![Vec3::zeros(); 4];
+        msm.add_df(&u, &[Vec3::new(0.1, 0.2, 0.3); 4], &mut df);
+        let mut k = BlockTangent::zeros(&mesh);
+        msm.add_stiffness(&u, &mut k);
+        assert!(f.iter().chain(&df).all(|v| v.iter().all(|c| c.is_finite())));
+        assert!(k.to_dense().iter().all(|c| c.is_finite()));
+        assert!(msm.energy(&u).is_finite());
+        // The collapsed spring alone pushes node 1 back along +x.
+        let e01 = mesh.edges().iter().position(|&e| e == [0, 1]).unwrap();
+        let (fb, _) = msm.spring(e01, &u);
+        assert!(fb.x > 0.0 && fb.y.abs() < 1e-12 && fb.z.abs() < 1e-12);
+    }
+
+    #[test]
+    fn van_gelder_stiffness() {
+        // One unit right tet: every edge touches the single tet (V = 1/6).
+        let rest = vec![Vec3::zeros(), Vec3::x(), Vec3::y(), Vec3::z()];
+        let mesh = TetMesh::new(rest, vec![[0, 1, 2, 3]], BTreeMap::new()).unwrap();
+        let m = Material::aorta();
+        let msm = Msm::new(&mesh, &m);
+        for (k, l) in msm.stiffness().iter().zip(msm.rest_lengths()) {
+            assert!((k - m.youngs_pa / 6.0 / (l * l)).abs() <= 1e-12 * k);
+        }
+    }
+}

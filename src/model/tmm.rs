@@ -99,3 +99,60 @@ impl ForceModel for Tmm {
         0.5 * diag + off
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::material::Law;
+    use crate::model::fem::Fem;
+    use std::collections::BTreeMap;
+
+    /// Two irregular tets sharing a face: no symmetry that could hide a
+    /// transposed outer product.
+    fn two_tets() -> TetMesh {
+        let rest = vec![
+            Vec3::new(0.0, 0.0, 0.0),
+            Vec3::new(1.1, 0.1, -0.2),
+            Vec3::new(0.3, 0.9, 0.1),
+            Vec3::new(0.2, 0.3, 1.2),
+            Vec3::new(1.0, 1.0, 0.9),
+        ];
+        TetMesh::new(rest, vec![[0, 1, 2, 3], [1, 2, 3, 4]], BTreeMap::new()).unwrap()
+    }
+
+    #[test]
+    fn k0_is_the_fem_tangent_at_rest() {
+        let mesh = two_tets();
+        let m = Material::aorta();
+        let tmm = Tmm::new(&mesh, &m);
+        let zero = vec![Vec3::zeros(); mesh.num_nodes()];
+        for law in [Law::Stvk, Law::NeoHookean] {
+            let mut k = BlockTangent::zeros(&mesh);
+            Fem::new(&mesh, &m, law).add_stiffness(&zero, &mut k);
+            let (a, b) = (tmm.k0.to_dense(), k.to_dense());
+            assert!(
+                (&a - &b).amax() <= 1e-12 * b.amax(),
+                "{law:?}: K0 differs from FEM at rest"
+            );
+        }
+        // The transposed outer products would differ: make sure the test can tell.
+        let l = m.lame();
+        let g = mesh.grads()[0];
+        let swapped = (g[1] * g[2].transpose() * l.mu + g[2] * g[1].transpose() * l.lambda) * mesh.volumes()[0];
+        let right = (g[1] * g[2].transpose() * l.lambda + g[2] * g[1].transpose() * l.mu) * mesh.volumes()[0];
+        assert!((swapped - right).amax() > 1e-3 * right.amax());
+    }
+
+    #[test]
+    fn energy_is_half_u_k0_u() {
+        let mesh = two_tets();
+        let tmm = Tmm::new(&mesh, &Material::aorta());
+        let u: Vec<Vec3> = (0..5)
+            .map(|i| Vec3::new(0.01 * i as f64, -0.02, 0.005 * (i * i) as f64))
+            .collect();
+        let mut f = vec![Vec3::zeros(); 5];
+        tmm.add_forces(&u, &mut f);
+        let w: f64 = -0.5 * u.iter().zip(&f).map(|(a, b)| a.dot(b)).sum::<f64>();
+        assert!((w - tmm.energy(&u)).abs() <= 1e-12 * w.abs());
+    }
+}
