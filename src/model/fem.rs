@@ -52,7 +52,39 @@ pub fn element_forces(law: Law, lame: Lame, volume: f64, grads: &[Vec3; 4], f: &
 
 /// Element tangent of one tet at `f`: block `[p][q]` is K_pq = −∂f_p/∂u_q,
 /// column b being V · dP(F; e_b ⊗ D_q) · D_p. Symmetric: K_qp = K_pqᵀ.
+///
+/// StVK uses the closed form
+/// K_pq = V [(D_qᵀ S D_p) I + λ (F D_p) ⊗ (F D_q) + μ (F D_q) ⊗ (F D_p) + μ (D_p·D_q) F Fᵀ]
+/// (S the second Piola–Kirchhoff stress); Neo-Hookean evaluates the
+/// directional derivative of P along the twelve unit directions.
 pub fn element_stiffness(law: Law, lame: Lame, volume: f64, grads: &[Vec3; 4], f: &Mat3) -> [[Mat3; 4]; 4] {
+    match law {
+        Law::Stvk => stvk_element_stiffness(lame, volume, grads, f),
+        Law::NeoHookean => element_stiffness_by_directions(law, lame, volume, grads, f),
+    }
+}
+
+fn stvk_element_stiffness(lame: Lame, volume: f64, grads: &[Vec3; 4], f: &Mat3) -> [[Mat3; 4]; 4] {
+    let s = crate::material::stvk_pk2(lame, &crate::material::green_strain(f)) * volume;
+    let ffv = f * f.transpose() * (lame.mu * volume);
+    let fd = grads.map(|d| f * d);
+    let mut k = [[Mat3::zeros(); 4]; 4];
+    for p in 0..4 {
+        for q in p..4 {
+            let fp_fq = fd[p] * fd[q].transpose() * volume;
+            let b = Mat3::identity() * grads[q].dot(&(s * grads[p]))
+                + fp_fq * lame.lambda
+                + fp_fq.transpose() * lame.mu
+                + ffv * grads[p].dot(&grads[q]);
+            k[p][q] = b;
+            k[q][p] = b.transpose();
+        }
+    }
+    k
+}
+
+/// The element tangent from twelve directional derivatives of P (any law).
+fn element_stiffness_by_directions(law: Law, lame: Lame, volume: f64, grads: &[Vec3; 4], f: &Mat3) -> [[Mat3; 4]; 4] {
     let mut k = [[Mat3::zeros(); 4]; 4];
     for q in 0..4 {
         for b in 0..3 {
@@ -232,6 +264,7 @@ mod tests {
         let f = deformation_gradient(&g, &u);
         let s = crate::material::stvk_pk2(l, &crate::material::green_strain(&f));
         let k = element_stiffness(Law::Stvk, l, v, &g, &f);
+        let kd = element_stiffness_by_directions(Law::Stvk, l, v, &g, &f);
         for p in 0..4 {
             for q in 0..4 {
                 let (fp, fq) = (f * g[p], f * g[q]);
@@ -241,6 +274,10 @@ mod tests {
                     + f * f.transpose() * (l.mu * g[p].dot(&g[q])))
                     * v;
                 assert!((k[p][q] - closed).amax() <= 1e-12 * closed.amax(), "block {p}{q}");
+                assert!(
+                    (kd[p][q] - closed).amax() <= 1e-12 * closed.amax(),
+                    "block {p}{q} (dP path)"
+                );
                 assert!((k[p][q] - k[q][p].transpose()).amax() <= 1e-12 * closed.amax());
             }
         }

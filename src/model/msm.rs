@@ -80,23 +80,40 @@ impl Msm {
         &self.rest_len
     }
 
-    /// Force on the high end b of edge `e` and the block K_bb = −∂f_b/∂x_b
-    /// (K_aa = K_bb, K_ab = −K_bb), at displacement `u`.
+    /// Current edge vector x_b − x_a of edge `e`.
     #[inline]
-    fn spring(&self, e: usize, u: &[Vec3]) -> (Vec3, Mat3) {
+    fn edge_vector(&self, e: usize, u: &[Vec3]) -> Vec3 {
         let [a, b] = self.edges[e].map(|i| i as usize);
-        let d = self.rest[b] - self.rest[a] + u[b] - u[a];
+        self.rest[b] - self.rest[a] + u[b] - u[a]
+    }
+
+    /// Force f_b = −k (l − L) n on the high end b of edge `e` (f_a = −f_b).
+    #[inline]
+    fn spring_force(&self, e: usize, u: &[Vec3]) -> Vec3 {
+        let d = self.edge_vector(e, u);
+        let (k, rl) = (self.stiffness[e], self.rest_len[e]);
+        let l = d.norm();
+        let n = if l > DEGENERATE_FRACTION * rl {
+            d / l
+        } else {
+            self.rest_dir[e]
+        };
+        n * (-k * (l - rl))
+    }
+
+    /// The block K_bb = −∂f_b/∂x_b of edge `e` (K_aa = K_bb, K_ab = −K_bb).
+    #[inline]
+    fn spring_tangent(&self, e: usize, u: &[Vec3]) -> Mat3 {
+        let d = self.edge_vector(e, u);
         let (k, rl) = (self.stiffness[e], self.rest_len[e]);
         let l = d.norm();
         if l > DEGENERATE_FRACTION * rl {
             let n = d / l;
-            let nn = n * n.transpose();
-            // K_bb = k [(L/l) n nᵀ + (1 − L/l) I].
-            let kb = (nn * (rl / l) + Mat3::identity() * (1.0 - rl / l)) * k;
-            (n * (-k * (l - rl)), kb)
+            // k [(L/l) n nᵀ + (1 − L/l) I].
+            (n * n.transpose() * (rl / l) + Mat3::identity() * (1.0 - rl / l)) * k
         } else {
             let n = self.rest_dir[e];
-            (n * (-k * (l - rl)), n * n.transpose() * k)
+            n * n.transpose() * k
         }
     }
 }
@@ -109,7 +126,7 @@ impl ForceModel for Msm {
     fn add_forces(&self, u: &[Vec3], out: &mut [Vec3]) {
         debug_assert_eq!(u.len(), self.rest.len());
         for (e, &[a, b]) in self.edges.iter().enumerate() {
-            let (fb, _) = self.spring(e, u);
+            let fb = self.spring_force(e, u);
             out[b as usize] += fb;
             out[a as usize] -= fb;
         }
@@ -118,7 +135,7 @@ impl ForceModel for Msm {
     fn add_df(&self, u: &[Vec3], du: &[Vec3], out: &mut [Vec3]) {
         debug_assert_eq!(u.len(), self.rest.len());
         for (e, &[a, b]) in self.edges.iter().enumerate() {
-            let (_, kb) = self.spring(e, u);
+            let kb = self.spring_tangent(e, u);
             let dfb = -(kb * (du[b as usize] - du[a as usize]));
             out[b as usize] += dfb;
             out[a as usize] -= dfb;
@@ -128,7 +145,7 @@ impl ForceModel for Msm {
     fn add_stiffness(&self, u: &[Vec3], k: &mut BlockTangent) {
         debug_assert_eq!(k.num_nodes(), self.rest.len());
         for (e, &[a, b]) in self.edges.iter().enumerate() {
-            let (_, kb) = self.spring(e, u);
+            let kb = self.spring_tangent(e, u);
             k.diag[a as usize] += kb;
             k.diag[b as usize] += kb;
             k.add_block(a, b, e as u32, &(-kb));
@@ -136,12 +153,9 @@ impl ForceModel for Msm {
     }
 
     fn energy(&self, u: &[Vec3]) -> f64 {
-        self.edges
-            .iter()
-            .enumerate()
-            .map(|(e, &[a, b])| {
-                let d = self.rest[b as usize] - self.rest[a as usize] + u[b as usize] - u[a as usize];
-                let s = d.norm() - self.rest_len[e];
+        (0..self.edges.len())
+            .map(|e| {
+                let s = self.edge_vector(e, u).norm() - self.rest_len[e];
                 0.5 * self.stiffness[e] * s * s
             })
             .sum()
@@ -172,7 +186,7 @@ mod tests {
         assert!(msm.energy(&u).is_finite());
         // The collapsed spring alone pushes node 1 back along +x.
         let e01 = mesh.edges().iter().position(|&e| e == [0, 1]).unwrap();
-        let (fb, _) = msm.spring(e01, &u);
+        let fb = msm.spring_force(e01, &u);
         assert!(fb.x > 0.0 && fb.y.abs() < 1e-12 && fb.z.abs() < 1e-12);
     }
 
