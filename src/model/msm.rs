@@ -6,14 +6,17 @@
 //!
 //! Spring stiffness from Young's modulus: Van Gelder's rule (A. Van Gelder,
 //! "Approximate simulation of elastic membranes by triangulated spring
-//! meshes", Journal of Graphics Tools 3(2), 1998), stiffness ∝ E · (element
-//! measure adjacent to the edge) / L², in its tetrahedral form
-//! k_e = E Σ_{tets t ∋ e} V_t / L_e². Van Gelder shows no spring network
-//! reproduces a given E and ν exactly (Lloyd, Székely and Harders, IEEE TVCG
-//! 14(1), 2008, show the same for tetrahedra); springs have no separate
-//! volumetric response, so the effective Poisson ratio is set by the mesh
-//! geometry, not by ν. `tests/msm_stiffness_is_of_fem_order.rs` measures the
-//! effective Young's modulus and Poisson ratio against FEM.
+//! meshes", Journal of Graphics Tools 3(2), 1998): stiffness proportional to
+//! E times the measure of the elements adjacent to the edge over the squared
+//! edge length, here in its tetrahedral form k_e = E Σ_{tets t ∋ e} V_t / L_e².
+//! Van Gelder shows that no spring network reproduces a given E and ν exactly
+//! in general, and Lloyd, Székely and Harders ("Identification of spring
+//! parameters for deformable object simulation", IEEE TVCG 13(5), 2007) find
+//! the same for tetrahedra. Springs have no separate volumetric response, so
+//! the effective Poisson ratio is set by the mesh geometry, not by ν.
+//! `tests/msm_stiffness_is_of_fem_order.rs` measures the effective Young's
+//! modulus and Poisson ratio of a block against FEM (E within a few percent,
+//! ν ≈ 0.04 instead of 0.45 on the Kuhn-subdivided block).
 //!
 //! Zero length: the energy has a cone point at l = 0, where n and the
 //! geometric stiffness (1 − L/l)(I − n nᵀ) do not exist. Below
