@@ -13,7 +13,9 @@
 //! edge, in the mesh's own numbering. No model here knows about time
 //! integration or linear solvers (see `solver`).
 
-// Submodules (fem, msm, nvtmm, tmm, viscoelastic) are added as they land.
+// Submodules (fem, msm, tmm) are added as they land.
+pub mod nvtmm;
+pub mod viscoelastic;
 
 use crate::mesh::{TetMesh, Vec3};
 use nalgebra::Matrix3;
@@ -161,9 +163,9 @@ impl BlockTangent {
         }
     }
 
-    /// Adds a block to position (a, b) given the edge index `e` joining them
-    /// (or `a == b` for a diagonal block, `e` ignored). Handles the transpose
-    /// when a > b.
+    /// Adds `m` to block (a, b) and, by symmetry, `mᵀ` to block (b, a), given
+    /// the edge index `e` joining a and b (ignored when `a == b`; then `m` must
+    /// be symmetric). Call it once per unordered pair of nodes.
     #[inline]
     pub fn add_block(&mut self, a: u32, b: u32, e: u32, m: &Mat3) {
         if a == b {
