@@ -13,6 +13,7 @@
 //! pictures in [`render`]. Nothing here knows about materials or time.
 
 pub mod arch;
+pub mod block;
 pub mod io;
 pub mod quality;
 pub mod render;
