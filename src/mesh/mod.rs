@@ -13,6 +13,7 @@
 //! pictures in [`render`]. Nothing here knows about materials or time.
 
 pub mod arch;
+pub mod block;
 pub mod io;
 pub mod quality;
 pub mod render;
@@ -268,6 +269,17 @@ impl TetMesh {
             }
             tet_faces.push(tf);
         }
+        // Edges sorted by (low, high): each node's upper edges form one range.
+        let mut order: Vec<u32> = (0..edges.len() as u32).collect();
+        order.sort_unstable_by_key(|&e| edges[e as usize]);
+        let mut new_id = vec![0u32; edges.len()];
+        for (new, &old) in order.iter().enumerate() {
+            new_id[old as usize] = new as u32;
+        }
+        let edges: Vec<[u32; 2]> = order.iter().map(|&e| edges[e as usize]).collect();
+        for te in &mut tet_edges {
+            te.iter_mut().for_each(|e| *e = new_id[*e as usize]);
+        }
         let mut surface = Vec::new();
         for (id, &c) in tri_count.iter().enumerate() {
             match c {
@@ -349,9 +361,14 @@ impl TetMesh {
     pub fn node_set(&self, name: &str) -> Option<&[u32]> {
         self.node_sets.get(name).map(Vec::as_slice)
     }
-    /// Unique edges, each as (low, high) node indices.
+    /// Unique edges, each as (low, high) node indices, sorted.
     pub fn edges(&self) -> &[[u32; 2]] {
         &self.edges
+    }
+    /// The index of the edge joining nodes `a` and `b` (either order), if any.
+    pub fn edge_index(&self, a: u32, b: u32) -> Option<u32> {
+        let key = [a.min(b), a.max(b)];
+        self.edges.binary_search(&key).ok().map(|e| e as u32)
     }
     /// Unique triangles (interior and boundary), each with sorted node indices.
     pub fn triangles(&self) -> &[[u32; 3]] {

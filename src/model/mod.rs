@@ -13,10 +13,11 @@
 //! edge, in the mesh's own numbering. No model here knows about time
 //! integration or linear solvers (see `solver`).
 
-// Submodules (nvtmm, viscoelastic) are added as they land.
 pub mod fem;
 pub mod msm;
+pub mod nvtmm;
 pub mod tmm;
+pub mod viscoelastic;
 
 use crate::mesh::{TetMesh, Vec3};
 use nalgebra::Matrix3;
@@ -164,9 +165,9 @@ impl BlockTangent {
         }
     }
 
-    /// Adds a block to position (a, b) given the edge index `e` joining them
-    /// (or `a == b` for a diagonal block, `e` ignored). Handles the transpose
-    /// when a > b.
+    /// Adds `m` to block (a, b) and, by symmetry, `mᵀ` to block (b, a), given
+    /// the edge index `e` joining a and b (ignored when `a == b`; then `m` must
+    /// be symmetric). Call it once per unordered pair of nodes.
     #[inline]
     pub fn add_block(&mut self, a: u32, b: u32, e: u32, m: &Mat3) {
         if a == b {

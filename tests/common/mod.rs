@@ -5,39 +5,11 @@
 use nvtmm::material::{Law, Material};
 use nvtmm::mesh::{TetMesh, Vec3};
 use nvtmm::model::{fem::Fem, msm::Msm, tmm::Tmm, ForceModel};
-use std::collections::BTreeMap;
 
-/// A block of nx × ny × nz cubes of side `h` (m), each split into the six
-/// tets of the Kuhn (Freudenthal) subdivision, which is conforming across
-/// cubes. Node (i, j, k) has index i + (nx+1)(j + (ny+1)k).
+/// A block of nx × ny × nz cubes of side `h` (m), Kuhn-subdivided
+/// (`mesh::block`).
 pub fn block(nx: usize, ny: usize, nz: usize, h: f64) -> TetMesh {
-    let id = |i: usize, j: usize, k: usize| (i + (nx + 1) * (j + (ny + 1) * k)) as u32;
-    let mut rest = Vec::new();
-    for k in 0..=nz {
-        for j in 0..=ny {
-            for i in 0..=nx {
-                rest.push(Vec3::new(i as f64, j as f64, k as f64) * h);
-            }
-        }
-    }
-    let perms = [[0, 1, 2], [0, 2, 1], [1, 0, 2], [1, 2, 0], [2, 0, 1], [2, 1, 0]];
-    let mut tets = Vec::new();
-    for k in 0..nz {
-        for j in 0..ny {
-            for i in 0..nx {
-                for p in perms {
-                    let mut c = [i, j, k];
-                    let mut tet = [id(c[0], c[1], c[2]); 4];
-                    for (s, axis) in p.iter().enumerate() {
-                        c[*axis] += 1;
-                        tet[s + 1] = id(c[0], c[1], c[2]);
-                    }
-                    tets.push(tet);
-                }
-            }
-        }
-    }
-    TetMesh::new(rest, tets, BTreeMap::new()).expect("block mesh is valid")
+    nvtmm::mesh::block::block([nx, ny, nz], [nx as f64 * h, ny as f64 * h, nz as f64 * h]).expect("block mesh is valid")
 }
 
 /// Deterministic generator of uniform numbers in [-0.5, 0.5) (LCG; enough
