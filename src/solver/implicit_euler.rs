@@ -137,13 +137,22 @@ impl ImplicitEulerParams {
             return Err(format!("dt = {}: must be finite and > 0", self.dt));
         }
         if !(self.rayleigh_alpha.is_finite() && self.rayleigh_alpha >= 0.0) {
-            return Err(format!("rayleigh_alpha = {}: must be finite and >= 0", self.rayleigh_alpha));
+            return Err(format!(
+                "rayleigh_alpha = {}: must be finite and >= 0",
+                self.rayleigh_alpha
+            ));
         }
         if !(self.rayleigh_beta.is_finite() && self.rayleigh_beta >= 0.0) {
-            return Err(format!("rayleigh_beta = {}: must be finite and >= 0", self.rayleigh_beta));
+            return Err(format!(
+                "rayleigh_beta = {}: must be finite and >= 0",
+                self.rayleigh_beta
+            ));
         }
         if !(1..=MAX_NEWTON_ITERS).contains(&n.max_iters) {
-            return Err(format!("newton.max_iters = {}: must be in 1..={MAX_NEWTON_ITERS}", n.max_iters));
+            return Err(format!(
+                "newton.max_iters = {}: must be in 1..={MAX_NEWTON_ITERS}",
+                n.max_iters
+            ));
         }
         if !(n.rel_tol.is_finite() && n.rel_tol >= 0.0 && n.rel_tol < 1.0) {
             return Err(format!("newton.rel_tol = {}: must be in [0, 1)", n.rel_tol));
@@ -204,13 +213,18 @@ impl std::fmt::Display for StepFailure {
         match self {
             StepFailure::BadState => write!(f, "state has the wrong size or a non-finite value"),
             StepFailure::BadLoads(e) => write!(f, "{e}"),
-            StepFailure::NonFiniteForce { newton_iter } => write!(f, "non-finite force at Newton iteration {newton_iter}"),
+            StepFailure::NonFiniteForce { newton_iter } => {
+                write!(f, "non-finite force at Newton iteration {newton_iter}")
+            }
             StepFailure::NonFiniteStiffness { newton_iter } => {
                 write!(f, "non-finite stiffness at Newton iteration {newton_iter}")
             }
             StepFailure::Linear { newton_iter, reason } => write!(f, "Newton iteration {newton_iter}: {reason}"),
             StepFailure::ResidualGrowth { newton_iter, ratio } => {
-                write!(f, "Newton diverged: residual grew {ratio:e}x by iteration {newton_iter}")
+                write!(
+                    f,
+                    "Newton diverged: residual grew {ratio:e}x by iteration {newton_iter}"
+                )
             }
             StepFailure::NotConverged { rel_residual } => {
                 write!(f, "Newton not converged (relative residual {rel_residual:e})")
@@ -326,7 +340,10 @@ impl ImplicitEuler {
         params.validate().map_err(SolverError::Params)?;
         let n = mesh.num_nodes();
         if mass.len() != n {
-            return Err(SolverError::MassLength { got: mass.len(), nodes: n });
+            return Err(SolverError::MassLength {
+                got: mass.len(),
+                nodes: n,
+            });
         }
         if let Some((node, &value)) = mass.iter().enumerate().find(|(_, m)| !(m.is_finite() && **m > 0.0)) {
             return Err(SolverError::BadMass { node, value });
@@ -458,7 +475,10 @@ impl ImplicitEuler {
                 break;
             }
             if rel > np.max_residual_growth {
-                rep.failure = Some(StepFailure::ResidualGrowth { newton_iter: k, ratio: rel });
+                rep.failure = Some(StepFailure::ResidualGrowth {
+                    newton_iter: k,
+                    ratio: rel,
+                });
                 return rep;
             }
             if k == np.max_iters {
@@ -531,5 +551,37 @@ impl ImplicitEuler {
         state.t = t1;
         model.end_step(&state.u);
         rep
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::solver::Preconditioner;
+
+    #[test]
+    fn params_from_scene_toml() {
+        let p: ImplicitEulerParams = toml::from_str(
+            "dt = 0.005\nrayleigh_alpha = 0.1\n[newton]\nmax_iters = 3\n\
+             [linear]\nkind = \"cg\"\nprecond = \"block_ssor\"\ntol = 1e-6\n",
+        )
+        .unwrap();
+        assert_eq!(p.dt, 0.005);
+        assert_eq!(p.newton.max_iters, 3);
+        assert_eq!(p.newton.rel_tol, 1e-6);
+        assert_eq!(
+            p.linear,
+            LinearSolverKind::Cg {
+                precond: Preconditioner::BlockSsor,
+                tol: 1e-6,
+                max_iter: 500,
+                strict: false
+            }
+        );
+        p.validate().unwrap();
+        let c: ImplicitEulerParams = toml::from_str("[linear]\nkind = \"cholesky\"\n").unwrap();
+        assert_eq!(c.linear, LinearSolverKind::Cholesky);
+        assert!(toml::from_str::<ImplicitEulerParams>("[linear]\nkind = \"lu\"\n").is_err());
+        assert!(toml::from_str::<ImplicitEulerParams>("dtt = 1.0\n").is_err());
     }
 }

@@ -140,7 +140,10 @@ impl std::fmt::Display for LinearFailure {
                 write!(f, "CG breakdown at iteration {iter} (pᵀAp ≤ 0 or non-finite)")
             }
             LinearFailure::CgNotConverged { iters, rel_residual } => {
-                write!(f, "CG not converged after {iters} iterations (relative residual {rel_residual:e})")
+                write!(
+                    f,
+                    "CG not converged after {iters} iterations (relative residual {rel_residual:e})"
+                )
             }
             LinearFailure::SingularDiagonal { node } => write!(f, "diagonal block of node {node} is singular"),
             LinearFailure::NotPositiveDefinite => write!(f, "Cholesky: matrix is not positive definite"),
@@ -267,7 +270,14 @@ pub const PARALLEL_MATVEC_MIN_NODES: usize = usize::MAX;
 
 /// z = P⁻¹ r for the preconditioner `precond` with the diagonal block
 /// inverses `dinv`.
-fn apply_precond(precond: Preconditioner, rows: &BlockRows, dinv: &[Mat3], a: &BlockTangent, r: &[Vec3], z: &mut [Vec3]) {
+fn apply_precond(
+    precond: Preconditioner,
+    rows: &BlockRows,
+    dinv: &[Mat3],
+    a: &BlockTangent,
+    r: &[Vec3],
+    z: &mut [Vec3],
+) {
     match precond {
         Preconditioner::None => z.copy_from_slice(r),
         Preconditioner::Jacobi | Preconditioner::BlockJacobi => {
