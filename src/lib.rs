@@ -31,3 +31,4 @@
 pub mod material;
 pub mod mesh;
 pub mod model;
+pub mod solver;

@@ -1,0 +1,587 @@
+//! Backward Euler for eq. 2, M ü + D u̇ − f(u) = f_ext, with Newton on the
+//! new velocity.
+//!
+//! With h the step, the unknown is v₁ and u₁ = u₀ + h v₁. The residual is
+//!
+//! ```text
+//! r(v₁) = M (v₁ − v₀) − h [ f(u₀ + h v₁) − D v₁ + f_ext(t₀ + h) ],   D = α M + β K₀
+//! ```
+//!
+//! where f = −∂W/∂u is the model's internal force and K₀ = K(u₀) the tangent
+//! at the start of the step (K = −∂f/∂u). Freezing the damping tangent over
+//! the step keeps r an exact function of v₁, so the Newton Jacobian
+//!
+//! ```text
+//! A = (1 + hα) M + hβ K₀ + h² K(u₀ + h v₁)
+//! ```
+//!
+//! is exact and Newton converges quadratically even with stiffness damping.
+//! Newton starts from v₁ = 0, i.e. it linearizes at u₀: with one iteration
+//! the step is exactly the linearized implicit Euler step SOFA's
+//! `EulerImplicitSolver` takes (A = (1 + hα) M + (hβ + h²) K(u₀)).
+//!
+//! Fixed nodes keep u = 0 and v = 0: their rows and columns of A are replaced
+//! by the identity and their residual is zero.
+//!
+//! All vectors and matrices are allocated in [`ImplicitEuler::new`] and
+//! reused; [`ImplicitEuler::step`] does not allocate (the CG path and the
+//! Cholesky path, whose scratch is sized up front). A failed step leaves the
+//! state exactly as it was.
+
+use super::linear::{project_fixed, LinearFailure, LinearSolver, LinearSolverKind};
+use super::loads::{validate_fixed, LoadError, Loads};
+use super::TissueState;
+use crate::mesh::{TetMesh, Vec3};
+use crate::model::{BlockTangent, ForceModel, Mat3};
+
+/// Largest allowed `newton.max_iters` (the report stores one residual per
+/// iteration in a fixed array).
+pub const MAX_NEWTON_ITERS: usize = 32;
+
+fn default_max_iters() -> usize {
+    5
+}
+fn default_rel_tol() -> f64 {
+    1e-6
+}
+fn default_growth() -> f64 {
+    1e3
+}
+fn default_dt() -> f64 {
+    1e-3
+}
+
+/// Newton iteration control.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct NewtonParams {
+    /// Maximum Newton iterations (linear solves) per step, 1..=32. One gives
+    /// the linearized step of SOFA's EulerImplicit.
+    #[serde(default = "default_max_iters")]
+    pub max_iters: usize,
+    /// Converged when ‖r_k‖ ≤ rel_tol ‖r_0‖ (r_0: residual at v₁ = 0).
+    #[serde(default = "default_rel_tol")]
+    pub rel_tol: f64,
+    /// … or when ‖r_k‖ ≤ abs_tol (N·s; the residual is a momentum).
+    #[serde(default)]
+    pub abs_tol: f64,
+    /// If true, a step that has not converged after `max_iters` fails (state
+    /// unchanged); if false it is accepted and reported as not converged.
+    #[serde(default)]
+    pub require_convergence: bool,
+    /// The step fails if ‖r_k‖ > max_residual_growth ‖r_0‖ (divergence).
+    #[serde(default = "default_growth")]
+    pub max_residual_growth: f64,
+}
+
+impl Default for NewtonParams {
+    fn default() -> Self {
+        NewtonParams {
+            max_iters: default_max_iters(),
+            rel_tol: default_rel_tol(),
+            abs_tol: 0.0,
+            require_convergence: false,
+            max_residual_growth: default_growth(),
+        }
+    }
+}
+
+impl NewtonParams {
+    /// One Newton iteration, always accepted: the linearized step.
+    pub fn linearized() -> NewtonParams {
+        NewtonParams {
+            max_iters: 1,
+            ..NewtonParams::default()
+        }
+    }
+}
+
+/// Integrator configuration (scene TOML `[integrator]`).
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ImplicitEulerParams {
+    /// Time step h (s).
+    #[serde(default = "default_dt")]
+    pub dt: f64,
+    /// Rayleigh mass coefficient α (1/s): D = α M + β K.
+    #[serde(default)]
+    pub rayleigh_alpha: f64,
+    /// Rayleigh stiffness coefficient β (s).
+    #[serde(default)]
+    pub rayleigh_beta: f64,
+    /// Newton control.
+    #[serde(default)]
+    pub newton: NewtonParams,
+    /// Linear solver for the Newton systems.
+    #[serde(default)]
+    pub linear: LinearSolverKind,
+}
+
+impl Default for ImplicitEulerParams {
+    fn default() -> Self {
+        ImplicitEulerParams {
+            dt: default_dt(),
+            rayleigh_alpha: 0.0,
+            rayleigh_beta: 0.0,
+            newton: NewtonParams::default(),
+            linear: LinearSolverKind::default(),
+        }
+    }
+}
+
+impl ImplicitEulerParams {
+    /// Checks every field; the error names the key and the allowed range.
+    pub fn validate(&self) -> Result<(), String> {
+        let n = &self.newton;
+        if !(self.dt.is_finite() && self.dt > 0.0) {
+            return Err(format!("dt = {}: must be finite and > 0", self.dt));
+        }
+        if !(self.rayleigh_alpha.is_finite() && self.rayleigh_alpha >= 0.0) {
+            return Err(format!(
+                "rayleigh_alpha = {}: must be finite and >= 0",
+                self.rayleigh_alpha
+            ));
+        }
+        if !(self.rayleigh_beta.is_finite() && self.rayleigh_beta >= 0.0) {
+            return Err(format!(
+                "rayleigh_beta = {}: must be finite and >= 0",
+                self.rayleigh_beta
+            ));
+        }
+        if !(1..=MAX_NEWTON_ITERS).contains(&n.max_iters) {
+            return Err(format!(
+                "newton.max_iters = {}: must be in 1..={MAX_NEWTON_ITERS}",
+                n.max_iters
+            ));
+        }
+        if !(n.rel_tol.is_finite() && n.rel_tol >= 0.0 && n.rel_tol < 1.0) {
+            return Err(format!("newton.rel_tol = {}: must be in [0, 1)", n.rel_tol));
+        }
+        if !(n.abs_tol.is_finite() && n.abs_tol >= 0.0) {
+            return Err(format!("newton.abs_tol = {}: must be finite and >= 0", n.abs_tol));
+        }
+        if !(n.max_residual_growth.is_finite() && n.max_residual_growth >= 1.0) {
+            return Err(format!(
+                "newton.max_residual_growth = {}: must be finite and >= 1",
+                n.max_residual_growth
+            ));
+        }
+        self.linear.validate()
+    }
+}
+
+/// Why a step failed. The state is unchanged when a step reports one.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum StepFailure {
+    /// The state passed in has the wrong length or a non-finite value.
+    BadState,
+    /// A fixed node or a load is invalid.
+    BadLoads(LoadError),
+    /// The internal or external force is not finite at this Newton iteration.
+    NonFiniteForce {
+        /// Newton iteration (0-based).
+        newton_iter: usize,
+    },
+    /// The assembled stiffness is not finite at this Newton iteration.
+    NonFiniteStiffness {
+        /// Newton iteration (0-based).
+        newton_iter: usize,
+    },
+    /// The linear solver failed at this Newton iteration.
+    Linear {
+        /// Newton iteration (0-based).
+        newton_iter: usize,
+        /// What the linear solver reported.
+        reason: LinearFailure,
+    },
+    /// The residual grew beyond `max_residual_growth` times the initial one.
+    ResidualGrowth {
+        /// Newton iteration (0-based) where it was seen.
+        newton_iter: usize,
+        /// ‖r_k‖ / ‖r_0‖.
+        ratio: f64,
+    },
+    /// Not converged after `max_iters` with `require_convergence` set.
+    NotConverged {
+        /// Final ‖r‖ / ‖r_0‖.
+        rel_residual: f64,
+    },
+}
+
+impl std::fmt::Display for StepFailure {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            StepFailure::BadState => write!(f, "state has the wrong size or a non-finite value"),
+            StepFailure::BadLoads(e) => write!(f, "{e}"),
+            StepFailure::NonFiniteForce { newton_iter } => {
+                write!(f, "non-finite force at Newton iteration {newton_iter}")
+            }
+            StepFailure::NonFiniteStiffness { newton_iter } => {
+                write!(f, "non-finite stiffness at Newton iteration {newton_iter}")
+            }
+            StepFailure::Linear { newton_iter, reason } => write!(f, "Newton iteration {newton_iter}: {reason}"),
+            StepFailure::ResidualGrowth { newton_iter, ratio } => {
+                write!(
+                    f,
+                    "Newton diverged: residual grew {ratio:e}x by iteration {newton_iter}"
+                )
+            }
+            StepFailure::NotConverged { rel_residual } => {
+                write!(f, "Newton not converged (relative residual {rel_residual:e})")
+            }
+        }
+    }
+}
+
+/// What one step did. `Copy`, fixed size: the RT path can keep it.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct StepReport {
+    /// Newton iterations (linear solves) done.
+    pub newton_iters: usize,
+    /// Total CG iterations over the step (0 with Cholesky).
+    pub linear_iters: usize,
+    residuals: [f64; MAX_NEWTON_ITERS + 1],
+    num_residuals: usize,
+    /// Whether the Newton tolerance was met.
+    pub converged: bool,
+    /// Why the step failed; `None` when the state was advanced.
+    pub failure: Option<StepFailure>,
+}
+
+impl StepReport {
+    fn new() -> StepReport {
+        StepReport {
+            newton_iters: 0,
+            linear_iters: 0,
+            residuals: [0.0; MAX_NEWTON_ITERS + 1],
+            num_residuals: 0,
+            converged: false,
+            failure: None,
+        }
+    }
+
+    /// Relative residuals ‖r_k‖ / ‖r_0‖, one per evaluated iterate (the first
+    /// is 1, or 0 when r_0 = 0); the last one belongs to the accepted iterate.
+    pub fn residuals(&self) -> &[f64] {
+        &self.residuals[..self.num_residuals]
+    }
+
+    /// Whether the state was advanced.
+    pub fn ok(&self) -> bool {
+        self.failure.is_none()
+    }
+
+    fn push(&mut self, r: f64) {
+        if self.num_residuals < self.residuals.len() {
+            self.residuals[self.num_residuals] = r;
+            self.num_residuals += 1;
+        }
+    }
+}
+
+/// What is wrong with the integrator's construction.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum SolverError {
+    /// A parameter is out of range.
+    #[error("integrator: {0}")]
+    Params(String),
+    /// The mass vector does not match the mesh.
+    #[error("integrator: {got} nodal masses for a mesh of {nodes} nodes")]
+    MassLength {
+        /// Masses given.
+        got: usize,
+        /// Nodes in the mesh.
+        nodes: usize,
+    },
+    /// A nodal mass is not finite and positive.
+    #[error("integrator: mass of node {node} is {value} (must be finite and > 0)")]
+    BadMass {
+        /// The node.
+        node: usize,
+        /// Its mass.
+        value: f64,
+    },
+    /// The linear solver could not be built.
+    #[error("integrator: {0}")]
+    Linear(String),
+}
+
+/// The backward Euler integrator with its preallocated work memory.
+#[derive(Debug)]
+pub struct ImplicitEuler {
+    params: ImplicitEulerParams,
+    mass: Vec<f64>,
+    linear: LinearSolver,
+    fixed_mask: Vec<bool>,
+    u0: Vec<Vec3>,
+    v1: Vec<Vec3>,
+    ut: Vec<Vec3>,
+    f: Vec<Vec3>,
+    fext: Vec<Vec3>,
+    r: Vec<Vec3>,
+    dv: Vec<Vec3>,
+    k0v: Vec<Vec3>,
+    k: BlockTangent,
+    k0: BlockTangent,
+    a: BlockTangent,
+}
+
+fn all_finite(x: &[Vec3]) -> bool {
+    x.iter().all(|v| v.iter().all(|c| c.is_finite()))
+}
+
+fn block_finite(k: &BlockTangent) -> bool {
+    k.diag.iter().chain(&k.off).all(|b| b.iter().all(|c| c.is_finite()))
+}
+
+impl ImplicitEuler {
+    /// Builds the integrator for `mesh` with lumped nodal masses `mass` (kg).
+    pub fn new(mesh: &TetMesh, mass: Vec<f64>, params: ImplicitEulerParams) -> Result<ImplicitEuler, SolverError> {
+        params.validate().map_err(SolverError::Params)?;
+        let n = mesh.num_nodes();
+        if mass.len() != n {
+            return Err(SolverError::MassLength {
+                got: mass.len(),
+                nodes: n,
+            });
+        }
+        if let Some((node, &value)) = mass.iter().enumerate().find(|(_, m)| !(m.is_finite() && **m > 0.0)) {
+            return Err(SolverError::BadMass { node, value });
+        }
+        let k = BlockTangent::zeros(mesh);
+        let linear = LinearSolver::new(&params.linear, &k).map_err(SolverError::Linear)?;
+        let zeros = vec![Vec3::zeros(); n];
+        Ok(ImplicitEuler {
+            params,
+            mass,
+            linear,
+            fixed_mask: vec![false; n],
+            u0: zeros.clone(),
+            v1: zeros.clone(),
+            ut: zeros.clone(),
+            f: zeros.clone(),
+            fext: zeros.clone(),
+            r: zeros.clone(),
+            dv: zeros.clone(),
+            k0v: zeros,
+            k0: k.clone(),
+            a: k.clone(),
+            k,
+        })
+    }
+
+    /// The configuration.
+    pub fn params(&self) -> &ImplicitEulerParams {
+        &self.params
+    }
+
+    /// The lumped nodal masses (kg).
+    pub fn mass(&self) -> &[f64] {
+        &self.mass
+    }
+
+    /// The last assembled Newton matrix A (fixed rows projected), for
+    /// inspection and tests.
+    pub fn last_matrix(&self) -> &BlockTangent {
+        &self.a
+    }
+
+    /// Advances `state` by one step of length `params.dt`. Calls
+    /// `model.begin_step(dt)` first and `model.end_step(&u)` after a
+    /// successful step. On failure `state` is left bitwise unchanged (and
+    /// `end_step` is not called) and the report says why.
+    pub fn step(
+        &mut self,
+        state: &mut TissueState,
+        model: &mut dyn ForceModel,
+        loads: &Loads,
+        fixed: &[u32],
+    ) -> StepReport {
+        let mut rep = StepReport::new();
+        let n = self.mass.len();
+        if state.u.len() != n || state.v.len() != n || !state.is_finite() {
+            rep.failure = Some(StepFailure::BadState);
+            return rep;
+        }
+        if let Err(e) = validate_fixed(fixed, n).and_then(|_| loads.validate(n)) {
+            rep.failure = Some(StepFailure::BadLoads(e));
+            return rep;
+        }
+        let h = self.params.dt;
+        let (alpha, beta) = (self.params.rayleigh_alpha, self.params.rayleigh_beta);
+        let np = self.params.newton;
+        let t1 = state.t + h;
+        // The damping tangent K₀ needs its own copy only if the stiffness is
+        // re-assembled later in the step.
+        let keep_k0 = beta != 0.0 && np.max_iters > 1;
+
+        self.fixed_mask.iter_mut().for_each(|m| *m = false);
+        for &i in fixed {
+            self.fixed_mask[i as usize] = true;
+        }
+        for ((u0, u), &fx) in self.u0.iter_mut().zip(&state.u).zip(&self.fixed_mask) {
+            *u0 = if fx { Vec3::zeros() } else { *u };
+        }
+        self.fext.iter_mut().for_each(|x| *x = Vec3::zeros());
+        loads.add_forces(t1, &self.mass, &mut self.fext);
+        self.v1.iter_mut().for_each(|x| *x = Vec3::zeros());
+
+        model.begin_step(h);
+        let mut r0 = 0.0;
+        let mut k = 0;
+        loop {
+            // Residual at the current iterate.
+            for ((ut, u0), v1) in self.ut.iter_mut().zip(&self.u0).zip(&self.v1) {
+                *ut = u0 + h * v1;
+            }
+            self.f.copy_from_slice(&self.fext);
+            model.add_forces(&self.ut, &mut self.f);
+            if !all_finite(&self.f) {
+                rep.failure = Some(StepFailure::NonFiniteForce { newton_iter: k });
+                return rep;
+            }
+            let damp_k = beta != 0.0 && k > 0;
+            if damp_k {
+                let k0 = if keep_k0 { &self.k0 } else { &self.k };
+                k0.mul(&self.v1, &mut self.k0v);
+            }
+            let mut rn2 = 0.0;
+            for i in 0..n {
+                if self.fixed_mask[i] {
+                    self.r[i] = Vec3::zeros();
+                    continue;
+                }
+                let m = self.mass[i];
+                let mut damping = alpha * m * self.v1[i];
+                if damp_k {
+                    damping += beta * self.k0v[i];
+                }
+                let ri = m * (self.v1[i] - state.v[i]) - h * (self.f[i] - damping);
+                rn2 += ri.norm_squared();
+                self.r[i] = ri;
+            }
+            let rn = rn2.sqrt();
+            if !rn.is_finite() {
+                rep.failure = Some(StepFailure::NonFiniteForce { newton_iter: k });
+                return rep;
+            }
+            if k == 0 {
+                r0 = rn;
+            }
+            let rel = if r0 > 0.0 { rn / r0 } else { 0.0 };
+            rep.push(rel);
+            if rn <= np.rel_tol * r0 || rn <= np.abs_tol || r0 == 0.0 {
+                rep.converged = true;
+                break;
+            }
+            if rel > np.max_residual_growth {
+                rep.failure = Some(StepFailure::ResidualGrowth {
+                    newton_iter: k,
+                    ratio: rel,
+                });
+                return rep;
+            }
+            if k == np.max_iters {
+                break;
+            }
+
+            // Newton matrix A = (1 + hα) M + hβ K₀ + h² K(u_k).
+            self.k.clear();
+            model.add_stiffness(&self.ut, &mut self.k);
+            if !block_finite(&self.k) {
+                rep.failure = Some(StepFailure::NonFiniteStiffness { newton_iter: k });
+                return rep;
+            }
+            if k == 0 && keep_k0 {
+                self.k0.clone_from(&self.k);
+            }
+            let cm = 1.0 + h * alpha;
+            let (ck, ck0) = if k == 0 || !keep_k0 {
+                // At k = 0, K(u_k) = K₀; without a kept K₀ (β = 0 or a
+                // single iteration) the hβ term is either zero or K(u₀).
+                (h * h + if k == 0 { h * beta } else { 0.0 }, 0.0)
+            } else {
+                (h * h, h * beta)
+            };
+            for (i, (ad, kd)) in self.a.diag.iter_mut().zip(&self.k.diag).enumerate() {
+                *ad = Mat3::identity() * (cm * self.mass[i]) + kd * ck;
+            }
+            for (ao, ko) in self.a.off.iter_mut().zip(&self.k.off) {
+                *ao = ko * ck;
+            }
+            if ck0 != 0.0 {
+                self.a.add_scaled(ck0, &self.k0);
+            }
+            project_fixed(&mut self.a, &self.fixed_mask);
+
+            // Solve A Δv = −r, warm-starting CG with v₀ at the first
+            // iteration (Δv = v₁ there) and zero afterwards.
+            for (i, x) in self.r.iter_mut().enumerate() {
+                *x = -*x;
+                self.dv[i] = if k == 0 && !self.fixed_mask[i] {
+                    state.v[i]
+                } else {
+                    Vec3::zeros()
+                };
+            }
+            match self.linear.solve(&self.a, &self.r, &mut self.dv) {
+                Ok(s) => rep.linear_iters += s.iters,
+                Err(reason) => {
+                    rep.failure = Some(StepFailure::Linear { newton_iter: k, reason });
+                    return rep;
+                }
+            }
+            for ((v1, dv), &fx) in self.v1.iter_mut().zip(&self.dv).zip(&self.fixed_mask) {
+                if !fx {
+                    *v1 += dv;
+                }
+            }
+            k += 1;
+            rep.newton_iters = k;
+        }
+        if !rep.converged && np.require_convergence {
+            rep.failure = Some(StepFailure::NotConverged {
+                rel_residual: rep.residuals().last().copied().unwrap_or(f64::NAN),
+            });
+            return rep;
+        }
+        // Accept: ut = u₀ + h v₁ belongs to the final v₁.
+        state.u.copy_from_slice(&self.ut);
+        state.v.copy_from_slice(&self.v1);
+        state.t = t1;
+        model.end_step(&state.u);
+        rep
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::solver::Preconditioner;
+
+    #[test]
+    fn params_from_scene_toml() {
+        let p: ImplicitEulerParams = toml::from_str(
+            "dt = 0.005\nrayleigh_alpha = 0.1\n[newton]\nmax_iters = 3\n\
+             [linear]\nkind = \"cg\"\nprecond = \"block_ssor\"\ntol = 1e-6\n",
+        )
+        .unwrap();
+        assert_eq!(p.dt, 0.005);
+        assert_eq!(p.newton.max_iters, 3);
+        assert_eq!(p.newton.rel_tol, 1e-6);
+        assert_eq!(
+            p.linear,
+            LinearSolverKind::Cg {
+                precond: Preconditioner::BlockSsor,
+                tol: 1e-6,
+                max_iter: 500,
+                strict: false
+            }
+        );
+        p.validate().unwrap();
+        let c: ImplicitEulerParams = toml::from_str("[linear]\nkind = \"cholesky\"\n").unwrap();
+        assert_eq!(c.linear, LinearSolverKind::Cholesky);
+        assert!(toml::from_str::<ImplicitEulerParams>("[linear]\nkind = \"lu\"\n").is_err());
+        assert!(toml::from_str::<ImplicitEulerParams>("dtt = 1.0\n").is_err());
+    }
+}

@@ -1,0 +1,643 @@
+//! Linear solvers for the Newton system A Δv = b of the implicit step.
+//!
+//! A is symmetric with the mesh's vertex/edge block pattern ([`BlockTangent`]),
+//! and rows/columns of fixed nodes have already been replaced by the identity
+//! (see [`project_fixed`]), so both solvers see an SPD matrix whenever the
+//! stiffness is positive semi-definite on the free nodes.
+//!
+//! - [`LinearSolverKind::Cg`]: preconditioned conjugate gradient on the
+//!   assembled blocks (row-gather mat-vec, optionally on rayon), with Jacobi,
+//!   block-Jacobi or symmetric block Gauss–Seidel (SSOR, ω = 1)
+//!   preconditioning. Detects pᵀAp ≤ 0 (negative curvature) as a breakdown.
+//! - [`LinearSolverKind::Cholesky`]: faer's supernodal sparse LLᵀ with AMD
+//!   ordering; the symbolic analysis is done once for the pattern and the
+//!   numeric factorization is redone in place for every new matrix, with all
+//!   scratch memory sized at construction.
+//!
+//! Nothing here knows about time or force models.
+
+use crate::mesh::Vec3;
+use crate::model::{BlockTangent, Mat3};
+use faer::dyn_stack::{MemBuffer, MemStack, StackReq};
+use faer::linalg::cholesky::llt::factor::LltRegularization;
+use faer::sparse::linalg::cholesky::{
+    factorize_symbolic_cholesky, CholeskySymbolicParams, LltRef, SymbolicCholesky, SymmetricOrdering,
+};
+use faer::sparse::{SparseColMatRef, SymbolicSparseColMatRef};
+use faer::{Conj, MatMut, Par, Side};
+use rayon::prelude::*;
+
+/// Which preconditioner CG uses.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Preconditioner {
+    /// No preconditioning (identity).
+    None,
+    /// Inverse of the scalar diagonal of A.
+    Jacobi,
+    /// Inverse of each node's 3×3 diagonal block of A.
+    BlockJacobi,
+    /// Symmetric block Gauss–Seidel (block SSOR with ω = 1):
+    /// P = (D + L) D⁻¹ (D + U), D the 3×3 diagonal blocks. Costs about two
+    /// mat-vecs per application and is sequential, but never breaks down on
+    /// an SPD matrix.
+    BlockSsor,
+}
+
+fn default_cg_tol() -> f64 {
+    1e-8
+}
+fn default_cg_max_iter() -> usize {
+    500
+}
+fn default_precond() -> Preconditioner {
+    Preconditioner::BlockJacobi
+}
+
+/// The linear solver a scene selects (TOML: `linear = { kind = "cg", precond
+/// = "block_jacobi", tol = 1e-8, max_iter = 500 }` or `{ kind = "cholesky" }`).
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(tag = "kind", rename_all = "snake_case", deny_unknown_fields)]
+pub enum LinearSolverKind {
+    /// Preconditioned conjugate gradient.
+    Cg {
+        /// Preconditioner.
+        #[serde(default = "default_precond")]
+        precond: Preconditioner,
+        /// Relative residual tolerance ‖b − A x‖ ≤ tol ‖b‖.
+        #[serde(default = "default_cg_tol")]
+        tol: f64,
+        /// Maximum CG iterations per solve.
+        #[serde(default = "default_cg_max_iter")]
+        max_iter: usize,
+        /// If true, not reaching `tol` within `max_iter` fails the step; if
+        /// false the last iterate is used (inexact Newton) and the Newton
+        /// residual decides.
+        #[serde(default)]
+        strict: bool,
+    },
+    /// Direct sparse Cholesky (faer, supernodal, AMD ordering).
+    Cholesky,
+}
+
+impl Default for LinearSolverKind {
+    fn default() -> Self {
+        LinearSolverKind::Cg {
+            precond: default_precond(),
+            tol: default_cg_tol(),
+            max_iter: default_cg_max_iter(),
+            strict: false,
+        }
+    }
+}
+
+impl LinearSolverKind {
+    /// Checks the parameters; the error names the offending field.
+    pub fn validate(&self) -> Result<(), String> {
+        if let LinearSolverKind::Cg { tol, max_iter, .. } = *self {
+            if !(tol.is_finite() && tol > 0.0 && tol < 1.0) {
+                return Err(format!("linear.tol = {tol}: must be in (0, 1)"));
+            }
+            if max_iter == 0 {
+                return Err("linear.max_iter = 0: must be at least 1".into());
+            }
+        }
+        Ok(())
+    }
+}
+
+/// Why a linear solve failed.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum LinearFailure {
+    /// CG found pᵀAp ≤ 0 (A not positive definite) or a non-finite value at
+    /// this iteration.
+    CgBreakdown {
+        /// CG iteration (0-based) where it happened.
+        iter: usize,
+    },
+    /// CG did not reach its tolerance within `max_iter` (only with `strict`).
+    CgNotConverged {
+        /// Iterations done.
+        iters: usize,
+        /// Final relative residual.
+        rel_residual: f64,
+    },
+    /// A diagonal block could not be inverted for the preconditioner.
+    SingularDiagonal {
+        /// Node whose block is singular or non-finite.
+        node: usize,
+    },
+    /// The sparse Cholesky factorization found a non-positive pivot.
+    NotPositiveDefinite,
+    /// The solution contains a non-finite value.
+    NonFinite,
+}
+
+impl std::fmt::Display for LinearFailure {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            LinearFailure::CgBreakdown { iter } => {
+                write!(f, "CG breakdown at iteration {iter} (pᵀAp ≤ 0 or non-finite)")
+            }
+            LinearFailure::CgNotConverged { iters, rel_residual } => {
+                write!(
+                    f,
+                    "CG not converged after {iters} iterations (relative residual {rel_residual:e})"
+                )
+            }
+            LinearFailure::SingularDiagonal { node } => write!(f, "diagonal block of node {node} is singular"),
+            LinearFailure::NotPositiveDefinite => write!(f, "Cholesky: matrix is not positive definite"),
+            LinearFailure::NonFinite => write!(f, "linear solution is not finite"),
+        }
+    }
+}
+
+/// What one linear solve did.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct SolveStats {
+    /// CG iterations (0 for Cholesky).
+    pub iters: usize,
+    /// Final relative residual ‖b − A x‖ / ‖b‖ as CG measured it (0 for
+    /// Cholesky, which does not compute it).
+    pub rel_residual: f64,
+    /// Whether CG reached its tolerance (always true for Cholesky).
+    pub converged: bool,
+}
+
+/// Replaces the rows and columns of the fixed nodes by the identity:
+/// diagonal block I, every edge block touching a fixed node zero.
+pub fn project_fixed(a: &mut BlockTangent, fixed_mask: &[bool]) {
+    for (d, &f) in a.diag.iter_mut().zip(fixed_mask) {
+        if f {
+            *d = Mat3::identity();
+        }
+    }
+    for (b, &[i, j]) in a.off.iter_mut().zip(&a.edges) {
+        if fixed_mask[i as usize] || fixed_mask[j as usize] {
+            *b = Mat3::zeros();
+        }
+    }
+}
+
+/// Row-wise view of a [`BlockTangent`] pattern: for each node its neighbours
+/// sorted by index with the edge joining them, so a row can be gathered
+/// without scattering (parallel mat-vec, Gauss–Seidel sweeps).
+#[derive(Debug, Clone)]
+pub struct BlockRows {
+    start: Vec<u32>,
+    /// Index into `nbr` of the first neighbour with a higher index, per row.
+    mid: Vec<u32>,
+    nbr: Vec<(u32, u32)>,
+}
+
+impl BlockRows {
+    /// Builds the row structure of `edges` over `n` nodes.
+    pub fn new(n: usize, edges: &[[u32; 2]]) -> BlockRows {
+        let mut count = vec![0u32; n + 1];
+        for &[i, j] in edges {
+            count[i as usize + 1] += 1;
+            count[j as usize + 1] += 1;
+        }
+        for k in 0..n {
+            count[k + 1] += count[k];
+        }
+        let start = count.clone();
+        let mut fill = count;
+        let mut nbr = vec![(0u32, 0u32); start[n] as usize];
+        for (e, &[i, j]) in edges.iter().enumerate() {
+            nbr[fill[i as usize] as usize] = (j, e as u32);
+            fill[i as usize] += 1;
+            nbr[fill[j as usize] as usize] = (i, e as u32);
+            fill[j as usize] += 1;
+        }
+        let mut mid = vec![0u32; n];
+        for i in 0..n {
+            let row = &mut nbr[start[i] as usize..start[i + 1] as usize];
+            row.sort_unstable();
+            mid[i] = start[i] + row.partition_point(|&(j, _)| (j as usize) < i) as u32;
+        }
+        BlockRows { start, mid, nbr }
+    }
+
+    /// Neighbours of row i with a lower index, and with a higher index.
+    #[inline]
+    fn split(&self, i: usize) -> (&[(u32, u32)], &[(u32, u32)]) {
+        let (s, m, e) = (self.start[i] as usize, self.mid[i] as usize, self.start[i + 1] as usize);
+        (&self.nbr[s..m], &self.nbr[m..e])
+    }
+
+    /// Row i of A x.
+    #[inline]
+    fn row_mul(&self, a: &BlockTangent, x: &[Vec3], i: usize) -> Vec3 {
+        let (lo, hi) = self.split(i);
+        let mut y = a.diag[i] * x[i];
+        for &(j, e) in lo {
+            y += a.off[e as usize].tr_mul(&x[j as usize]);
+        }
+        for &(j, e) in hi {
+            y += a.off[e as usize] * x[j as usize];
+        }
+        y
+    }
+
+    /// y = A x by row gather; on rayon when `parallel`.
+    pub fn mul(&self, a: &BlockTangent, x: &[Vec3], y: &mut [Vec3], parallel: bool) {
+        if parallel {
+            y.par_chunks_mut(512).enumerate().for_each(|(c, ys)| {
+                for (k, yi) in ys.iter_mut().enumerate() {
+                    *yi = self.row_mul(a, x, c * 512 + k);
+                }
+            });
+        } else {
+            for (i, yi) in y.iter_mut().enumerate() {
+                *yi = self.row_mul(a, x, i);
+            }
+        }
+    }
+}
+
+fn dot(a: &[Vec3], b: &[Vec3]) -> f64 {
+    a.iter().zip(b).map(|(x, y)| x.dot(y)).sum()
+}
+
+fn norm(a: &[Vec3]) -> f64 {
+    dot(a, a).sqrt()
+}
+
+/// Rows at or above this many nodes use the rayon mat-vec (see
+/// `docs/SOLVERS.md` for the measurement behind it).
+pub const PARALLEL_MATVEC_MIN_NODES: usize = usize::MAX;
+
+/// z = P⁻¹ r for the preconditioner `precond` with the diagonal block
+/// inverses `dinv`.
+fn apply_precond(
+    precond: Preconditioner,
+    rows: &BlockRows,
+    dinv: &[Mat3],
+    a: &BlockTangent,
+    r: &[Vec3],
+    z: &mut [Vec3],
+) {
+    match precond {
+        Preconditioner::None => z.copy_from_slice(r),
+        Preconditioner::Jacobi | Preconditioner::BlockJacobi => {
+            for ((zi, ri), di) in z.iter_mut().zip(r).zip(dinv) {
+                *zi = di * ri;
+            }
+        }
+        Preconditioner::BlockSsor => {
+            // Forward: (D + L) y = r.
+            for i in 0..z.len() {
+                let (lo, _) = rows.split(i);
+                let mut s = r[i];
+                for &(j, e) in lo {
+                    s -= a.off[e as usize].tr_mul(&z[j as usize]);
+                }
+                z[i] = dinv[i] * s;
+            }
+            // Backward: (D + U) z = D y, i.e. z_i = y_i − D_i⁻¹ Σ_{j>i} A_ij z_j.
+            for i in (0..z.len()).rev() {
+                let (_, hi) = rows.split(i);
+                let mut s = Vec3::zeros();
+                for &(j, e) in hi {
+                    s += a.off[e as usize] * z[j as usize];
+                }
+                z[i] -= dinv[i] * s;
+            }
+        }
+    }
+}
+
+/// Preconditioned CG with its preallocated work vectors.
+#[derive(Debug, Clone)]
+pub struct Cg {
+    precond: Preconditioner,
+    tol: f64,
+    max_iter: usize,
+    strict: bool,
+    /// Use the rayon mat-vec.
+    pub parallel: bool,
+    rows: BlockRows,
+    dinv: Vec<Mat3>,
+    r: Vec<Vec3>,
+    z: Vec<Vec3>,
+    p: Vec<Vec3>,
+    q: Vec<Vec3>,
+}
+
+impl Cg {
+    /// A CG solver for matrices with the pattern of `pattern` (n nodes).
+    pub fn new(pattern: &BlockTangent, precond: Preconditioner, tol: f64, max_iter: usize, strict: bool) -> Cg {
+        let n = pattern.num_nodes();
+        Cg {
+            precond,
+            tol,
+            max_iter,
+            strict,
+            parallel: n >= PARALLEL_MATVEC_MIN_NODES,
+            rows: BlockRows::new(n, &pattern.edges),
+            dinv: vec![Mat3::zeros(); n],
+            r: vec![Vec3::zeros(); n],
+            z: vec![Vec3::zeros(); n],
+            p: vec![Vec3::zeros(); n],
+            q: vec![Vec3::zeros(); n],
+        }
+    }
+
+    fn setup(&mut self, a: &BlockTangent) -> Result<(), LinearFailure> {
+        match self.precond {
+            Preconditioner::None => {}
+            Preconditioner::Jacobi => {
+                for (i, (di, d)) in self.dinv.iter_mut().zip(&a.diag).enumerate() {
+                    *di = Mat3::zeros();
+                    for k in 0..3 {
+                        let v = d[(k, k)];
+                        if !(v.is_finite() && v > 0.0) {
+                            return Err(LinearFailure::SingularDiagonal { node: i });
+                        }
+                        di[(k, k)] = 1.0 / v;
+                    }
+                }
+            }
+            Preconditioner::BlockJacobi | Preconditioner::BlockSsor => {
+                for (i, (di, d)) in self.dinv.iter_mut().zip(&a.diag).enumerate() {
+                    // Cholesky of the block: it must be SPD for the
+                    // preconditioner to be (and it is when A is).
+                    match d.cholesky() {
+                        Some(c) if c.l_dirty().iter().all(|x| x.is_finite()) => *di = c.inverse(),
+                        _ => return Err(LinearFailure::SingularDiagonal { node: i }),
+                    }
+                }
+            }
+        }
+        Ok(())
+    }
+
+    /// Solves A x = b starting from the content of `x` (warm start). A zero
+    /// b gives x = 0. A warm start worse than zero is replaced by zero.
+    pub fn solve(&mut self, a: &BlockTangent, b: &[Vec3], x: &mut [Vec3]) -> Result<SolveStats, LinearFailure> {
+        self.setup(a)?;
+        let bnorm = norm(b);
+        if !bnorm.is_finite() {
+            return Err(LinearFailure::NonFinite);
+        }
+        if bnorm == 0.0 {
+            x.iter_mut().for_each(|v| *v = Vec3::zeros());
+            return Ok(SolveStats {
+                iters: 0,
+                rel_residual: 0.0,
+                converged: true,
+            });
+        }
+        let Cg {
+            precond,
+            tol,
+            max_iter,
+            strict,
+            parallel,
+            rows,
+            dinv,
+            r,
+            z,
+            p,
+            q,
+        } = self;
+        let (precond, parallel) = (*precond, *parallel);
+        rows.mul(a, x, q, parallel);
+        for ((ri, bi), qi) in r.iter_mut().zip(b).zip(q.iter()) {
+            *ri = bi - qi;
+        }
+        let mut rnorm = norm(r);
+        if !(rnorm.is_finite() && rnorm <= bnorm) {
+            x.iter_mut().for_each(|v| *v = Vec3::zeros());
+            r.copy_from_slice(b);
+            rnorm = bnorm;
+        }
+        let goal = *tol * bnorm;
+        let precond = |r: &[Vec3], z: &mut [Vec3]| apply_precond(precond, rows, dinv, a, r, z);
+        precond(r, z);
+        p.copy_from_slice(z);
+        let mut rz = dot(r, z);
+        let mut iters = 0;
+        while rnorm > goal && iters < *max_iter {
+            rows.mul(a, p, q, parallel);
+            let pq = dot(p, q);
+            if !(pq.is_finite() && pq > 0.0 && rz.is_finite() && rz > 0.0) {
+                return Err(LinearFailure::CgBreakdown { iter: iters });
+            }
+            let alpha = rz / pq;
+            for ((xi, ri), (pi, qi)) in x.iter_mut().zip(r.iter_mut()).zip(p.iter().zip(q.iter())) {
+                *xi += alpha * pi;
+                *ri -= alpha * qi;
+            }
+            rnorm = norm(r);
+            iters += 1;
+            if rnorm <= goal {
+                break;
+            }
+            precond(r, z);
+            let rz_new = dot(r, z);
+            let beta = rz_new / rz;
+            rz = rz_new;
+            for (pi, zi) in p.iter_mut().zip(z.iter()) {
+                *pi = zi + beta * *pi;
+            }
+        }
+        if !rnorm.is_finite() || x.iter().any(|v| !v.iter().all(|c| c.is_finite())) {
+            return Err(LinearFailure::NonFinite);
+        }
+        let converged = rnorm <= goal;
+        if !converged && *strict {
+            return Err(LinearFailure::CgNotConverged {
+                iters,
+                rel_residual: rnorm / bnorm,
+            });
+        }
+        Ok(SolveStats {
+            iters,
+            rel_residual: rnorm / bnorm,
+            converged,
+        })
+    }
+}
+
+/// Sparse Cholesky A = L Lᵀ with faer (supernodal, AMD ordering). The lower
+/// triangle of A in compressed-column form, the symbolic factorization, the
+/// factor values and all scratch memory are built once for the pattern;
+/// [`CholeskySolver::solve`] refills the values, refactors and solves
+/// without allocating.
+pub struct CholeskySolver {
+    rows: BlockRows,
+    col_ptr: Vec<usize>,
+    row_idx: Vec<usize>,
+    values: Vec<f64>,
+    symbolic: SymbolicCholesky<usize>,
+    l_values: Vec<f64>,
+    rhs: Vec<f64>,
+    scratch: MemBuffer,
+    par: Par,
+}
+
+impl std::fmt::Debug for CholeskySolver {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("CholeskySolver")
+            .field("dofs", &self.rhs.len())
+            .field("nnz_lower", &self.values.len())
+            .field("nnz_factor", &self.l_values.len())
+            .finish()
+    }
+}
+
+impl CholeskySolver {
+    /// Symbolic analysis for matrices with the pattern of `pattern`.
+    pub fn new(pattern: &BlockTangent) -> Result<CholeskySolver, String> {
+        let n = pattern.num_nodes();
+        let rows = BlockRows::new(n, &pattern.edges);
+        let dofs = 3 * n;
+        // Column 3a+c holds rows 3a+r (r ≥ c) of the diagonal block, then
+        // rows 3b+r of each higher neighbour b, in increasing order.
+        let mut col_ptr = Vec::with_capacity(dofs + 1);
+        let mut row_idx = Vec::new();
+        col_ptr.push(0);
+        for a in 0..n {
+            let (_, hi) = rows.split(a);
+            for c in 0..3 {
+                for r in c..3 {
+                    row_idx.push(3 * a + r);
+                }
+                for &(b, _) in hi {
+                    for r in 0..3 {
+                        row_idx.push(3 * b as usize + r);
+                    }
+                }
+                col_ptr.push(row_idx.len());
+            }
+        }
+        let values = vec![0.0; row_idx.len()];
+        let sym = SymbolicSparseColMatRef::new_checked(dofs, dofs, &col_ptr, None, &row_idx);
+        let symbolic = factorize_symbolic_cholesky(
+            sym,
+            Side::Lower,
+            SymmetricOrdering::Amd,
+            CholeskySymbolicParams::default(),
+        )
+        .map_err(|e| format!("sparse Cholesky symbolic analysis failed: {e:?}"))?;
+        let par = Par::Seq;
+        let req = StackReq::any_of(&[
+            symbolic.factorize_numeric_llt_scratch::<f64>(par, Default::default()),
+            symbolic.solve_in_place_scratch::<f64>(1, par),
+        ]);
+        let scratch = MemBuffer::try_new(req).map_err(|_| "sparse Cholesky: out of memory for scratch".to_string())?;
+        let l_values = vec![0.0; symbolic.len_val()];
+        Ok(CholeskySolver {
+            rows,
+            col_ptr,
+            row_idx,
+            values,
+            symbolic,
+            l_values,
+            rhs: vec![0.0; dofs],
+            scratch,
+            par,
+        })
+    }
+
+    /// Number of stored entries of the factor L.
+    pub fn factor_nnz(&self) -> usize {
+        self.l_values.len()
+    }
+
+    fn fill(&mut self, a: &BlockTangent) {
+        let mut k = 0;
+        for (i, d) in a.diag.iter().enumerate() {
+            let (_, hi) = self.rows.split(i);
+            for c in 0..3 {
+                for r in c..3 {
+                    self.values[k] = d[(r, c)];
+                    k += 1;
+                }
+                for &(_, e) in hi {
+                    // Block (b, a) = off[e]ᵀ, so entry (r, c) is off[e][(c, r)].
+                    let o = &a.off[e as usize];
+                    for r in 0..3 {
+                        self.values[k] = o[(c, r)];
+                        k += 1;
+                    }
+                }
+            }
+        }
+    }
+
+    /// Factors A (lower triangle read) and solves A x = b.
+    pub fn solve(&mut self, a: &BlockTangent, b: &[Vec3], x: &mut [Vec3]) -> Result<SolveStats, LinearFailure> {
+        self.fill(a);
+        if self.values.iter().any(|v| !v.is_finite()) {
+            return Err(LinearFailure::NonFinite);
+        }
+        let dofs = self.rhs.len();
+        let sym = SymbolicSparseColMatRef::new_checked(dofs, dofs, &self.col_ptr, None, &self.row_idx);
+        let mat = SparseColMatRef::new(sym, &self.values);
+        let stack = MemStack::new(&mut self.scratch);
+        self.symbolic
+            .factorize_numeric_llt::<f64>(
+                &mut self.l_values,
+                mat,
+                Side::Lower,
+                LltRegularization::default(),
+                self.par,
+                stack,
+                Default::default(),
+            )
+            .map_err(|_| LinearFailure::NotPositiveDefinite)?;
+        for (i, bi) in b.iter().enumerate() {
+            self.rhs[3 * i..3 * i + 3].copy_from_slice(bi.as_slice());
+        }
+        let llt = LltRef::new(&self.symbolic, &self.l_values);
+        let rhs = MatMut::from_column_major_slice_mut(&mut self.rhs, dofs, 1);
+        llt.solve_in_place_with_conj(Conj::No, rhs, self.par, MemStack::new(&mut self.scratch));
+        if self.rhs.iter().any(|v| !v.is_finite()) {
+            return Err(LinearFailure::NonFinite);
+        }
+        for (i, xi) in x.iter_mut().enumerate() {
+            *xi = Vec3::new(self.rhs[3 * i], self.rhs[3 * i + 1], self.rhs[3 * i + 2]);
+        }
+        Ok(SolveStats {
+            iters: 0,
+            rel_residual: 0.0,
+            converged: true,
+        })
+    }
+}
+
+/// A linear solver built for one pattern, as selected by [`LinearSolverKind`].
+#[derive(Debug)]
+pub enum LinearSolver {
+    /// Preconditioned CG.
+    Cg(Cg),
+    /// Sparse Cholesky (boxed: it is large).
+    Cholesky(Box<CholeskySolver>),
+}
+
+impl LinearSolver {
+    /// Builds the solver (and, for Cholesky, the symbolic analysis).
+    pub fn new(kind: &LinearSolverKind, pattern: &BlockTangent) -> Result<LinearSolver, String> {
+        kind.validate()?;
+        Ok(match *kind {
+            LinearSolverKind::Cg {
+                precond,
+                tol,
+                max_iter,
+                strict,
+            } => LinearSolver::Cg(Cg::new(pattern, precond, tol, max_iter, strict)),
+            LinearSolverKind::Cholesky => LinearSolver::Cholesky(Box::new(CholeskySolver::new(pattern)?)),
+        })
+    }
+
+    /// Solves A x = b; `x` holds the warm start for CG (ignored by Cholesky).
+    pub fn solve(&mut self, a: &BlockTangent, b: &[Vec3], x: &mut [Vec3]) -> Result<SolveStats, LinearFailure> {
+        match self {
+            LinearSolver::Cg(cg) => cg.solve(a, b, x),
+            LinearSolver::Cholesky(ch) => ch.solve(a, b, x),
+        }
+    }
+}
