@@ -6,7 +6,23 @@
 //! and what is wrong; no reader panics on any input. Coordinates are read as
 //! they are in the file; callers choose the unit (see [`read_mesh_scaled`]).
 
-use super::{TetMesh, TopologyError};
+mod gmsh;
+mod scan;
+mod surface;
+mod tetgen;
+mod vtk;
+mod vtu;
+
+pub use gmsh::write_gmsh;
+pub use surface::{write_obj, write_ply, write_stl};
+pub use tetgen::{read_tetgen_bytes, write_tetgen};
+pub use vtk::write_vtk;
+pub use vtu::{write_vtu, write_vtu_with_data, PvdSeries};
+
+use super::{TetMesh, TopologyError, Vec3};
+use std::collections::BTreeMap;
+use std::fs::File;
+use std::io::{BufWriter, Write};
 use std::path::{Path, PathBuf};
 
 /// A mesh file format, chosen by extension.
@@ -97,6 +113,37 @@ pub enum MeshError {
         /// What is wrong.
         msg: String,
     },
+    /// Binary data that does not follow the format, located by byte offset.
+    #[error("{path}: byte {offset}: {msg}")]
+    Binary {
+        /// The file.
+        path: PathBuf,
+        /// Byte offset from the start of the file.
+        offset: usize,
+        /// What is wrong.
+        msg: String,
+    },
+    /// An element (cell) the reader cannot use: a 3-D element that is not a
+    /// linear tetrahedron, or one of an unknown type.
+    #[error("{path}:{line}: element {element}: {msg}")]
+    Element {
+        /// The file.
+        path: PathBuf,
+        /// 1-based line number (0 in binary data).
+        line: usize,
+        /// The element's tag (Gmsh) or zero-based cell index (VTK).
+        element: u64,
+        /// What is wrong.
+        msg: String,
+    },
+    /// Data handed to a writer does not fit the mesh (wrong length, non-finite time, …).
+    #[error("{path}: {what}")]
+    InvalidData {
+        /// The file being written.
+        path: PathBuf,
+        /// What is wrong.
+        what: String,
+    },
     /// The file parsed but its mesh is invalid.
     #[error("{path}: {source}")]
     Topology {
@@ -113,21 +160,93 @@ pub fn read_mesh(path: &Path) -> Result<TetMesh, MeshError> {
 }
 
 /// Reads a volume mesh and multiplies coordinates by `scale` (e.g. 1e-3 for a
-/// file in millimetres).
+/// file in millimetres). TetGen pairs are found from either file's path.
 pub fn read_mesh_scaled(path: &Path, scale: f64) -> Result<TetMesh, MeshError> {
-    let _ = (Format::from_path(path)?, scale);
-    Err(MeshError::Unsupported {
+    let format = Format::from_path(path)?;
+    if format == Format::TetGen {
+        return tetgen::read(path, scale);
+    }
+    let bytes = std::fs::read(path).map_err(|source| MeshError::Io {
         path: path.to_path_buf(),
-        what: "reading is not implemented yet".into(),
-    })
+        source,
+    })?;
+    read_mesh_bytes(format, path, &bytes, scale)
+}
+
+/// Parses a volume mesh held in memory; `path` only names it in errors.
+/// TetGen needs two files: use [`read_tetgen_bytes`].
+pub fn read_mesh_bytes(format: Format, path: &Path, bytes: &[u8], scale: f64) -> Result<TetMesh, MeshError> {
+    let raw = match format {
+        Format::Gmsh => gmsh::read(path, bytes)?,
+        Format::VtkLegacy => vtk::read(path, bytes)?,
+        Format::Vtu => vtu::read(path, bytes)?,
+        Format::TetGen => {
+            return Err(MeshError::Unsupported {
+                path: path.to_path_buf(),
+                what: "a TetGen mesh is two files (.node and .ele); use read_tetgen_bytes".into(),
+            })
+        }
+        Format::Ply | Format::Obj | Format::Stl => {
+            return Err(MeshError::Unsupported {
+                path: path.to_path_buf(),
+                what: "a surface-only file cannot be read as a volume mesh; tetrahedralise it first \
+                       (e.g. with Gmsh or TetGen)"
+                    .into(),
+            })
+        }
+    };
+    raw.build(path, scale)
 }
 
 /// Writes a mesh in the format named by the extension (surface formats write
-/// the boundary surface).
+/// the boundary surface; TetGen writes both `.node` and `.ele`, 1-based).
 pub fn write_mesh(mesh: &TetMesh, path: &Path) -> Result<(), MeshError> {
-    let _ = (Format::from_path(path)?, mesh);
-    Err(MeshError::Unsupported {
+    match Format::from_path(path)? {
+        Format::Gmsh => write_gmsh(mesh, path),
+        Format::VtkLegacy => write_vtk(mesh, path),
+        Format::Vtu => write_vtu(mesh, path),
+        Format::TetGen => write_tetgen(mesh, path, 1),
+        Format::Ply => write_ply(mesh, path),
+        Format::Obj => write_obj(mesh, path),
+        Format::Stl => write_stl(mesh, path),
+    }
+}
+
+/// What a reader hands back before mesh validation.
+#[derive(Default)]
+struct RawMesh {
+    nodes: Vec<Vec3>,
+    tets: Vec<[u32; 4]>,
+    sets: BTreeMap<String, Vec<u32>>,
+}
+
+impl RawMesh {
+    /// Scales, tidies node sets (sorted, unique) and validates.
+    fn build(mut self, path: &Path, scale: f64) -> Result<TetMesh, MeshError> {
+        if scale != 1.0 {
+            for p in &mut self.nodes {
+                *p *= scale;
+            }
+        }
+        for ids in self.sets.values_mut() {
+            ids.sort_unstable();
+            ids.dedup();
+        }
+        TetMesh::new(self.nodes, self.tets, self.sets).map_err(|source| MeshError::Topology {
+            path: path.to_path_buf(),
+            source,
+        })
+    }
+}
+
+/// Runs `body` on a buffered new file and maps every I/O error to the path.
+fn write_file(path: &Path, body: impl FnOnce(&mut BufWriter<File>) -> std::io::Result<()>) -> Result<(), MeshError> {
+    let io = |source| MeshError::Io {
         path: path.to_path_buf(),
-        what: "writing is not implemented yet".into(),
-    })
+        source,
+    };
+    let file = File::create(path).map_err(io)?;
+    let mut w = BufWriter::new(file);
+    body(&mut w).map_err(io)?;
+    w.flush().map_err(io)
 }
