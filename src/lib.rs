@@ -28,7 +28,10 @@
 //! ```
 #![warn(missing_docs)]
 
+pub mod bench;
 pub mod material;
 pub mod mesh;
 pub mod model;
+pub mod scene;
+pub mod simulate;
 pub mod solver;

@@ -5,6 +5,7 @@ use std::path::PathBuf;
 use std::process::ExitCode;
 
 mod cli_mesh;
+mod cli_sim;
 
 #[derive(Parser)]
 #[command(
@@ -22,6 +23,57 @@ enum Command {
     /// Generate, inspect, convert and render tetrahedral meshes.
     #[command(subcommand)]
     Mesh(MeshCmd),
+    /// Run a scene (the full model, implicit Euler) and write its outputs.
+    Simulate {
+        /// Scene file (TOML), e.g. rt-config/scenes/arch_press.toml.
+        scene: PathBuf,
+        /// Output directory (default: out/<scene name>).
+        #[arg(long)]
+        out: Option<PathBuf>,
+        /// No progress bar.
+        #[arg(long)]
+        quiet: bool,
+    },
+    /// Benchmarks.
+    #[command(subcommand)]
+    Bench(BenchCmd),
+}
+
+#[derive(Subcommand)]
+enum BenchCmd {
+    /// Time full implicit steps on the built-in arch under the standard load.
+    Step {
+        /// Model: msm, tmm, nvtmm, fem.
+        #[arg(long, default_value = "nvtmm")]
+        model: String,
+        /// Law: stvk or neo_hookean.
+        #[arg(long, default_value = "stvk")]
+        law: String,
+        /// Arch size (nodes).
+        #[arg(long, default_value_t = 1458)]
+        nodes: usize,
+        /// Steps to time (after 5 warm-up steps).
+        #[arg(long, default_value_t = 50)]
+        steps: usize,
+        /// Add one Prony term (α = 0.5, τ = 0.58 s).
+        #[arg(long)]
+        prony: bool,
+        /// Linear solver: cholesky, cg-none, cg-jacobi, cg-block_jacobi, cg-block_ssor.
+        #[arg(long, default_value = "cg-block_jacobi")]
+        linear: String,
+        /// Print JSON.
+        #[arg(long)]
+        json: bool,
+    },
+    /// Stability sweep over extreme parameters (prints a Markdown table).
+    Extremes {
+        /// A representative subset.
+        #[arg(long)]
+        quick: bool,
+        /// Print JSON.
+        #[arg(long)]
+        json: bool,
+    },
 }
 
 #[derive(Subcommand)]
@@ -93,6 +145,19 @@ fn main() -> ExitCode {
                 azimuth,
                 elevation,
             } => cli_mesh::render(&input, &out, width, height, azimuth, elevation),
+        },
+        Command::Simulate { scene, out, quiet } => cli_sim::simulate(&scene, out.as_deref(), quiet),
+        Command::Bench(b) => match b {
+            BenchCmd::Step {
+                model,
+                law,
+                nodes,
+                steps,
+                prony,
+                linear,
+                json,
+            } => cli_sim::bench_step_cmd(&model, &law, nodes, steps, prony, &linear, json),
+            BenchCmd::Extremes { quick, json } => cli_sim::bench_extremes(quick, json),
         },
     };
     match result {

@@ -40,7 +40,7 @@ fn newton_matrix() -> (BlockTangent, Vec<Vec3>, Vec<bool>) {
         *o *= h * h;
     }
     let mut mask = vec![false; n];
-    for &i in mesh.node_set("x0").unwrap() {
+    for &i in mesh.node_set("x_min").unwrap() {
         mask[i as usize] = true;
     }
     project_fixed(&mut a, &mask);
@@ -111,10 +111,10 @@ fn linear_solvers_agree_with_a_dense_solve() {
 #[test]
 fn a_step_with_cg_matches_a_step_with_cholesky() {
     let mesh = block(4, 3, 3, 0.01);
-    let fixed = mesh.node_set("x0").unwrap().to_vec();
+    let fixed = mesh.node_set("x_min").unwrap().to_vec();
     let loads = Loads {
         nodal: vec![NodalLoad {
-            nodes: mesh.node_set("x1").unwrap().to_vec(),
+            nodes: mesh.node_set("x_max").unwrap().to_vec(),
             force: Vec3::new(0.3, -0.7, 0.2),
             profile: TimeProfile::Ramp { t0: 0.0, t1: 0.02 },
         }],

@@ -21,10 +21,10 @@ struct Setup {
 
 fn setup() -> Setup {
     let mesh = block(3, 2, 2, 0.01);
-    let fixed = mesh.node_set("x0").unwrap().to_vec();
+    let fixed = mesh.node_set("x_min").unwrap().to_vec();
     let loads = Loads {
         nodal: vec![NodalLoad {
-            nodes: mesh.node_set("x1").unwrap().to_vec(),
+            nodes: mesh.node_set("x_max").unwrap().to_vec(),
             force: Vec3::new(2.0, 0.5, 0.0),
             profile: TimeProfile::Constant { from_t0: 0.0 },
         }],

@@ -13,9 +13,9 @@ use nvtmm::solver::{ImplicitEuler, ImplicitEulerParams, LinearSolverKind, Newton
 #[test]
 fn fixed_nodes_stay_exactly_at_zero() {
     let mesh = block(4, 2, 2, 0.01);
-    // The x ≤ 5 mm slab: the x = 0 face (node set "x0") only, as a box.
+    // The x ≤ 5 mm slab: the x = 0 face (node set "x_min") only, as a box.
     let fixed = nodes_in_box(&mesh, Vec3::new(-1.0, -1.0, -1.0), Vec3::new(0.005, 1.0, 1.0));
-    assert_eq!(fixed, mesh.node_set("x0").unwrap());
+    assert_eq!(fixed, mesh.node_set("x_min").unwrap());
     let all: Vec<u32> = (0..mesh.num_nodes() as u32).collect();
     let loads = Loads {
         nodal: vec![

@@ -22,7 +22,7 @@ fn total_energy(state: &TissueState, mass: &[f64], model: &dyn ForceModel) -> f6
 /// Runs `steps` steps from a perturbed state and returns the energy history.
 fn energies(c: f64, alpha: f64, beta: f64, steps: usize) -> Vec<f64> {
     let mesh = block(3, 2, 2, 0.01);
-    let fixed = mesh.node_set("x0").unwrap().to_vec();
+    let fixed = mesh.node_set("x_min").unwrap().to_vec();
     let mut model = Springs::new(&mesh, 50.0, c);
     let params = ImplicitEulerParams {
         dt: 5e-4,

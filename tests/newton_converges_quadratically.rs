@@ -12,10 +12,10 @@ use nvtmm::solver::{ImplicitEuler, ImplicitEulerParams, LinearSolverKind, Newton
 
 fn run(linear: LinearSolverKind, beta: f64) -> Vec<f64> {
     let mesh = block(4, 3, 3, 0.01);
-    let fixed = mesh.node_set("x0").unwrap().to_vec();
+    let fixed = mesh.node_set("x_min").unwrap().to_vec();
     let loads = Loads {
         nodal: vec![NodalLoad {
-            nodes: mesh.node_set("x1").unwrap().to_vec(),
+            nodes: mesh.node_set("x_max").unwrap().to_vec(),
             force: Vec3::new(1.5, 0.8, -0.5),
             profile: TimeProfile::Constant { from_t0: 0.0 },
         }],

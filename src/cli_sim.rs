@@ -1,0 +1,100 @@
+//! `nvtmm simulate …` and `nvtmm bench …` subcommands.
+
+use nvtmm::bench::{bench_step, extremes_cases, extremes_markdown, parse_linear, run_extreme};
+use nvtmm::material::{Law, PronyTerm};
+use nvtmm::model::ModelKind;
+use nvtmm::scene::Scene;
+use std::path::Path;
+
+type Result<T> = std::result::Result<T, Box<dyn std::error::Error>>;
+
+pub fn simulate(scene_path: &Path, out: Option<&Path>, quiet: bool) -> Result<()> {
+    let scene = Scene::load(scene_path)?;
+    let default_out = Path::new("out").join(scene_path.file_stem().unwrap_or_default());
+    let out = out.unwrap_or(&default_out);
+    let summary = nvtmm::simulate::run(&scene, out, !quiet)?;
+    println!(
+        "{} on {} nodes / {} tets: {} steps, {:.4} s simulated in {:.2} s wall ({:.3} ms/step median, {} CG iterations median, {} unconverged steps)",
+        summary.model,
+        summary.nodes,
+        summary.tets,
+        summary.steps,
+        summary.sim_time_s,
+        summary.wall_s,
+        summary.ms_per_step,
+        summary.cg_iters_median,
+        summary.unconverged_steps
+    );
+    println!(
+        "max displacement {:.3} mm, elastic energy {:.3e} J",
+        summary.max_displacement_m * 1e3,
+        summary.final_energy_j
+    );
+    for o in &summary.outputs {
+        println!("wrote {}", o.display());
+    }
+    let json = out.join("summary.json");
+    std::fs::write(&json, serde_json::to_string_pretty(&summary)?).map_err(|e| format!("{}: {e}", json.display()))?;
+    println!("wrote {}", json.display());
+    Ok(())
+}
+
+pub fn bench_step_cmd(
+    model: &str,
+    law: &str,
+    nodes: usize,
+    steps: usize,
+    prony: bool,
+    linear: &str,
+    json: bool,
+) -> Result<()> {
+    let linear = parse_linear(linear)?;
+    let kind: ModelKind = model.parse()?;
+    let law = match law {
+        "stvk" => Law::Stvk,
+        "neo_hookean" | "neohookean" => Law::NeoHookean,
+        other => return Err(format!("--law {other}: allowed stvk, neo_hookean").into()),
+    };
+    let terms = if prony {
+        vec![PronyTerm { alpha: 0.5, tau: 0.58 }]
+    } else {
+        vec![]
+    };
+    if prony && !matches!(kind, ModelKind::Nvtmm | ModelKind::Fem) {
+        return Err("--prony applies to the nvtmm and fem models".into());
+    }
+    let r = bench_step(kind, law, nodes, steps, &terms, linear)?;
+    if json {
+        println!("{}", serde_json::to_string_pretty(&r)?);
+    } else {
+        println!(
+            "{} ({}, {}) {} nodes / {} tets: {:.3} ms/step median over {} steps ({:.1} steps/s), {} CG iterations median, setup {:.2} s, {} threads",
+            r.model, r.law, r.linear, r.nodes, r.tets, r.ms_per_step, r.steps, r.steps_per_sec, r.cg_iters, r.setup_s, r.threads
+        );
+    }
+    Ok(())
+}
+
+pub fn bench_extremes(quick: bool, json: bool) -> Result<()> {
+    let cases = extremes_cases(quick);
+    let bar = indicatif::ProgressBar::new(cases.len() as u64);
+    let results: Vec<_> = cases
+        .iter()
+        .map(|c| {
+            let r = run_extreme(c, 500);
+            bar.inc(1);
+            r
+        })
+        .collect();
+    bar.finish_and_clear();
+    if json {
+        println!("{}", serde_json::to_string_pretty(&results)?);
+    } else {
+        println!("{}", extremes_markdown(&results));
+    }
+    let bad = results.iter().filter(|r| r.non_finite).count();
+    if bad > 0 {
+        return Err(format!("{bad} case(s) produced a non-finite state").into());
+    }
+    Ok(())
+}

@@ -1,0 +1,219 @@
+//! Running a scene: the full model stepped by implicit Euler, with outputs.
+//!
+//! [`run`] builds the scene, steps it for its duration, writes the probe CSV
+//! (`probes.csv`: time, then displacement and internal force of each probe
+//! node) and, if asked, a `.pvd` + `.vtu` series, and returns a
+//! [`RunSummary`]. A failed step stops the run with an error that says which
+//! step and why; the state is never advanced with a non-finite value.
+
+use crate::mesh::Vec3;
+use crate::scene::{Scene, SceneError};
+use crate::solver::{ImplicitEuler, StepReport, TissueState};
+use std::io::Write;
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+/// Errors of a simulation run.
+#[derive(Debug, thiserror::Error)]
+pub enum SimError {
+    /// The scene is invalid.
+    #[error(transparent)]
+    Scene(#[from] SceneError),
+    /// The integrator could not be built.
+    #[error("{0}")]
+    Solver(String),
+    /// A step failed (diverged, non-finite, linear solver breakdown).
+    #[error("step {step} (t = {t:.6} s) failed: {reason}; the last good state is kept and the run stops")]
+    StepFailed {
+        /// 1-based step number.
+        step: usize,
+        /// Time at the start of the step (s).
+        t: f64,
+        /// Why.
+        reason: String,
+    },
+    /// An output could not be written.
+    #[error("{path}: {msg}")]
+    Output {
+        /// The file.
+        path: PathBuf,
+        /// What went wrong.
+        msg: String,
+    },
+}
+
+/// What a run did.
+#[derive(Debug, Clone, serde::Serialize)]
+pub struct RunSummary {
+    /// Model name.
+    pub model: String,
+    /// Nodes of the mesh.
+    pub nodes: usize,
+    /// Tets of the mesh.
+    pub tets: usize,
+    /// Steps taken.
+    pub steps: usize,
+    /// Simulated time (s).
+    pub sim_time_s: f64,
+    /// Wall-clock time of the stepping loop (s).
+    pub wall_s: f64,
+    /// Median wall time per step (ms).
+    pub ms_per_step: f64,
+    /// Steps whose Newton iteration did not reach its tolerance.
+    pub unconverged_steps: usize,
+    /// Median CG iterations per step.
+    pub cg_iters_median: usize,
+    /// Largest nodal displacement at the end (m).
+    pub max_displacement_m: f64,
+    /// Elastic energy at the end (J).
+    pub final_energy_j: f64,
+    /// Files written.
+    pub outputs: Vec<PathBuf>,
+}
+
+fn median<T: Copy + PartialOrd>(v: &mut [T]) -> Option<T> {
+    if v.is_empty() {
+        return None;
+    }
+    v.sort_by(|a, b| a.partial_cmp(b).unwrap_or(std::cmp::Ordering::Equal));
+    Some(v[v.len() / 2])
+}
+
+/// Runs `scene`, writing outputs into `out_dir` (created if needed). With
+/// `progress`, shows a progress bar on stderr.
+pub fn run(scene: &Scene, out_dir: &Path, progress: bool) -> Result<RunSummary, SimError> {
+    let mut built = scene.build()?;
+    let mesh = &built.mesh;
+    let n = mesh.num_nodes();
+    let mass = mesh.lumped_mass(built.material.density);
+    let mut euler = ImplicitEuler::new(mesh, mass, scene.integrator).map_err(|e| SimError::Solver(e.to_string()))?;
+    let mut state = TissueState::at_rest(n);
+    let dt = scene.integrator.dt;
+    let steps = (scene.duration / dt).round().max(1.0) as usize;
+    let out_err = |path: &Path, e: &dyn std::fmt::Display| SimError::Output {
+        path: path.to_path_buf(),
+        msg: e.to_string(),
+    };
+    std::fs::create_dir_all(out_dir).map_err(|e| out_err(out_dir, &e))?;
+    let mut outputs = Vec::new();
+
+    let csv_every = scene
+        .output
+        .csv_every
+        .unwrap_or(if built.probes.is_empty() { 0 } else { 1 });
+    let csv_path = out_dir.join("probes.csv");
+    let mut csv = if csv_every > 0 && !built.probes.is_empty() {
+        let f = std::fs::File::create(&csv_path).map_err(|e| out_err(&csv_path, &e))?;
+        let mut w = std::io::BufWriter::new(f);
+        let mut header = String::from("t_s");
+        for p in &built.probes {
+            for c in ["ux_m", "uy_m", "uz_m", "fx_n", "fy_n", "fz_n"] {
+                header.push_str(&format!(",n{p}_{c}"));
+            }
+        }
+        writeln!(w, "{header}").map_err(|e| out_err(&csv_path, &e))?;
+        outputs.push(csv_path.clone());
+        Some(w)
+    } else {
+        None
+    };
+    let mut series = if scene.output.vtu_every > 0 {
+        let s = crate::mesh::io::PvdSeries::create(out_dir, "frames").map_err(|e| out_err(out_dir, &e))?;
+        outputs.push(out_dir.join("frames.pvd"));
+        Some(s)
+    } else {
+        None
+    };
+
+    let bar = if progress {
+        let b = indicatif::ProgressBar::new(steps as u64);
+        b.set_style(
+            indicatif::ProgressStyle::with_template("{bar:40} {pos}/{len} steps  t={msg}  eta {eta}")
+                .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
+        );
+        Some(b)
+    } else {
+        None
+    };
+
+    let mut times = Vec::with_capacity(steps);
+    let mut cg = Vec::with_capacity(steps);
+    let mut unconverged = 0;
+    let mut force = vec![Vec3::zeros(); n];
+    let t_start = Instant::now();
+    for step in 1..=steps {
+        let t0 = Instant::now();
+        let rep: StepReport = euler.step(&mut state, built.model.as_mut(), &built.loads, &built.fixed);
+        times.push(t0.elapsed().as_secs_f64() * 1e3);
+        if let Some(f) = rep.failure {
+            if let Some(b) = &bar {
+                b.abandon();
+            }
+            return Err(SimError::StepFailed {
+                step,
+                t: state.t,
+                reason: f.to_string(),
+            });
+        }
+        if !rep.converged {
+            unconverged += 1;
+        }
+        cg.push(rep.linear_iters);
+        let want_csv = csv.is_some() && step % csv_every.max(1) == 0;
+        let want_vtu = series.is_some() && step % scene.output.vtu_every.max(1) == 0;
+        if want_csv || want_vtu {
+            force.iter_mut().for_each(|f| *f = Vec3::zeros());
+            built.model.add_forces(&state.u, &mut force);
+        }
+        if let (true, Some(w)) = (want_csv, csv.as_mut()) {
+            let mut line = format!("{}", state.t);
+            for &p in &built.probes {
+                let (u, f) = (state.u[p as usize], force[p as usize]);
+                line.push_str(&format!(",{},{},{},{},{},{}", u.x, u.y, u.z, f.x, f.y, f.z));
+            }
+            writeln!(w, "{line}").map_err(|e| out_err(&csv_path, &e))?;
+        }
+        if let (true, Some(s)) = (want_vtu, series.as_mut()) {
+            let pos: Vec<Vec3> = mesh.rest().iter().zip(&state.u).map(|(x, u)| x + u).collect();
+            let disp_mag: Vec<f64> = state.u.iter().map(|u| u.norm()).collect();
+            s.add_step(
+                state.t,
+                mesh,
+                Some(&pos),
+                &[("displacement", &state.u), ("force", &force)],
+                &[("displacement_norm", &disp_mag)],
+            )
+            .map_err(|e| out_err(out_dir, &e))?;
+        }
+        if let Some(b) = &bar {
+            b.inc(1);
+            if step % 50 == 0 {
+                b.set_message(format!("{:.3}s", state.t));
+            }
+        }
+    }
+    let wall_s = t_start.elapsed().as_secs_f64();
+    if let Some(b) = &bar {
+        b.finish_and_clear();
+    }
+    if let Some(mut w) = csv {
+        w.flush().map_err(|e| out_err(&csv_path, &e))?;
+    }
+    if let Some(s) = series {
+        s.finish().map_err(|e| out_err(out_dir, &e))?;
+    }
+    Ok(RunSummary {
+        model: built.model.name().to_string(),
+        nodes: n,
+        tets: mesh.tets().len(),
+        steps,
+        sim_time_s: state.t,
+        wall_s,
+        ms_per_step: median(&mut times).unwrap_or(0.0),
+        unconverged_steps: unconverged,
+        cg_iters_median: median(&mut cg).unwrap_or(0),
+        max_displacement_m: state.u.iter().map(|u| u.norm()).fold(0.0, f64::max),
+        final_energy_j: built.model.energy(&state.u),
+        outputs,
+    })
+}
