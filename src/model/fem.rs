@@ -15,7 +15,7 @@ use super::{tet_pair_edges, BlockTangent, ForceModel, Mat3};
 use crate::material::{dpk1, energy_density, pk1, Lame, Law, Material};
 use crate::mesh::{TetMesh, Vec3};
 use rayon::prelude::*;
-use std::sync::Mutex;
+use std::sync::{Mutex, TryLockError};
 
 /// Elements per parallel task: large enough that rayon's overhead is small
 /// next to the work, small enough to balance two to eight cores on the arch.
@@ -115,6 +115,21 @@ pub struct Fem {
     scratch: Mutex<Vec<[Vec3; 4]>>,
 }
 
+impl Clone for Fem {
+    fn clone(&self) -> Fem {
+        Fem {
+            law: self.law,
+            lame: self.lame,
+            num_nodes: self.num_nodes,
+            tets: self.tets.clone(),
+            grads: self.grads.clone(),
+            volumes: self.volumes.clone(),
+            pair_edges: self.pair_edges.clone(),
+            scratch: Mutex::new(Vec::with_capacity(self.tets.len())),
+        }
+    }
+}
+
 impl Fem {
     /// Builds the model for `mesh` with the elastic constants of `material`
     /// and the hyperelastic `law`. Copies the per-tet data it needs.
@@ -172,7 +187,10 @@ impl Fem {
         };
         match self.scratch.try_lock() {
             Ok(mut buf) => run(&mut buf),
-            Err(_) => run(&mut Vec::new()),
+            // Every slot is overwritten before it is read, so a buffer left
+            // behind by a panicking caller is as good as a fresh one.
+            Err(TryLockError::Poisoned(p)) => run(&mut p.into_inner()),
+            Err(TryLockError::WouldBlock) => run(&mut Vec::new()),
         }
     }
 }
