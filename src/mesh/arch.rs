@@ -311,9 +311,9 @@ pub fn generate_grid(params: &ArchParams, grid: ArchGrid) -> Result<Arch, ArchEr
 
     let mm = 1e-3;
     let mut rest = Vec::with_capacity(grid.nodes());
-    for a in 0..grid.axial {
+    for (a, &n) in normals.iter().enumerate() {
         let u = cl.s[a] / total;
-        let (n, t) = (normals[a], cl.tan[a]);
+        let t = cl.tan[a];
         let b = t.cross(&n);
         let r_in = radius(u);
         for c in 0..grid.circumferential {

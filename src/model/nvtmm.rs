@@ -43,6 +43,9 @@ use crate::material::Material;
 use crate::mesh::{TetMesh, Vec3, TET_EDGE_LOCAL};
 use rayon::prelude::*;
 
+/// One tet's contributions: 𝒞 triplets, 𝔇 triplets and K₀ blocks.
+type TetTensors = (Vec<(u32, u32, Vec3)>, Vec<(u32, u32, f64)>, [[Mat3; 4]; 4]);
+
 /// Sentinel edge id for a (node, node) pair on the diagonal.
 const NONE: u32 = u32::MAX;
 
@@ -92,7 +95,7 @@ impl Nvtmm {
         let np = n + edges.len();
 
         // Per-tet coefficients as (row, col, value) triplets, merged by sorting.
-        let per_tet: Vec<(Vec<(u32, u32, Vec3)>, Vec<(u32, u32, f64)>, [[Mat3; 4]; 4])> = mesh
+        let per_tet: Vec<TetTensors> = mesh
             .tets()
             .par_iter()
             .enumerate()
@@ -468,10 +471,10 @@ impl ForceModel for Nvtmm {
         for p in 0..np {
             let [a, b] = self.pair_members(p);
             let members: &[u32] = if a == b { &[a][..] } else { &[a, b][..] };
-            for slot in self.c_ptr[p] as usize..self.c_ptr[p + 1] as usize {
+            let range = self.c_ptr[p] as usize..self.c_ptr[p + 1] as usize;
+            for (slot, &zt) in range.clone().zip(&z[range]) {
                 let t = self.c_col[slot];
                 let cpt = self.c_val[slot];
-                let zt = z[slot];
                 for (m, &r) in members.iter().enumerate() {
                     let hr = h(p, m);
                     let e = self.c_edge[slot][m];
