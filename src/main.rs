@@ -122,10 +122,10 @@ enum MeshCmd {
         #[arg(long, default_value_t = 700)]
         height: u32,
         /// Camera azimuth about the vertical axis (degrees).
-        #[arg(long, default_value_t = -60.0, allow_hyphen_values = true)]
+        #[arg(long, default_value_t = 125.0, allow_hyphen_values = true)]
         azimuth: f64,
         /// Camera elevation (degrees).
-        #[arg(long, default_value_t = 15.0, allow_hyphen_values = true)]
+        #[arg(long, default_value_t = 20.0, allow_hyphen_values = true)]
         elevation: f64,
     },
 }

@@ -2,7 +2,8 @@
 //!
 //! [`run`] builds the scene, steps it for its duration, writes the probe CSV
 //! (`probes.csv`: time, then displacement and internal force of each probe
-//! node) and, if asked, a `.pvd` + `.vtu` series, and returns a
+//! node), a picture of the deformed surface coloured by displacement
+//! (`final.png`) and, if asked, a `.pvd` + `.vtu` series, and returns a
 //! [`RunSummary`]. A failed step stops the run with an error that says which
 //! step and why; the state is never advanced with a non-finite value.
 
@@ -202,6 +203,17 @@ pub fn run(scene: &Scene, out_dir: &Path, progress: bool) -> Result<RunSummary, 
     if let Some(s) = series {
         s.finish().map_err(|e| out_err(out_dir, &e))?;
     }
+    // A quick look without ParaView: the deformed surface coloured by |u|.
+    let png = out_dir.join("final.png");
+    let pos: Vec<Vec3> = mesh.rest().iter().zip(&state.u).map(|(x, u)| x + u).collect();
+    let mag: Vec<f64> = state.u.iter().map(|u| u.norm()).collect();
+    let opt = crate::mesh::render::RenderOptions {
+        edges: false,
+        ..Default::default()
+    };
+    let rgb = crate::mesh::render::render_surface(mesh, Some(&pos), Some(&mag), &opt);
+    crate::mesh::render::write_png(&png, opt.width, opt.height, &rgb).map_err(|e| out_err(&png, &e))?;
+    outputs.push(png);
     Ok(RunSummary {
         model: built.model.name().to_string(),
         nodes: n,

@@ -34,8 +34,8 @@ impl Default for RenderOptions {
         RenderOptions {
             width: 900,
             height: 700,
-            azimuth_deg: -60.0,
-            elevation_deg: 15.0,
+            azimuth_deg: 125.0,
+            elevation_deg: 20.0,
             background: [255, 255, 255],
             color: [205, 70, 60],
             edges: true,
