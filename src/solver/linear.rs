@@ -37,6 +37,11 @@ pub enum Preconditioner {
     Jacobi,
     /// Inverse of each node's 3×3 diagonal block of A.
     BlockJacobi,
+    /// Block incomplete Cholesky with no fill, IC(0), in the form
+    /// P = (D̃ + L̃) D̃⁻¹ (D̃ + L̃ᵀ) with L̃ on A's own block pattern. Same
+    /// application cost as `block_ssor`, plus a setup of Σ deg² block
+    /// products; fails (reported) if a pivot block is not SPD.
+    BlockIc0,
     /// Symmetric block Gauss–Seidel (block SSOR with ω = 1):
     /// P = (D + L) D⁻¹ (D + U), D the 3×3 diagonal blocks. Costs about two
     /// mat-vecs per application and is sequential, but never breaks down on
@@ -179,6 +184,9 @@ pub fn project_fixed(a: &mut BlockTangent, fixed_mask: &[bool]) {
     }
 }
 
+/// A row's neighbours (node, edge).
+type Nbrs<'a> = &'a [(u32, u32)];
+
 /// Row-wise view of a [`BlockTangent`] pattern: for each node its neighbours
 /// sorted by index with the edge joining them, so a row can be gathered
 /// without scattering (parallel mat-vec, Gauss–Seidel sweeps).
@@ -221,7 +229,7 @@ impl BlockRows {
 
     /// Neighbours of row i with a lower index, and with a higher index.
     #[inline]
-    fn split(&self, i: usize) -> (&[(u32, u32)], &[(u32, u32)]) {
+    fn split(&self, i: usize) -> (Nbrs<'_>, Nbrs<'_>) {
         let (s, m, e) = (self.start[i] as usize, self.mid[i] as usize, self.start[i + 1] as usize);
         (&self.nbr[s..m], &self.nbr[m..e])
     }
@@ -264,9 +272,15 @@ fn norm(a: &[Vec3]) -> f64 {
     dot(a, a).sqrt()
 }
 
-/// Rows at or above this many nodes use the rayon mat-vec (see
-/// `docs/SOLVERS.md` for the measurement behind it).
-pub const PARALLEL_MATVEC_MIN_NODES: usize = usize::MAX;
+/// y = A x: serial edge scatter (each off-diagonal block read once, the
+/// fastest serial form) or rayon row gather (each block read twice).
+fn matvec(rows: &BlockRows, a: &BlockTangent, x: &[Vec3], y: &mut [Vec3], parallel: bool) {
+    if parallel {
+        rows.mul(a, x, y, true);
+    } else {
+        a.mul(x, y);
+    }
+}
 
 /// z = P⁻¹ r for the preconditioner `precond` with the diagonal block
 /// inverses `dinv`.
@@ -274,6 +288,7 @@ fn apply_precond(
     precond: Preconditioner,
     rows: &BlockRows,
     dinv: &[Mat3],
+    ic: &[Mat3],
     a: &BlockTangent,
     r: &[Vec3],
     z: &mut [Vec3],
@@ -285,13 +300,20 @@ fn apply_precond(
                 *zi = di * ri;
             }
         }
-        Preconditioner::BlockSsor => {
+        Preconditioner::BlockSsor | Preconditioner::BlockIc0 => {
+            // SSOR uses A's own blocks and diagonal, IC(0) its factor's
+            // (both in upper form: block (low, high) per edge).
+            let up = if precond == Preconditioner::BlockIc0 {
+                ic
+            } else {
+                &a.off[..]
+            };
             // Forward: (D + L) y = r.
             for i in 0..z.len() {
                 let (lo, _) = rows.split(i);
                 let mut s = r[i];
                 for &(j, e) in lo {
-                    s -= a.off[e as usize].tr_mul(&z[j as usize]);
+                    s -= up[e as usize].tr_mul(&z[j as usize]);
                 }
                 z[i] = dinv[i] * s;
             }
@@ -300,7 +322,7 @@ fn apply_precond(
                 let (_, hi) = rows.split(i);
                 let mut s = Vec3::zeros();
                 for &(j, e) in hi {
-                    s += a.off[e as usize] * z[j as usize];
+                    s += up[e as usize] * z[j as usize];
                 }
                 z[i] -= dinv[i] * s;
             }
@@ -315,10 +337,15 @@ pub struct Cg {
     tol: f64,
     max_iter: usize,
     strict: bool,
-    /// Use the rayon mat-vec.
+    /// Use the rayon row-gather mat-vec instead of the serial edge-scatter
+    /// one. Off by default: on the 2-core machine, shared, it did not pay
+    /// (`docs/SOLVERS.md`).
     pub parallel: bool,
     rows: BlockRows,
     dinv: Vec<Mat3>,
+    /// IC(0) factor blocks in upper form (block (low, high) of L̃ᵀ per edge);
+    /// empty unless the preconditioner is `block_ic0`.
+    ic: Vec<Mat3>,
     r: Vec<Vec3>,
     z: Vec<Vec3>,
     p: Vec<Vec3>,
@@ -334,9 +361,14 @@ impl Cg {
             tol,
             max_iter,
             strict,
-            parallel: n >= PARALLEL_MATVEC_MIN_NODES,
+            parallel: false,
             rows: BlockRows::new(n, &pattern.edges),
             dinv: vec![Mat3::zeros(); n],
+            ic: if precond == Preconditioner::BlockIc0 {
+                vec![Mat3::zeros(); pattern.edges.len()]
+            } else {
+                Vec::new()
+            },
             r: vec![Vec3::zeros(); n],
             z: vec![Vec3::zeros(); n],
             p: vec![Vec3::zeros(); n],
@@ -356,6 +388,42 @@ impl Cg {
                             return Err(LinearFailure::SingularDiagonal { node: i });
                         }
                         di[(k, k)] = 1.0 / v;
+                    }
+                }
+            }
+            Preconditioner::BlockIc0 => {
+                let (rows, ic, dinv) = (&self.rows, &mut self.ic, &mut self.dinv);
+                for i in 0..a.num_nodes() {
+                    let (lo_i, _) = rows.split(i);
+                    // U_(k,i) = A_ki − Σ_{j<k, j~i, j~k} U_(j,k)ᵀ D̃_j⁻¹ U_(j,i).
+                    for (pos, &(k, e_ki)) in lo_i.iter().enumerate() {
+                        let (lo_k, _) = rows.split(k as usize);
+                        let mut u = a.off[e_ki as usize];
+                        let (mut p, mut q) = (0, 0);
+                        while p < pos && q < lo_k.len() {
+                            let (ji, e_ji) = lo_i[p];
+                            let (jk, e_jk) = lo_k[q];
+                            if ji < jk {
+                                p += 1;
+                            } else if jk < ji {
+                                q += 1;
+                            } else {
+                                u -= ic[e_jk as usize].transpose() * dinv[ji as usize] * ic[e_ji as usize];
+                                p += 1;
+                                q += 1;
+                            }
+                        }
+                        ic[e_ki as usize] = u;
+                    }
+                    // D̃_i = A_ii − Σ_{j<i} U_(j,i)ᵀ D̃_j⁻¹ U_(j,i).
+                    let mut d = a.diag[i];
+                    for &(j, e) in lo_i {
+                        let u = &ic[e as usize];
+                        d -= u.transpose() * dinv[j as usize] * u;
+                    }
+                    match d.cholesky() {
+                        Some(c) if c.l_dirty().iter().all(|x| x.is_finite()) => dinv[i] = c.inverse(),
+                        _ => return Err(LinearFailure::SingularDiagonal { node: i }),
                     }
                 }
             }
@@ -397,13 +465,14 @@ impl Cg {
             parallel,
             rows,
             dinv,
+            ic,
             r,
             z,
             p,
             q,
         } = self;
         let (precond, parallel) = (*precond, *parallel);
-        rows.mul(a, x, q, parallel);
+        matvec(rows, a, x, q, parallel);
         for ((ri, bi), qi) in r.iter_mut().zip(b).zip(q.iter()) {
             *ri = bi - qi;
         }
@@ -414,13 +483,13 @@ impl Cg {
             rnorm = bnorm;
         }
         let goal = *tol * bnorm;
-        let precond = |r: &[Vec3], z: &mut [Vec3]| apply_precond(precond, rows, dinv, a, r, z);
+        let precond = |r: &[Vec3], z: &mut [Vec3]| apply_precond(precond, rows, dinv, ic, a, r, z);
         precond(r, z);
         p.copy_from_slice(z);
         let mut rz = dot(r, z);
         let mut iters = 0;
         while rnorm > goal && iters < *max_iter {
-            rows.mul(a, p, q, parallel);
+            matvec(rows, a, p, q, parallel);
             let pq = dot(p, q);
             if !(pq.is_finite() && pq > 0.0 && rz.is_finite() && rz > 0.0) {
                 return Err(LinearFailure::CgBreakdown { iter: iters });
@@ -614,8 +683,8 @@ impl CholeskySolver {
 pub enum LinearSolver {
     /// Preconditioned CG.
     Cg(Cg),
-    /// Sparse Cholesky (boxed: it is large).
-    Cholesky(Box<CholeskySolver>),
+    /// Sparse Cholesky.
+    Cholesky(CholeskySolver),
 }
 
 impl LinearSolver {
@@ -629,7 +698,7 @@ impl LinearSolver {
                 max_iter,
                 strict,
             } => LinearSolver::Cg(Cg::new(pattern, precond, tol, max_iter, strict)),
-            LinearSolverKind::Cholesky => LinearSolver::Cholesky(Box::new(CholeskySolver::new(pattern)?)),
+            LinearSolverKind::Cholesky => LinearSolver::Cholesky(CholeskySolver::new(pattern)?),
         })
     }
 
