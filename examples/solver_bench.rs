@@ -27,15 +27,15 @@ impl LinearElastic {
         for (t, tet) in mesh.tets().iter().enumerate() {
             let g = &mesh.grads()[t];
             let v = mesh.volumes()[t];
-            for a in 0..4 {
-                for b in 0..4 {
+            for (a, (&na, ga)) in tet.iter().zip(g).enumerate() {
+                for (b, (&nb, gb)) in tet.iter().zip(g).enumerate() {
                     // K_ab = V [λ g_a g_bᵀ + μ g_b g_aᵀ + μ (g_a·g_b) I]
-                    let kab = (g[a] * g[b].transpose() * lambda
-                        + g[b] * g[a].transpose() * mu
-                        + Mat3::identity() * (mu * g[a].dot(&g[b])))
+                    let kab = (ga * gb.transpose() * lambda
+                        + gb * ga.transpose() * mu
+                        + Mat3::identity() * (mu * ga.dot(gb)))
                         * v;
-                    if a == b || tet[a] < tet[b] {
-                        k.add_block(tet[a], tet[b], pairs[t][a][b], &kab);
+                    if a == b || na < nb {
+                        k.add_block(na, nb, pairs[t][a][b], &kab);
                     }
                 }
             }
@@ -170,8 +170,13 @@ fn main() {
                     }
                     times.push(t.elapsed().as_secs_f64());
                 }
+                let shift = if cg.ic0_shift() > 0.0 {
+                    format!(" (shift {})", cg.ic0_shift())
+                } else {
+                    String::new()
+                };
                 println!(
-                    "| CG {precond:?}{} tol 1e-8 cold | {iters} | {} |",
+                    "| CG {precond:?}{shift}{} tol 1e-8 cold | {iters} | {} |",
                     if parallel { " (rayon mat-vec)" } else { "" },
                     ms(median(times))
                 );

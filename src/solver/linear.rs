@@ -40,7 +40,8 @@ pub enum Preconditioner {
     /// Block incomplete Cholesky with no fill, IC(0), in the form
     /// P = (D̃ + L̃) D̃⁻¹ (D̃ + L̃ᵀ) with L̃ on A's own block pattern. Same
     /// application cost as `block_ssor`, plus a setup of Σ deg² block
-    /// products; fails (reported) if a pivot block is not SPD.
+    /// products. If a pivot block is not SPD (IC(0) can break down on an SPD
+    /// matrix) it retries on A + σ·blockdiag(A) for σ in [`IC0_SHIFTS`].
     BlockIc0,
     /// Symmetric block Gauss–Seidel (block SSOR with ω = 1):
     /// P = (D + L) D⁻¹ (D + U), D the 3×3 diagonal blocks. Costs about two
@@ -330,6 +331,48 @@ fn apply_precond(
     }
 }
 
+/// Diagonal shifts σ tried in turn by the IC(0) preconditioner.
+pub const IC0_SHIFTS: [f64; 6] = [0.0, 1e-3, 1e-2, 0.05, 0.2, 1.0];
+
+/// Block IC(0) of A + σ·blockdiag(A) in upper form (see
+/// [`Preconditioner::BlockIc0`]); on a non-SPD pivot returns its node.
+fn ic0_factor(a: &BlockTangent, rows: &BlockRows, shift: f64, ic: &mut [Mat3], dinv: &mut [Mat3]) -> Result<(), usize> {
+    for i in 0..a.num_nodes() {
+        let (lo_i, _) = rows.split(i);
+        // U_(k,i) = A_ki − Σ_{j<k, j~i, j~k} U_(j,k)ᵀ D̃_j⁻¹ U_(j,i).
+        for (pos, &(k, e_ki)) in lo_i.iter().enumerate() {
+            let (lo_k, _) = rows.split(k as usize);
+            let mut u = a.off[e_ki as usize];
+            let (mut p, mut q) = (0, 0);
+            while p < pos && q < lo_k.len() {
+                let (ji, e_ji) = lo_i[p];
+                let (jk, e_jk) = lo_k[q];
+                if ji < jk {
+                    p += 1;
+                } else if jk < ji {
+                    q += 1;
+                } else {
+                    u -= ic[e_jk as usize].transpose() * dinv[ji as usize] * ic[e_ji as usize];
+                    p += 1;
+                    q += 1;
+                }
+            }
+            ic[e_ki as usize] = u;
+        }
+        // D̃_i = (1 + σ) A_ii − Σ_{j<i} U_(j,i)ᵀ D̃_j⁻¹ U_(j,i).
+        let mut d = a.diag[i] * (1.0 + shift);
+        for &(j, e) in lo_i {
+            let u = &ic[e as usize];
+            d -= u.transpose() * dinv[j as usize] * u;
+        }
+        match d.cholesky() {
+            Some(c) if c.l_dirty().iter().all(|x| x.is_finite()) => dinv[i] = c.inverse(),
+            _ => return Err(i),
+        }
+    }
+    Ok(())
+}
+
 /// Preconditioned CG with its preallocated work vectors.
 #[derive(Debug, Clone)]
 pub struct Cg {
@@ -346,6 +389,7 @@ pub struct Cg {
     /// IC(0) factor blocks in upper form (block (low, high) of L̃ᵀ per edge);
     /// empty unless the preconditioner is `block_ic0`.
     ic: Vec<Mat3>,
+    ic0_shift: f64,
     r: Vec<Vec3>,
     z: Vec<Vec3>,
     p: Vec<Vec3>,
@@ -369,11 +413,17 @@ impl Cg {
             } else {
                 Vec::new()
             },
+            ic0_shift: 0.0,
             r: vec![Vec3::zeros(); n],
             z: vec![Vec3::zeros(); n],
             p: vec![Vec3::zeros(); n],
             q: vec![Vec3::zeros(); n],
         }
+    }
+
+    /// The diagonal shift σ the last IC(0) setup needed (0 if none).
+    pub fn ic0_shift(&self) -> f64 {
+        self.ic0_shift
     }
 
     fn setup(&mut self, a: &BlockTangent) -> Result<(), LinearFailure> {
@@ -392,40 +442,19 @@ impl Cg {
                 }
             }
             Preconditioner::BlockIc0 => {
-                let (rows, ic, dinv) = (&self.rows, &mut self.ic, &mut self.dinv);
-                for i in 0..a.num_nodes() {
-                    let (lo_i, _) = rows.split(i);
-                    // U_(k,i) = A_ki − Σ_{j<k, j~i, j~k} U_(j,k)ᵀ D̃_j⁻¹ U_(j,i).
-                    for (pos, &(k, e_ki)) in lo_i.iter().enumerate() {
-                        let (lo_k, _) = rows.split(k as usize);
-                        let mut u = a.off[e_ki as usize];
-                        let (mut p, mut q) = (0, 0);
-                        while p < pos && q < lo_k.len() {
-                            let (ji, e_ji) = lo_i[p];
-                            let (jk, e_jk) = lo_k[q];
-                            if ji < jk {
-                                p += 1;
-                            } else if jk < ji {
-                                q += 1;
-                            } else {
-                                u -= ic[e_jk as usize].transpose() * dinv[ji as usize] * ic[e_ji as usize];
-                                p += 1;
-                                q += 1;
-                            }
+                // Manteuffel's shift: if a pivot block is not SPD, factor
+                // A + σ·blockdiag(A) instead, with growing σ.
+                let mut last = 0;
+                for shift in IC0_SHIFTS {
+                    match ic0_factor(a, &self.rows, shift, &mut self.ic, &mut self.dinv) {
+                        Ok(()) => {
+                            self.ic0_shift = shift;
+                            return Ok(());
                         }
-                        ic[e_ki as usize] = u;
-                    }
-                    // D̃_i = A_ii − Σ_{j<i} U_(j,i)ᵀ D̃_j⁻¹ U_(j,i).
-                    let mut d = a.diag[i];
-                    for &(j, e) in lo_i {
-                        let u = &ic[e as usize];
-                        d -= u.transpose() * dinv[j as usize] * u;
-                    }
-                    match d.cholesky() {
-                        Some(c) if c.l_dirty().iter().all(|x| x.is_finite()) => dinv[i] = c.inverse(),
-                        _ => return Err(LinearFailure::SingularDiagonal { node: i }),
+                        Err(node) => last = node,
                     }
                 }
+                return Err(LinearFailure::SingularDiagonal { node: last });
             }
             Preconditioner::BlockJacobi | Preconditioner::BlockSsor => {
                 for (i, (di, d)) in self.dinv.iter_mut().zip(&a.diag).enumerate() {
@@ -470,6 +499,7 @@ impl Cg {
             z,
             p,
             q,
+            ..
         } = self;
         let (precond, parallel) = (*precond, *parallel);
         matvec(rows, a, x, q, parallel);
@@ -682,9 +712,9 @@ impl CholeskySolver {
 #[derive(Debug)]
 pub enum LinearSolver {
     /// Preconditioned CG.
-    Cg(Cg),
+    Cg(Box<Cg>),
     /// Sparse Cholesky.
-    Cholesky(CholeskySolver),
+    Cholesky(Box<CholeskySolver>),
 }
 
 impl LinearSolver {
@@ -697,8 +727,8 @@ impl LinearSolver {
                 tol,
                 max_iter,
                 strict,
-            } => LinearSolver::Cg(Cg::new(pattern, precond, tol, max_iter, strict)),
-            LinearSolverKind::Cholesky => LinearSolver::Cholesky(CholeskySolver::new(pattern)?),
+            } => LinearSolver::Cg(Box::new(Cg::new(pattern, precond, tol, max_iter, strict))),
+            LinearSolverKind::Cholesky => LinearSolver::Cholesky(Box::new(CholeskySolver::new(pattern)?)),
         })
     }
 
