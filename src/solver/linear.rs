@@ -57,12 +57,13 @@ fn default_cg_max_iter() -> usize {
     500
 }
 fn default_precond() -> Preconditioner {
-    Preconditioner::BlockJacobi
+    Preconditioner::BlockSsor
 }
 
 /// The linear solver a scene selects (TOML: `linear = { kind = "cg", precond
-/// = "block_jacobi", tol = 1e-8, max_iter = 500 }` or `{ kind = "cholesky" }`).
-#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
+/// = "block_ssor", tol = 1e-8, max_iter = 500, strict = false }` or
+/// `{ kind = "cholesky" }`; CG fields left out take those values).
+#[derive(Debug, Clone, Copy, PartialEq, Default, serde::Serialize, serde::Deserialize)]
 #[serde(tag = "kind", rename_all = "snake_case", deny_unknown_fields)]
 pub enum LinearSolverKind {
     /// Preconditioned conjugate gradient.
@@ -82,19 +83,11 @@ pub enum LinearSolverKind {
         #[serde(default)]
         strict: bool,
     },
-    /// Direct sparse Cholesky (faer, supernodal, AMD ordering).
+    /// Direct sparse Cholesky (faer, supernodal, AMD ordering). The default:
+    /// on the arch meshes measured (up to 17k DOF) it is 3–10× faster per
+    /// Newton iteration than the best PCG (`docs/SOLVERS.md`).
+    #[default]
     Cholesky,
-}
-
-impl Default for LinearSolverKind {
-    fn default() -> Self {
-        LinearSolverKind::Cg {
-            precond: default_precond(),
-            tol: default_cg_tol(),
-            max_iter: default_cg_max_iter(),
-            strict: false,
-        }
-    }
 }
 
 impl LinearSolverKind {
