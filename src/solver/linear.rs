@@ -733,3 +733,80 @@ impl LinearSolver {
         }
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A symmetric, diagonally dominant block matrix on an irregular pattern
+    /// over more nodes than one rayon chunk.
+    fn matrix(n: usize) -> BlockTangent {
+        let mut edges = Vec::new();
+        for i in 0..n as u32 - 1 {
+            edges.push([i, i + 1]);
+            if i % 3 == 0 && i + 17 < n as u32 {
+                edges.push([i, i + 17]);
+            }
+        }
+        let val = |k: usize| ((k * 7919) % 101) as f64 / 101.0 - 0.5;
+        let off: Vec<Mat3> = (0..edges.len())
+            .map(|e| Mat3::from_fn(|r, c| val(9 * e + 3 * r + c)))
+            .collect();
+        let diag = (0..n)
+            .map(|i| {
+                let s = Mat3::from_fn(|r, c| val(5 * i + r + c));
+                Mat3::identity() * 20.0 + (s + s.transpose()) * 0.5
+            })
+            .collect();
+        BlockTangent { diag, off, edges }
+    }
+
+    #[test]
+    fn row_gather_matches_edge_scatter() {
+        let a = matrix(1300);
+        let rows = BlockRows::new(a.num_nodes(), &a.edges);
+        let x: Vec<Vec3> = (0..a.num_nodes())
+            .map(|i| Vec3::new(i as f64, 1.0, -(i as f64).sqrt()))
+            .collect();
+        let (mut y0, mut y1, mut y2) = (
+            vec![Vec3::zeros(); 1300],
+            vec![Vec3::zeros(); 1300],
+            vec![Vec3::zeros(); 1300],
+        );
+        a.mul(&x, &mut y0);
+        rows.mul(&a, &x, &mut y1, false);
+        rows.mul(&a, &x, &mut y2, true);
+        for i in 0..1300 {
+            assert!((y0[i] - y1[i]).norm() <= 1e-12 * y0[i].norm().max(1.0));
+            assert_eq!(y1[i], y2[i]);
+        }
+    }
+
+    #[test]
+    fn parallel_cg_matches_serial_cg() {
+        let a = matrix(1300);
+        let b: Vec<Vec3> = (0..a.num_nodes())
+            .map(|i| Vec3::new(1.0, (i % 7) as f64, -2.0))
+            .collect();
+        for precond in [Preconditioner::BlockIc0, Preconditioner::Jacobi] {
+            let mut xs = vec![Vec3::zeros(); 1300];
+            let mut xp = xs.clone();
+            let mut cg = Cg::new(&a, precond, 1e-12, 500, true);
+            cg.solve(&a, &b, &mut xs).unwrap();
+            cg.parallel = true;
+            cg.solve(&a, &b, &mut xp).unwrap();
+            let mut r = vec![Vec3::zeros(); 1300];
+            a.mul(&xp, &mut r);
+            let res: f64 = r
+                .iter()
+                .zip(&b)
+                .map(|(p, q)| (p - q).norm_squared())
+                .sum::<f64>()
+                .sqrt();
+            assert!(res <= 1e-10 * norm(&b));
+            for (p, q) in xs.iter().zip(&xp) {
+                assert!((p - q).norm() <= 1e-9 * q.norm().max(1e-3));
+            }
+        }
+    }
+}
