@@ -8,7 +8,8 @@
 use nvtmm::mesh::arch::{generate, ArchParams};
 use nvtmm::mesh::{TetMesh, Vec3};
 use nvtmm::model::{tet_pair_edges, BlockTangent, ForceModel, Mat3};
-use nvtmm::solver::linear::{project_fixed, BlockRows, Cg, CholeskySolver, LinearSolver};
+use nvtmm::solver::bench::time_steps;
+use nvtmm::solver::linear::{project_fixed, BlockRows, Cg, CholeskySolver};
 use nvtmm::solver::loads::{Loads, NodalLoad, TimeProfile};
 use nvtmm::solver::{ImplicitEuler, ImplicitEulerParams, LinearSolverKind, NewtonParams, Preconditioner, TissueState};
 use std::time::Instant;
@@ -275,26 +276,20 @@ fn main() {
         };
         let mut model = LinearElastic { k: model.k.clone() };
         let mut state = TissueState::at_rest(n);
-        let steps = 100;
-        let mut iters = 0;
-        let t = Instant::now();
-        for _ in 0..steps {
-            let rep = euler.step(&mut state, &mut model, &loads, &fixed);
-            if let Some(f) = rep.failure {
-                println!("{linear:?}: {f}");
-                break;
-            }
-            iters += rep.linear_iters;
+        let t = time_steps(&mut euler, &mut state, &mut model, &loads, &fixed, 100);
+        if let Some(f) = &t.first_failure {
+            println!("{linear:?}: {f}");
         }
         let name = match linear {
             LinearSolverKind::Cg { precond, tol, .. } => format!("CG {precond:?} tol {tol:e}"),
             LinearSolverKind::Cholesky => "Cholesky".into(),
         };
         println!(
-            "| {name} | {:.1} | {} |",
-            iters as f64 / steps as f64,
-            ms(t.elapsed().as_secs_f64() / steps as f64)
+            "| {name} | {:.1} | {} (median {}, max {}) |",
+            t.mean_linear_iters,
+            ms(t.mean_s),
+            ms(t.median_s),
+            ms(t.max_s)
         );
     }
-    let _ = LinearSolver::new(&LinearSolverKind::Cholesky, &model.k).map(|_| ());
 }
