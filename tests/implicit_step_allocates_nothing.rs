@@ -10,16 +10,25 @@ use nvtmm::mesh::Vec3;
 use nvtmm::solver::loads::{Loads, NodalLoad, TimeProfile};
 use nvtmm::solver::{ImplicitEuler, ImplicitEulerParams, LinearSolverKind, NewtonParams, Preconditioner, TissueState};
 use std::alloc::{GlobalAlloc, Layout, System};
-use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
+use std::cell::Cell;
+use std::sync::atomic::{AtomicUsize, Ordering};
 
 struct Counting;
 static COUNT: AtomicUsize = AtomicUsize::new(0);
-static ON: AtomicBool = AtomicBool::new(false);
+thread_local! {
+    // Per thread: only the test thread's allocations count (the test harness
+    // itself may allocate on its own threads meanwhile).
+    static ON: Cell<bool> = const { Cell::new(false) };
+}
+
+fn counting() -> bool {
+    ON.try_with(|c| c.get()).unwrap_or(false)
+}
 
 // SAFETY: forwards to the system allocator unchanged; only counts.
 unsafe impl GlobalAlloc for Counting {
     unsafe fn alloc(&self, l: Layout) -> *mut u8 {
-        if ON.load(Ordering::Relaxed) {
+        if counting() {
             COUNT.fetch_add(1, Ordering::Relaxed);
         }
         // SAFETY: same contract as the caller's.
@@ -30,7 +39,7 @@ unsafe impl GlobalAlloc for Counting {
         unsafe { System.dealloc(p, l) }
     }
     unsafe fn realloc(&self, p: *mut u8, l: Layout, n: usize) -> *mut u8 {
-        if ON.load(Ordering::Relaxed) {
+        if counting() {
             COUNT.fetch_add(1, Ordering::Relaxed);
         }
         // SAFETY: same contract as the caller's.
@@ -87,12 +96,12 @@ fn implicit_step_allocates_nothing() {
         let mut euler = ImplicitEuler::new(&mesh, mesh.lumped_mass(1100.0), params).unwrap();
         let mut state = TissueState::at_rest(mesh.num_nodes());
         COUNT.store(0, Ordering::SeqCst);
-        ON.store(true, Ordering::SeqCst);
+        ON.with(|c| c.set(true));
         let mut ok = true;
         for _ in 0..5 {
             ok &= euler.step(&mut state, &mut model, &loads, &fixed).ok();
         }
-        ON.store(false, Ordering::SeqCst);
+        ON.with(|c| c.set(false));
         assert!(ok, "{linear:?}: a step failed");
         assert_eq!(COUNT.load(Ordering::SeqCst), 0, "{linear:?}: step allocated");
     }
