@@ -10,11 +10,12 @@ use nvtmm::solver::linear::{project_fixed, LinearSolver};
 use nvtmm::solver::loads::{Loads, NodalLoad, TimeProfile};
 use nvtmm::solver::{ImplicitEuler, ImplicitEulerParams, LinearSolverKind, NewtonParams, Preconditioner, TissueState};
 
-const PRECONDS: [Preconditioner; 4] = [
+const PRECONDS: [Preconditioner; 5] = [
     Preconditioner::None,
     Preconditioner::Jacobi,
     Preconditioner::BlockJacobi,
     Preconditioner::BlockSsor,
+    Preconditioner::BlockIc0,
 ];
 
 fn rel_diff(a: &[Vec3], b: &[Vec3]) -> f64 {

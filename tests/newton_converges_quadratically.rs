@@ -81,6 +81,7 @@ fn newton_with_tight_cg_is_quadratic() {
         Preconditioner::Jacobi,
         Preconditioner::BlockJacobi,
         Preconditioner::BlockSsor,
+        Preconditioner::BlockIc0,
     ] {
         assert_quadratic(&run(
             LinearSolverKind::Cg {

@@ -493,7 +493,9 @@ impl ImplicitEuler {
                 return rep;
             }
             if k == 0 && keep_k0 {
-                self.k0.clone_from(&self.k);
+                // Not `clone_from`: the derived one reallocates.
+                self.k0.diag.copy_from_slice(&self.k.diag);
+                self.k0.off.copy_from_slice(&self.k.off);
             }
             let cm = 1.0 + h * alpha;
             let (ck, ck0) = if k == 0 || !keep_k0 {

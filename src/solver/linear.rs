@@ -37,6 +37,12 @@ pub enum Preconditioner {
     Jacobi,
     /// Inverse of each node's 3×3 diagonal block of A.
     BlockJacobi,
+    /// Block incomplete Cholesky with no fill, IC(0), in the form
+    /// P = (D̃ + L̃) D̃⁻¹ (D̃ + L̃ᵀ) with L̃ on A's own block pattern. Same
+    /// application cost as `block_ssor`, plus a setup of Σ deg² block
+    /// products. If a pivot block is not SPD (IC(0) can break down on an SPD
+    /// matrix) it retries on A + σ·blockdiag(A) for σ in [`IC0_SHIFTS`].
+    BlockIc0,
     /// Symmetric block Gauss–Seidel (block SSOR with ω = 1):
     /// P = (D + L) D⁻¹ (D + U), D the 3×3 diagonal blocks. Costs about two
     /// mat-vecs per application and is sequential, but never breaks down on
@@ -51,12 +57,13 @@ fn default_cg_max_iter() -> usize {
     500
 }
 fn default_precond() -> Preconditioner {
-    Preconditioner::BlockJacobi
+    Preconditioner::BlockSsor
 }
 
 /// The linear solver a scene selects (TOML: `linear = { kind = "cg", precond
-/// = "block_jacobi", tol = 1e-8, max_iter = 500 }` or `{ kind = "cholesky" }`).
-#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
+/// = "block_ssor", tol = 1e-8, max_iter = 500, strict = false }` or
+/// `{ kind = "cholesky" }`; CG fields left out take those values).
+#[derive(Debug, Clone, Copy, PartialEq, Default, serde::Serialize, serde::Deserialize)]
 #[serde(tag = "kind", rename_all = "snake_case", deny_unknown_fields)]
 pub enum LinearSolverKind {
     /// Preconditioned conjugate gradient.
@@ -76,19 +83,11 @@ pub enum LinearSolverKind {
         #[serde(default)]
         strict: bool,
     },
-    /// Direct sparse Cholesky (faer, supernodal, AMD ordering).
+    /// Direct sparse Cholesky (faer, supernodal, AMD ordering). The default:
+    /// on the arch meshes measured (up to 17k DOF) it is 3–10× faster per
+    /// Newton iteration than the best PCG (`docs/SOLVERS.md`).
+    #[default]
     Cholesky,
-}
-
-impl Default for LinearSolverKind {
-    fn default() -> Self {
-        LinearSolverKind::Cg {
-            precond: default_precond(),
-            tol: default_cg_tol(),
-            max_iter: default_cg_max_iter(),
-            strict: false,
-        }
-    }
 }
 
 impl LinearSolverKind {
@@ -179,6 +178,9 @@ pub fn project_fixed(a: &mut BlockTangent, fixed_mask: &[bool]) {
     }
 }
 
+/// A row's neighbours (node, edge).
+type Nbrs<'a> = &'a [(u32, u32)];
+
 /// Row-wise view of a [`BlockTangent`] pattern: for each node its neighbours
 /// sorted by index with the edge joining them, so a row can be gathered
 /// without scattering (parallel mat-vec, Gauss–Seidel sweeps).
@@ -221,7 +223,7 @@ impl BlockRows {
 
     /// Neighbours of row i with a lower index, and with a higher index.
     #[inline]
-    fn split(&self, i: usize) -> (&[(u32, u32)], &[(u32, u32)]) {
+    fn split(&self, i: usize) -> (Nbrs<'_>, Nbrs<'_>) {
         let (s, m, e) = (self.start[i] as usize, self.mid[i] as usize, self.start[i + 1] as usize);
         (&self.nbr[s..m], &self.nbr[m..e])
     }
@@ -264,9 +266,15 @@ fn norm(a: &[Vec3]) -> f64 {
     dot(a, a).sqrt()
 }
 
-/// Rows at or above this many nodes use the rayon mat-vec (see
-/// `docs/SOLVERS.md` for the measurement behind it).
-pub const PARALLEL_MATVEC_MIN_NODES: usize = usize::MAX;
+/// y = A x: serial edge scatter (each off-diagonal block read once, the
+/// fastest serial form) or rayon row gather (each block read twice).
+fn matvec(rows: &BlockRows, a: &BlockTangent, x: &[Vec3], y: &mut [Vec3], parallel: bool) {
+    if parallel {
+        rows.mul(a, x, y, true);
+    } else {
+        a.mul(x, y);
+    }
+}
 
 /// z = P⁻¹ r for the preconditioner `precond` with the diagonal block
 /// inverses `dinv`.
@@ -274,6 +282,7 @@ fn apply_precond(
     precond: Preconditioner,
     rows: &BlockRows,
     dinv: &[Mat3],
+    ic: &[Mat3],
     a: &BlockTangent,
     r: &[Vec3],
     z: &mut [Vec3],
@@ -285,13 +294,20 @@ fn apply_precond(
                 *zi = di * ri;
             }
         }
-        Preconditioner::BlockSsor => {
+        Preconditioner::BlockSsor | Preconditioner::BlockIc0 => {
+            // SSOR uses A's own blocks and diagonal, IC(0) its factor's
+            // (both in upper form: block (low, high) per edge).
+            let up = if precond == Preconditioner::BlockIc0 {
+                ic
+            } else {
+                &a.off[..]
+            };
             // Forward: (D + L) y = r.
             for i in 0..z.len() {
                 let (lo, _) = rows.split(i);
                 let mut s = r[i];
                 for &(j, e) in lo {
-                    s -= a.off[e as usize].tr_mul(&z[j as usize]);
+                    s -= up[e as usize].tr_mul(&z[j as usize]);
                 }
                 z[i] = dinv[i] * s;
             }
@@ -300,12 +316,54 @@ fn apply_precond(
                 let (_, hi) = rows.split(i);
                 let mut s = Vec3::zeros();
                 for &(j, e) in hi {
-                    s += a.off[e as usize] * z[j as usize];
+                    s += up[e as usize] * z[j as usize];
                 }
                 z[i] -= dinv[i] * s;
             }
         }
     }
+}
+
+/// Diagonal shifts σ tried in turn by the IC(0) preconditioner.
+pub const IC0_SHIFTS: [f64; 6] = [0.0, 1e-3, 1e-2, 0.05, 0.2, 1.0];
+
+/// Block IC(0) of A + σ·blockdiag(A) in upper form (see
+/// [`Preconditioner::BlockIc0`]); on a non-SPD pivot returns its node.
+fn ic0_factor(a: &BlockTangent, rows: &BlockRows, shift: f64, ic: &mut [Mat3], dinv: &mut [Mat3]) -> Result<(), usize> {
+    for i in 0..a.num_nodes() {
+        let (lo_i, _) = rows.split(i);
+        // U_(k,i) = A_ki − Σ_{j<k, j~i, j~k} U_(j,k)ᵀ D̃_j⁻¹ U_(j,i).
+        for (pos, &(k, e_ki)) in lo_i.iter().enumerate() {
+            let (lo_k, _) = rows.split(k as usize);
+            let mut u = a.off[e_ki as usize];
+            let (mut p, mut q) = (0, 0);
+            while p < pos && q < lo_k.len() {
+                let (ji, e_ji) = lo_i[p];
+                let (jk, e_jk) = lo_k[q];
+                if ji < jk {
+                    p += 1;
+                } else if jk < ji {
+                    q += 1;
+                } else {
+                    u -= ic[e_jk as usize].transpose() * dinv[ji as usize] * ic[e_ji as usize];
+                    p += 1;
+                    q += 1;
+                }
+            }
+            ic[e_ki as usize] = u;
+        }
+        // D̃_i = (1 + σ) A_ii − Σ_{j<i} U_(j,i)ᵀ D̃_j⁻¹ U_(j,i).
+        let mut d = a.diag[i] * (1.0 + shift);
+        for &(j, e) in lo_i {
+            let u = &ic[e as usize];
+            d -= u.transpose() * dinv[j as usize] * u;
+        }
+        match d.cholesky() {
+            Some(c) if c.l_dirty().iter().all(|x| x.is_finite()) => dinv[i] = c.inverse(),
+            _ => return Err(i),
+        }
+    }
+    Ok(())
 }
 
 /// Preconditioned CG with its preallocated work vectors.
@@ -315,10 +373,16 @@ pub struct Cg {
     tol: f64,
     max_iter: usize,
     strict: bool,
-    /// Use the rayon mat-vec.
+    /// Use the rayon row-gather mat-vec instead of the serial edge-scatter
+    /// one. Off by default: on the 2-core machine, shared, it did not pay
+    /// (`docs/SOLVERS.md`).
     pub parallel: bool,
     rows: BlockRows,
     dinv: Vec<Mat3>,
+    /// IC(0) factor blocks in upper form (block (low, high) of L̃ᵀ per edge);
+    /// empty unless the preconditioner is `block_ic0`.
+    ic: Vec<Mat3>,
+    ic0_shift: f64,
     r: Vec<Vec3>,
     z: Vec<Vec3>,
     p: Vec<Vec3>,
@@ -334,14 +398,25 @@ impl Cg {
             tol,
             max_iter,
             strict,
-            parallel: n >= PARALLEL_MATVEC_MIN_NODES,
+            parallel: false,
             rows: BlockRows::new(n, &pattern.edges),
             dinv: vec![Mat3::zeros(); n],
+            ic: if precond == Preconditioner::BlockIc0 {
+                vec![Mat3::zeros(); pattern.edges.len()]
+            } else {
+                Vec::new()
+            },
+            ic0_shift: 0.0,
             r: vec![Vec3::zeros(); n],
             z: vec![Vec3::zeros(); n],
             p: vec![Vec3::zeros(); n],
             q: vec![Vec3::zeros(); n],
         }
+    }
+
+    /// The diagonal shift σ the last IC(0) setup needed (0 if none).
+    pub fn ic0_shift(&self) -> f64 {
+        self.ic0_shift
     }
 
     fn setup(&mut self, a: &BlockTangent) -> Result<(), LinearFailure> {
@@ -358,6 +433,21 @@ impl Cg {
                         di[(k, k)] = 1.0 / v;
                     }
                 }
+            }
+            Preconditioner::BlockIc0 => {
+                // Manteuffel's shift: if a pivot block is not SPD, factor
+                // A + σ·blockdiag(A) instead, with growing σ.
+                let mut last = 0;
+                for shift in IC0_SHIFTS {
+                    match ic0_factor(a, &self.rows, shift, &mut self.ic, &mut self.dinv) {
+                        Ok(()) => {
+                            self.ic0_shift = shift;
+                            return Ok(());
+                        }
+                        Err(node) => last = node,
+                    }
+                }
+                return Err(LinearFailure::SingularDiagonal { node: last });
             }
             Preconditioner::BlockJacobi | Preconditioner::BlockSsor => {
                 for (i, (di, d)) in self.dinv.iter_mut().zip(&a.diag).enumerate() {
@@ -397,13 +487,15 @@ impl Cg {
             parallel,
             rows,
             dinv,
+            ic,
             r,
             z,
             p,
             q,
+            ..
         } = self;
         let (precond, parallel) = (*precond, *parallel);
-        rows.mul(a, x, q, parallel);
+        matvec(rows, a, x, q, parallel);
         for ((ri, bi), qi) in r.iter_mut().zip(b).zip(q.iter()) {
             *ri = bi - qi;
         }
@@ -414,13 +506,13 @@ impl Cg {
             rnorm = bnorm;
         }
         let goal = *tol * bnorm;
-        let precond = |r: &[Vec3], z: &mut [Vec3]| apply_precond(precond, rows, dinv, a, r, z);
+        let precond = |r: &[Vec3], z: &mut [Vec3]| apply_precond(precond, rows, dinv, ic, a, r, z);
         precond(r, z);
         p.copy_from_slice(z);
         let mut rz = dot(r, z);
         let mut iters = 0;
         while rnorm > goal && iters < *max_iter {
-            rows.mul(a, p, q, parallel);
+            matvec(rows, a, p, q, parallel);
             let pq = dot(p, q);
             if !(pq.is_finite() && pq > 0.0 && rz.is_finite() && rz > 0.0) {
                 return Err(LinearFailure::CgBreakdown { iter: iters });
@@ -613,8 +705,8 @@ impl CholeskySolver {
 #[derive(Debug)]
 pub enum LinearSolver {
     /// Preconditioned CG.
-    Cg(Cg),
-    /// Sparse Cholesky (boxed: it is large).
+    Cg(Box<Cg>),
+    /// Sparse Cholesky.
     Cholesky(Box<CholeskySolver>),
 }
 
@@ -628,7 +720,7 @@ impl LinearSolver {
                 tol,
                 max_iter,
                 strict,
-            } => LinearSolver::Cg(Cg::new(pattern, precond, tol, max_iter, strict)),
+            } => LinearSolver::Cg(Box::new(Cg::new(pattern, precond, tol, max_iter, strict))),
             LinearSolverKind::Cholesky => LinearSolver::Cholesky(Box::new(CholeskySolver::new(pattern)?)),
         })
     }
@@ -638,6 +730,83 @@ impl LinearSolver {
         match self {
             LinearSolver::Cg(cg) => cg.solve(a, b, x),
             LinearSolver::Cholesky(ch) => ch.solve(a, b, x),
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A symmetric, diagonally dominant block matrix on an irregular pattern
+    /// over more nodes than one rayon chunk.
+    fn matrix(n: usize) -> BlockTangent {
+        let mut edges = Vec::new();
+        for i in 0..n as u32 - 1 {
+            edges.push([i, i + 1]);
+            if i % 3 == 0 && i + 17 < n as u32 {
+                edges.push([i, i + 17]);
+            }
+        }
+        let val = |k: usize| ((k * 7919) % 101) as f64 / 101.0 - 0.5;
+        let off: Vec<Mat3> = (0..edges.len())
+            .map(|e| Mat3::from_fn(|r, c| val(9 * e + 3 * r + c)))
+            .collect();
+        let diag = (0..n)
+            .map(|i| {
+                let s = Mat3::from_fn(|r, c| val(5 * i + r + c));
+                Mat3::identity() * 20.0 + (s + s.transpose()) * 0.5
+            })
+            .collect();
+        BlockTangent { diag, off, edges }
+    }
+
+    #[test]
+    fn row_gather_matches_edge_scatter() {
+        let a = matrix(1300);
+        let rows = BlockRows::new(a.num_nodes(), &a.edges);
+        let x: Vec<Vec3> = (0..a.num_nodes())
+            .map(|i| Vec3::new(i as f64, 1.0, -(i as f64).sqrt()))
+            .collect();
+        let (mut y0, mut y1, mut y2) = (
+            vec![Vec3::zeros(); 1300],
+            vec![Vec3::zeros(); 1300],
+            vec![Vec3::zeros(); 1300],
+        );
+        a.mul(&x, &mut y0);
+        rows.mul(&a, &x, &mut y1, false);
+        rows.mul(&a, &x, &mut y2, true);
+        for i in 0..1300 {
+            assert!((y0[i] - y1[i]).norm() <= 1e-12 * y0[i].norm().max(1.0));
+            assert_eq!(y1[i], y2[i]);
+        }
+    }
+
+    #[test]
+    fn parallel_cg_matches_serial_cg() {
+        let a = matrix(1300);
+        let b: Vec<Vec3> = (0..a.num_nodes())
+            .map(|i| Vec3::new(1.0, (i % 7) as f64, -2.0))
+            .collect();
+        for precond in [Preconditioner::BlockIc0, Preconditioner::Jacobi] {
+            let mut xs = vec![Vec3::zeros(); 1300];
+            let mut xp = xs.clone();
+            let mut cg = Cg::new(&a, precond, 1e-12, 500, true);
+            cg.solve(&a, &b, &mut xs).unwrap();
+            cg.parallel = true;
+            cg.solve(&a, &b, &mut xp).unwrap();
+            let mut r = vec![Vec3::zeros(); 1300];
+            a.mul(&xp, &mut r);
+            let res: f64 = r
+                .iter()
+                .zip(&b)
+                .map(|(p, q)| (p - q).norm_squared())
+                .sum::<f64>()
+                .sqrt();
+            assert!(res <= 1e-10 * norm(&b));
+            for (p, q) in xs.iter().zip(&xp) {
+                assert!((p - q).norm() <= 1e-9 * q.norm().max(1e-3));
+            }
         }
     }
 }

@@ -5,23 +5,39 @@
 //! external loads ([`loads`]), the Newton-based backward Euler integrator
 //! ([`implicit_euler`]) and the linear solvers for its Newton systems
 //! ([`linear`]: preconditioned CG on the assembled blocks, faer sparse
-//! Cholesky). Force models live in [`crate::model`] and know nothing about
+//! Cholesky), and a step-timing harness ([`bench`](mod@bench)). Force models live in [`crate::model`] and know nothing about
 //! time; the reduced (modal) model and the haptic loop are elsewhere. The
 //! formulation, sign conventions and measurements are in `docs/SOLVERS.md`.
 //!
 //! ```
 //! use nvtmm::mesh::{arch::{generate, ArchParams}, Vec3};
-//! use nvtmm::solver::{loads::{Loads, nodes_in_box}, ImplicitEuler, ImplicitEulerParams, TissueState};
+//! use nvtmm::solver::loads::{nodes_in_box, Loads, NodalLoad, TimeProfile};
+//! use nvtmm::solver::{ImplicitEuler, ImplicitEulerParams, LinearSolverKind, TissueState};
+//!
 //! let arch = generate(&ArchParams::default(), 1458).unwrap();
 //! let mesh = &arch.mesh;
-//! let fixed = mesh.node_set("inlet").unwrap().to_vec();
-//! let mut euler = ImplicitEuler::new(mesh, mesh.lumped_mass(1100.0), ImplicitEulerParams::default()).unwrap();
+//! // Clamp both ends; pull on the outer wall with a 0.1 s ramp.
+//! let mut fixed = mesh.node_set("inlet").unwrap().to_vec();
+//! fixed.extend_from_slice(mesh.node_set("outlet_descending").unwrap());
+//! let loads = Loads {
+//!     nodal: vec![NodalLoad {
+//!         nodes: mesh.node_set("outer_wall").unwrap().to_vec(),
+//!         force: Vec3::new(0.0, 0.0, -1e-4),
+//!         profile: TimeProfile::Ramp { t0: 0.0, t1: 0.1 },
+//!     }],
+//!     gravity: Vec3::zeros(),
+//! };
+//! let params = ImplicitEulerParams { dt: 1e-3, linear: LinearSolverKind::Cholesky, ..Default::default() };
+//! let euler = ImplicitEuler::new(mesh, mesh.lumped_mass(1100.0), params).unwrap();
 //! let state = TissueState::at_rest(mesh.num_nodes());
+//! // With a force model `model: impl ForceModel`, each step is
+//! // `let report = euler.step(&mut state, &mut model, &loads, &fixed);`
 //! let (lo, hi) = mesh.bbox();
 //! assert_eq!(nodes_in_box(mesh, lo, hi).len(), mesh.num_nodes());
-//! # let _ = (fixed, &mut euler, state, Loads::none(), Vec3::zeros());
+//! # let _ = (euler, state, loads, fixed);
 //! ```
 
+pub mod bench;
 pub mod implicit_euler;
 pub mod linear;
 pub mod loads;

@@ -1,0 +1,108 @@
+//! After construction, `ImplicitEuler::step` allocates nothing (with a model
+//! that does not allocate either), on the CG path with every preconditioner
+//! and on the sparse Cholesky path: the background solver can run next to the
+//! RT loop without touching the allocator.
+
+mod common;
+
+use common::{block, Springs};
+use nvtmm::mesh::Vec3;
+use nvtmm::solver::loads::{Loads, NodalLoad, TimeProfile};
+use nvtmm::solver::{ImplicitEuler, ImplicitEulerParams, LinearSolverKind, NewtonParams, Preconditioner, TissueState};
+use std::alloc::{GlobalAlloc, Layout, System};
+use std::cell::Cell;
+use std::sync::atomic::{AtomicUsize, Ordering};
+
+struct Counting;
+static COUNT: AtomicUsize = AtomicUsize::new(0);
+thread_local! {
+    // Per thread: only the test thread's allocations count (the test harness
+    // itself may allocate on its own threads meanwhile).
+    static ON: Cell<bool> = const { Cell::new(false) };
+}
+
+fn counting() -> bool {
+    ON.try_with(|c| c.get()).unwrap_or(false)
+}
+
+// SAFETY: forwards to the system allocator unchanged; only counts.
+unsafe impl GlobalAlloc for Counting {
+    unsafe fn alloc(&self, l: Layout) -> *mut u8 {
+        if counting() {
+            COUNT.fetch_add(1, Ordering::Relaxed);
+        }
+        // SAFETY: same contract as the caller's.
+        unsafe { System.alloc(l) }
+    }
+    unsafe fn dealloc(&self, p: *mut u8, l: Layout) {
+        // SAFETY: same contract as the caller's.
+        unsafe { System.dealloc(p, l) }
+    }
+    unsafe fn realloc(&self, p: *mut u8, l: Layout, n: usize) -> *mut u8 {
+        if counting() {
+            COUNT.fetch_add(1, Ordering::Relaxed);
+        }
+        // SAFETY: same contract as the caller's.
+        unsafe { System.realloc(p, l, n) }
+    }
+}
+
+#[global_allocator]
+static GLOBAL: Counting = Counting;
+
+#[test]
+fn implicit_step_allocates_nothing() {
+    let mesh = block(4, 3, 3, 0.01);
+    let fixed = mesh.node_set("x0").unwrap().to_vec();
+    let loads = Loads {
+        nodal: vec![NodalLoad {
+            nodes: mesh.node_set("x1").unwrap().to_vec(),
+            force: Vec3::new(0.5, 0.2, 0.0),
+            profile: TimeProfile::Sine {
+                freq_hz: 10.0,
+                phase: 0.0,
+            },
+        }],
+        gravity: Vec3::new(0.0, 0.0, -9.81),
+    };
+    let mut kinds: Vec<LinearSolverKind> = [
+        Preconditioner::None,
+        Preconditioner::Jacobi,
+        Preconditioner::BlockJacobi,
+        Preconditioner::BlockSsor,
+        Preconditioner::BlockIc0,
+    ]
+    .into_iter()
+    .map(|precond| LinearSolverKind::Cg {
+        precond,
+        tol: 1e-10,
+        max_iter: 500,
+        strict: false,
+    })
+    .collect();
+    kinds.push(LinearSolverKind::Cholesky);
+    for linear in kinds {
+        let mut model = Springs::new(&mesh, 100.0, 1e6);
+        let params = ImplicitEulerParams {
+            dt: 2e-3,
+            rayleigh_alpha: 1.0,
+            rayleigh_beta: 1e-3,
+            newton: NewtonParams {
+                max_iters: 4,
+                ..NewtonParams::default()
+            },
+            linear,
+        };
+        let mut euler = ImplicitEuler::new(&mesh, mesh.lumped_mass(1100.0), params).unwrap();
+        let mut state = TissueState::at_rest(mesh.num_nodes());
+        COUNT.store(0, Ordering::SeqCst);
+        ON.with(|c| c.set(true));
+        let mut ok = true;
+        for _ in 0..5 {
+            ok &= euler.step(&mut state, &mut model, &loads, &fixed).ok();
+        }
+        ON.with(|c| c.set(false));
+        assert!(ok, "{linear:?}: a step failed");
+        assert_eq!(COUNT.load(Ordering::SeqCst), 0, "{linear:?}: step allocated");
+    }
+}
