@@ -480,6 +480,7 @@ fn precond_name(p: Preconditioner) -> &'static str {
         Preconditioner::Jacobi => "jacobi",
         Preconditioner::BlockJacobi => "block_jacobi",
         Preconditioner::BlockSsor => "block_ssor",
+        Preconditioner::BlockIc0 => "block_ic0",
     }
 }
 
@@ -492,9 +493,10 @@ pub fn parse_linear(s: &str) -> Result<LinearSolverKind, String> {
         "cg-jacobi" => Preconditioner::Jacobi,
         "cg-none" => Preconditioner::None,
         "cg-block_ssor" => Preconditioner::BlockSsor,
+        "cg-block_ic0" => Preconditioner::BlockIc0,
         _ => {
             return Err(format!(
-                "--linear {s}: allowed cholesky, cg-none, cg-jacobi, cg-block_jacobi, cg-block_ssor"
+                "--linear {s}: allowed cholesky, cg-none, cg-jacobi, cg-block_jacobi, cg-block_ssor, cg-block_ic0"
             ))
         }
     };

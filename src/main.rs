@@ -58,7 +58,7 @@ enum BenchCmd {
         /// Add one Prony term (α = 0.5, τ = 0.58 s).
         #[arg(long)]
         prony: bool,
-        /// Linear solver: cholesky, cg-none, cg-jacobi, cg-block_jacobi, cg-block_ssor.
+        /// Linear solver: cholesky, cg-none, cg-jacobi, cg-block_jacobi, cg-block_ssor, cg-block_ic0.
         #[arg(long, default_value = "cg-block_jacobi")]
         linear: String,
         /// Print JSON.
