@@ -125,12 +125,14 @@ pub enum MeshError {
     },
     /// An element (cell) the reader cannot use: a 3-D element that is not a
     /// linear tetrahedron, or one of an unknown type.
-    #[error("{path}:{line}: element {element}: {msg}")]
+    #[error("{path}:{line}: {kind} {element}: {msg}")]
     Element {
         /// The file.
         path: PathBuf,
-        /// 1-based line number (0 in binary data).
+        /// 1-based line number (for binary VTK, the line of the data's header).
         line: usize,
+        /// What the format calls it: "element" (Gmsh) or "cell" (VTK).
+        kind: &'static str,
         /// The element's tag (Gmsh) or zero-based cell index (VTK).
         element: u64,
         /// What is wrong.
@@ -165,6 +167,9 @@ pub fn read_mesh_scaled(path: &Path, scale: f64) -> Result<TetMesh, MeshError> {
     let format = Format::from_path(path)?;
     if format == Format::TetGen {
         return tetgen::read(path, scale);
+    }
+    if format.is_surface_only() {
+        return read_mesh_bytes(format, path, &[], scale);
     }
     let bytes = std::fs::read(path).map_err(|source| MeshError::Io {
         path: path.to_path_buf(),

@@ -72,6 +72,7 @@ pub(crate) fn cells_to_tets(
     let err = |cell: usize, msg: String| MeshError::Element {
         path: path.to_path_buf(),
         line,
+        kind: "cell",
         element: cell as u64,
         msg,
     };
