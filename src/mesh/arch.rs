@@ -311,6 +311,7 @@ pub fn generate_grid(params: &ArchParams, grid: ArchGrid) -> Result<Arch, ArchEr
 
     let mm = 1e-3;
     let mut rest = Vec::with_capacity(grid.nodes());
+    #[allow(clippy::needless_range_loop)] // `a` indexes three parallel arrays
     for a in 0..grid.axial {
         let u = cl.s[a] / total;
         let (n, t) = (normals[a], cl.tan[a]);

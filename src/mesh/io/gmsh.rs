@@ -437,8 +437,8 @@ fn elements_v2(s: &mut Scan, p: &mut Parsed) -> Result<(), MeshError> {
         for k in 0..nn {
             let t = s.u64("an element's node tag")?;
             let i = p.node(s.path(), Loc::Line(s.line()), tag, t)?;
-            if ty == TET4 {
-                ids[k] = i;
+            if let Some(slot) = ids.get_mut(k).filter(|_| ty == TET4) {
+                *slot = i;
             }
             if named {
                 p.group_nodes.entry(key).or_default().push(i);
@@ -494,8 +494,8 @@ fn elements_v4(g: &mut G, p: &mut Parsed) -> Result<(), MeshError> {
             for k in 0..nn {
                 let t = g.size_t("an element's node tag")?;
                 let i = p.node(g.s.path(), g.loc(), tag, t)?;
-                if ty == TET4 {
-                    ids[k] = i;
+                if let Some(slot) = ids.get_mut(k).filter(|_| ty == TET4) {
+                    *slot = i;
                 }
                 for key in &groups {
                     p.group_nodes.entry(*key).or_default().push(i);
