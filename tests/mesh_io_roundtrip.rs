@@ -356,3 +356,31 @@ fn vtu_with_data_and_pvd_series() {
     let e = write_vtu_with_data(&dir.path().join("bad.vtu"), &m, None, &[("u", short)], &[]).unwrap_err();
     assert!(e.to_string().contains("'u' has 10 values"), "{e}");
 }
+
+#[test]
+fn files_written_by_meshio_read_the_same_mesh() {
+    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/fixtures/meshio");
+    let reference = read_mesh(&dir.join("small.vtu")).unwrap();
+    for f in [
+        "mio22.msh",
+        "mio41a.msh",
+        "mio41b.msh",
+        "mioa.vtk",
+        "miob.vtk",
+        "mio.vtu",
+    ] {
+        let m = read_mesh(&dir.join(f)).unwrap_or_else(|e| panic!("{f}: {e}"));
+        assert_eq!(m.tets(), reference.tets(), "{f}");
+        assert_eq!(m.report().inverted, 0, "{f}");
+        // meshio's ASCII .vtu keeps 12 significant digits; the others are exact.
+        let tol = if f == "mio.vtu" { 1e-10 } else { 1e-15 };
+        for (p, q) in m.rest().iter().zip(reference.rest()) {
+            assert!((p - q).norm() <= tol * q.norm().max(1e-3), "{f}: {p} vs {q}");
+        }
+    }
+    // meshio keeps point data in VTK formats: the node set survives.
+    for f in ["mioa.vtk", "miob.vtk", "mio.vtu"] {
+        let m = read_mesh(&dir.join(f)).unwrap();
+        assert_eq!(m.node_set("inlet"), reference.node_set("inlet"), "{f}");
+    }
+}

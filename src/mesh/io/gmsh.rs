@@ -522,8 +522,8 @@ fn gmsh_name(name: &str) -> String {
         .collect()
 }
 
-/// Writes Gmsh 4.1 ASCII: all nodes in one volume entity (tag 1), the tets in
-/// it, and each node set as a point entity of 1-node elements with a physical
+/// Writes Gmsh 4.1 ASCII: all nodes in one volume entity (tag 1, in an
+/// unnamed physical group 1), the tets in it, and each node set as a point entity of 1-node elements with a physical
 /// group named after the set (tags 1, 2, … in name order).
 pub fn write_gmsh(mesh: &TetMesh, path: &Path) -> Result<(), MeshError> {
     let nodes = mesh.rest();
@@ -545,9 +545,11 @@ pub fn write_gmsh(mesh: &TetMesh, path: &Path) -> Result<(), MeshError> {
             let x = ids.first().map_or(Vec3::zeros(), |&i| nodes[i as usize]);
             writeln!(w, "{} {} {} {} 1 {}", k + 1, x.x, x.y, x.z, k + 1)?;
         }
+        // The volume carries an unnamed physical group (3, 1): readers such as
+        // meshio expect every element block to have one; ours ignores unnamed groups.
         writeln!(
             w,
-            "1 {} {} {} {} {} {} 0 0\n$EndEntities",
+            "1 {} {} {} {} {} {} 1 1 0\n$EndEntities",
             lo.x, lo.y, lo.z, hi.x, hi.y, hi.z
         )?;
         let n = nodes.len();
