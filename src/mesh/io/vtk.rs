@@ -325,7 +325,7 @@ pub(crate) fn read(path: &Path, data: &[u8]) -> Result<RawMesh, MeshError> {
                 }
                 attributes(&mut s, &arrays, n, is_point, &mut sets)?;
             }
-            "FIELD" => field(&mut s, &arrays)?,
+            "FIELD" => field(&mut s, &arrays, None)?,
             "METADATA" => metadata(&mut s),
             k => return Err(s.err(format!("unknown keyword '{}'", quote(k)))),
         }
@@ -423,7 +423,7 @@ fn attributes(
             }
             "FIELD" => {
                 s.token("FIELD")?;
-                field(s, arrays)?;
+                field(s, arrays, is_point.then_some((n, &mut *sets)))?;
             }
             "METADATA" => {
                 s.token("METADATA")?;
@@ -435,16 +435,29 @@ fn attributes(
 }
 
 /// `FIELD name count` then per array `name ncomp ntuples type` and values.
-fn field(s: &mut Scan, arrays: &Arrays) -> Result<(), MeshError> {
+/// With `sets` (inside `POINT_DATA n`), one-component arrays `set_<name>` of
+/// `n` tuples become node sets (meshio writes point data this way).
+fn field(
+    s: &mut Scan,
+    arrays: &Arrays,
+    mut sets: Option<(u64, &mut BTreeMap<String, Vec<u32>>)>,
+) -> Result<(), MeshError> {
     s.token("the field name")?;
     let count = s.u64("the number of field arrays")?;
     for _ in 0..count {
-        s.token("the field array name")?;
+        let name = unescape(s.token("the field array name")?);
         let ncomp = s.u64("the number of components")?;
         let ntup = s.u64("the number of tuples")?;
         let ty = s.token("the data type")?;
         arrays.start_data(s);
-        arrays.skip(s, ncomp.saturating_mul(ntup), ty, "field values")?;
+        match (name.strip_prefix(SET_PREFIX), sets.as_mut()) {
+            (Some(set), Some((n, sets))) if ncomp == 1 && ntup == *n => {
+                let v = arrays.reals(s, ntup, ty, "node set values")?;
+                let ids = v.iter().enumerate().filter(|(_, &x)| x != 0.0).map(|(i, _)| i as u32);
+                sets.insert(set.to_string(), ids.collect());
+            }
+            _ => arrays.skip(s, ncomp.saturating_mul(ntup), ty, "field values")?,
+        }
     }
     Ok(())
 }
