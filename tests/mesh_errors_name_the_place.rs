@@ -282,3 +282,13 @@ fn surface_files_and_unknown_extensions_are_refused() {
     let e = read_mesh(Path::new("x.foo")).unwrap_err().to_string();
     has(&e, &["x.foo", "unknown mesh format"]);
 }
+
+#[test]
+fn scale_must_be_finite_and_positive() {
+    let f = gmsh22("1\n1 4 2 0 1 1 2 3 4\n");
+    read_mesh_bytes(Format::Gmsh, Path::new("ok.msh"), f.as_bytes(), 1e-3).unwrap();
+    for s in [0.0, -1.0, f64::NAN, f64::INFINITY] {
+        let e = read_mesh_bytes(Format::Gmsh, Path::new("s.msh"), f.as_bytes(), s).unwrap_err();
+        has(&e.to_string(), &["s.msh:", "must be finite and positive"]);
+    }
+}

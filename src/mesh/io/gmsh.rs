@@ -468,7 +468,7 @@ fn elements_v4(g: &mut G, p: &mut Parsed) -> Result<(), MeshError> {
         }
         let info = element_info(ty);
         let nn = match info {
-            Some((nn, d, _)) if (d < 3 && dim < 3) || ty == TET4 => nn,
+            Some((nn, d, _)) if d < 3 || ty == TET4 => nn,
             _ => {
                 let first = g.size_t("an element tag")?;
                 return Err(bad_element(g.s.path(), g.loc(), first, ty));

@@ -165,6 +165,7 @@ pub fn read_mesh(path: &Path) -> Result<TetMesh, MeshError> {
 /// file in millimetres). TetGen pairs are found from either file's path.
 pub fn read_mesh_scaled(path: &Path, scale: f64) -> Result<TetMesh, MeshError> {
     let format = Format::from_path(path)?;
+    check_scale(path, scale)?;
     if format == Format::TetGen {
         return tetgen::read(path, scale);
     }
@@ -181,6 +182,7 @@ pub fn read_mesh_scaled(path: &Path, scale: f64) -> Result<TetMesh, MeshError> {
 /// Parses a volume mesh held in memory; `path` only names it in errors.
 /// TetGen needs two files: use [`read_tetgen_bytes`].
 pub fn read_mesh_bytes(format: Format, path: &Path, bytes: &[u8], scale: f64) -> Result<TetMesh, MeshError> {
+    check_scale(path, scale)?;
     let raw = match format {
         Format::Gmsh => gmsh::read(path, bytes)?,
         Format::VtkLegacy => vtk::read(path, bytes)?,
@@ -214,6 +216,18 @@ pub fn write_mesh(mesh: &TetMesh, path: &Path) -> Result<(), MeshError> {
         Format::Ply => write_ply(mesh, path),
         Format::Obj => write_obj(mesh, path),
         Format::Stl => write_stl(mesh, path),
+    }
+}
+
+/// A scale must be finite and positive (a negative one would invert every tet).
+fn check_scale(path: &Path, scale: f64) -> Result<(), MeshError> {
+    if scale.is_finite() && scale > 0.0 {
+        Ok(())
+    } else {
+        Err(MeshError::InvalidData {
+            path: path.to_path_buf(),
+            what: format!("scale {scale} must be finite and positive"),
+        })
     }
 }
 
