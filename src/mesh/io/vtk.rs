@@ -366,7 +366,6 @@ fn attributes(
 ) -> Result<(), MeshError> {
     loop {
         let Some(kw) = s.peek() else { return Ok(()) };
-        let line = s.line();
         match kw {
             "SCALARS" => {
                 s.token("SCALARS")?;
@@ -387,11 +386,7 @@ fn attributes(
                 match name.strip_prefix(SET_PREFIX) {
                     Some(set) if is_point && ncomp == 1 => {
                         let v = arrays.reals(s, total, ty, "node set values")?;
-                        let ids = v.iter().enumerate().filter(|(_, &x)| x != 0.0).map(|(i, _)| i as u32);
-                        if v.len() as u64 != n {
-                            return Err(s.err_at(line, "node set array is short"));
-                        }
-                        sets.insert(set.to_string(), ids.collect());
+                        sets.insert(set.to_string(), members(&v));
                     }
                     _ => arrays.skip(s, total, ty, "scalar values")?,
                 }
@@ -453,8 +448,7 @@ fn field(
         match (name.strip_prefix(SET_PREFIX), sets.as_mut()) {
             (Some(set), Some((n, sets))) if ncomp == 1 && ntup == *n => {
                 let v = arrays.reals(s, ntup, ty, "node set values")?;
-                let ids = v.iter().enumerate().filter(|(_, &x)| x != 0.0).map(|(i, _)| i as u32);
-                sets.insert(set.to_string(), ids.collect());
+                sets.insert(set.to_string(), members(&v));
             }
             _ => arrays.skip(s, ncomp.saturating_mul(ntup), ty, "field values")?,
         }
@@ -505,6 +499,11 @@ pub fn write_vtk(mesh: &TetMesh, path: &Path) -> Result<(), MeshError> {
         }
         Ok(())
     })
+}
+
+/// The nodes of a membership mask (non-zero = member).
+pub(crate) fn members(mask: &[f64]) -> Vec<u32> {
+    (0..mask.len() as u32).filter(|&i| mask[i as usize] != 0.0).collect()
 }
 
 /// A 0/1 mask of a node set.

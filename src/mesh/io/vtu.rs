@@ -9,7 +9,7 @@
 //! declarations) needs no dependency.
 
 use super::scan::{quote, Scan};
-use super::vtk::{cells_to_tets, membership, SET_PREFIX};
+use super::vtk::{cells_to_tets, members, membership, SET_PREFIX};
 use super::{write_file, MeshError, RawMesh};
 use crate::mesh::{TetMesh, Vec3};
 use std::collections::{BTreeMap, HashMap};
@@ -327,10 +327,10 @@ pub(crate) fn read(path: &Path, data: &[u8]) -> Result<RawMesh, MeshError> {
     let mut sets = BTreeMap::new();
     for a in &point_data {
         if let Some(set) = a.name.strip_prefix(SET_PREFIX) {
+            // Check every set_ array parses, but only one-component ones are sets.
             let v = reals(path, a, npts.saturating_mul(a.ncomp))?;
-            let ids = v.iter().enumerate().filter(|(_, &x)| x != 0.0).map(|(i, _)| i as u32);
             if a.ncomp == 1 {
-                sets.insert(set.to_string(), ids.collect());
+                sets.insert(set.to_string(), members(&v));
             }
         }
     }
