@@ -384,3 +384,18 @@ fn files_written_by_meshio_read_the_same_mesh() {
         assert_eq!(m.node_set("inlet"), reference.node_set("inlet"), "{f}");
     }
 }
+
+#[test]
+fn node_set_names_with_spaces_and_markup_and_empty_sets_survive() {
+    let mut m = generate(&ArchParams::default(), 200).unwrap().mesh;
+    m.set_node_set("wall face & <lumen>", vec![3, 1, 2]).unwrap();
+    m.set_node_set("100% empty", vec![]).unwrap();
+    let dir = tempfile::tempdir().unwrap();
+    for file in ["n.msh", "n.vtk", "n.vtu"] {
+        let p = dir.path().join(file);
+        write_mesh(&m, &p).unwrap();
+        let back = read_mesh(&p).unwrap_or_else(|e| panic!("{file}: {e}"));
+        assert_eq!(back.node_sets(), m.node_sets(), "{file}");
+        assert_eq!(back.node_set("wall face & <lumen>"), Some(&[1, 2, 3][..]), "{file}");
+    }
+}
