@@ -221,7 +221,7 @@ fn vtu_errors_name_the_line() {
             "f.vtu",
             &VTU.replace("format=\"ascii\">0 1", "format=\"binary\">0 1"),
         ),
-        &["f.vtu:14:", "'connectivity'", "only ascii"],
+        &["f.vtu:14:", "DataArray 'connectivity'", "base64 data ends early"],
     );
     has(
         &err(Format::Vtu, "t.vtu", &VTU.replace(">10<", ">12<")),

@@ -41,6 +41,9 @@ fn corpus() -> &'static Corpus {
             "mioa.vtk",
             "miob.vtk",
             "mio.vtu",
+            "mio_zlib.vtu",
+            "appended_raw.vtu",
+            "appended_zlib.vtu",
         ] {
             let p = fixtures.join(name);
             files.push((Format::from_path(&p).unwrap(), std::fs::read(&p).unwrap()));

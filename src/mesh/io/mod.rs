@@ -11,6 +11,7 @@ mod scan;
 mod surface;
 mod tetgen;
 mod vtk;
+mod vtkdata;
 mod vtu;
 
 pub use gmsh::write_gmsh;
