@@ -1,10 +1,32 @@
 //! Mesh file formats: reading volume meshes a user brings and writing them
 //! (and their surfaces) for ParaView and other tools.
 //!
-//! The format is chosen from the file extension ([`Format::from_path`]).
-//! Every reader returns a [`MeshError`] naming the file, the line or element
-//! and what is wrong; no reader panics on any input. Coordinates are read as
-//! they are in the file; callers choose the unit (see [`read_mesh_scaled`]).
+//! The format is chosen from the file extension ([`Format::from_path`]):
+//! [`read_mesh`] / [`read_mesh_scaled`] and [`write_mesh`] dispatch on it;
+//! [`read_mesh_bytes`] and [`read_tetgen_bytes`] parse files held in memory.
+//! Each format lives in its own submodule (`gmsh`, `vtk`, `vtu`, `tetgen`,
+//! `surface`); `scan` is the byte cursor they share. For simulation output,
+//! [`write_vtu_with_data`] and [`PvdSeries`] write ParaView time series.
+//! `docs/FORMATS.md` says what each reader keeps, skips and rejects.
+//!
+//! Every reader returns a [`MeshError`] naming the file, the line, element or
+//! byte offset and what is wrong; no reader panics on any input, and no
+//! header count is trusted for an allocation beyond what the file can hold.
+//! Coordinates are read as they are in the file; callers choose the unit (see
+//! [`read_mesh_scaled`]). Writers print `f64` in shortest round-trip form, so
+//! write-then-read is bit-exact.
+//!
+//! ```
+//! use nvtmm::mesh::arch::{generate, ArchParams};
+//! use nvtmm::mesh::io::{read_mesh, write_mesh};
+//! let mesh = generate(&ArchParams::default(), 300).unwrap().mesh;
+//! let dir = tempfile::tempdir().unwrap();
+//! let path = dir.path().join("arch.vtu");
+//! write_mesh(&mesh, &path).unwrap();
+//! let back = read_mesh(&path).unwrap();
+//! assert_eq!(back.rest(), mesh.rest());
+//! assert_eq!(back.node_sets(), mesh.node_sets());
+//! ```
 
 mod gmsh;
 mod scan;
