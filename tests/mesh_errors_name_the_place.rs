@@ -292,3 +292,17 @@ fn scale_must_be_finite_and_positive() {
         has(&e.to_string(), &["s.msh:", "must be finite and positive"]);
     }
 }
+
+#[test]
+fn vtu_values_after_information_keys_are_read() {
+    // VTK 9 writes <InformationKey> elements before the values of some arrays.
+    let f = VTU.replace(
+        "format=\"ascii\">\n0 0 0\n",
+        "format=\"ascii\">\n<InformationKey name=\"L2_NORM_RANGE\" location=\"vtkDataArray\" length=\"2\">\n\
+         <Value index=\"0\">\n0\n</Value>\n<Value index=\"1\">\n1\n</Value>\n</InformationKey>\n0 0 0\n",
+    );
+    let m = read_mesh_bytes(Format::Vtu, Path::new("k.vtu"), f.as_bytes(), 1.0).unwrap();
+    assert_eq!(m.num_nodes(), 4);
+    let bad = f.replace("0 1 0\n0 0 1", "0 1 0\n0 q 1");
+    has(&err(Format::Vtu, "k.vtu", &bad), &["k.vtu:18:", "'q'"]);
+}

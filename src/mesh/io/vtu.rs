@@ -136,13 +136,22 @@ impl<'a> Xml<'a> {
             attrs.insert(key, unescape(&after[1..1 + close]));
             rest = after[close + 2..].trim_start();
         }
-        let text_line = self.s.line();
-        let text_start = self.s.pos();
+        let mut text_line = self.s.line();
+        let mut text_start = self.s.pos();
+        let rest = &self.data[text_start..];
         let text_end = if self_closing {
             text_start
+        } else if name == "DataArray" {
+            // VTK may put <InformationKey> elements before the values.
+            let end = find(rest, b"</DataArray").unwrap_or(rest.len());
+            if let Some(k) = rfind(&rest[..end], b"</InformationKey>") {
+                let skip = k + b"</InformationKey>".len();
+                text_line += rest[..skip].iter().filter(|&&b| b == b'\n').count();
+                text_start += skip;
+            }
+            self.s.pos() + end
         } else {
-            self.data[text_start..]
-                .iter()
+            rest.iter()
                 .position(|&b| b == b'<')
                 .map_or(self.data.len(), |p| text_start + p)
         };
@@ -154,6 +163,14 @@ impl<'a> Xml<'a> {
             text: (&self.data[text_start..text_end], text_line),
         })
     }
+}
+
+fn find(hay: &[u8], needle: &[u8]) -> Option<usize> {
+    hay.windows(needle.len()).position(|w| w == needle)
+}
+
+fn rfind(hay: &[u8], needle: &[u8]) -> Option<usize> {
+    hay.windows(needle.len()).rposition(|w| w == needle)
 }
 
 fn unescape(v: &str) -> String {
