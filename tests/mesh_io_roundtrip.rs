@@ -356,3 +356,54 @@ fn vtu_with_data_and_pvd_series() {
     let e = write_vtu_with_data(&dir.path().join("bad.vtu"), &m, None, &[("u", short)], &[]).unwrap_err();
     assert!(e.to_string().contains("'u' has 10 values"), "{e}");
 }
+
+/// Written by meshio (the appended ones by a script in the layout VTK uses,
+/// and checked with meshio's reader); see the fixtures' README.
+const FROM_MESHIO: [&str; 10] = [
+    "mio22.msh",
+    "mio41a.msh",
+    "mio41b.msh",
+    "mioa.vtk",
+    "miob.vtk",
+    "mio.vtu",
+    "mio_b64.vtu",
+    "mio_zlib.vtu",
+    "appended_raw.vtu",
+    "appended_zlib.vtu",
+];
+
+#[test]
+fn files_written_by_meshio_read_the_same_mesh() {
+    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/fixtures/meshio");
+    let reference = read_mesh(&dir.join("small.vtu")).unwrap();
+    for f in FROM_MESHIO {
+        let m = read_mesh(&dir.join(f)).unwrap_or_else(|e| panic!("{f}: {e}"));
+        assert_eq!(m.tets(), reference.tets(), "{f}");
+        assert_eq!(m.report().inverted, 0, "{f}");
+        // meshio's ASCII .vtu keeps 12 significant digits; the others are exact.
+        let tol = if f == "mio.vtu" { 1e-10 } else { 1e-15 };
+        for (p, q) in m.rest().iter().zip(reference.rest()) {
+            assert!((p - q).norm() <= tol * q.norm().max(1e-3), "{f}: {p} vs {q}");
+        }
+    }
+    // meshio keeps point data in VTK formats: the node set survives.
+    for f in FROM_MESHIO.iter().filter(|f| !f.ends_with(".msh")) {
+        let m = read_mesh(&dir.join(f)).unwrap();
+        assert_eq!(m.node_set("inlet"), reference.node_set("inlet"), "{f}");
+    }
+}
+
+#[test]
+fn node_set_names_with_spaces_and_markup_and_empty_sets_survive() {
+    let mut m = generate(&ArchParams::default(), 200).unwrap().mesh;
+    m.set_node_set("wall face & <lumen>", vec![3, 1, 2]).unwrap();
+    m.set_node_set("100% empty", vec![]).unwrap();
+    let dir = tempfile::tempdir().unwrap();
+    for file in ["n.msh", "n.vtk", "n.vtu"] {
+        let p = dir.path().join(file);
+        write_mesh(&m, &p).unwrap();
+        let back = read_mesh(&p).unwrap_or_else(|e| panic!("{file}: {e}"));
+        assert_eq!(back.node_sets(), m.node_sets(), "{file}");
+        assert_eq!(back.node_set("wall face & <lumen>"), Some(&[1, 2, 3][..]), "{file}");
+    }
+}

@@ -83,11 +83,11 @@ impl G<'_> {
             Enc::Binary { .. } => self.s.bin_err(msg),
         }
     }
-    /// Line for element errors (0 in binary data).
-    fn line(&self) -> usize {
+    /// Where an element error is: a line in text, a byte offset in binary.
+    fn loc(&self) -> Loc {
         match self.enc {
-            Enc::Ascii => self.s.line(),
-            Enc::Binary { .. } => 0,
+            Enc::Ascii => Loc::Line(self.s.line()),
+            Enc::Binary { .. } => Loc::Byte(self.s.pos()),
         }
     }
     fn size_t(&mut self, what: &str) -> Result<u64, MeshError> {
@@ -138,12 +138,12 @@ struct Parsed {
 }
 
 impl Parsed {
-    /// The index of node `tag`, used by element `element` found at `line`.
-    fn node(&self, path: &Path, line: usize, element: u64, tag: u64) -> Result<u32, MeshError> {
+    /// The index of node `tag`, used by element `element` found at `loc`.
+    fn node(&self, path: &Path, loc: Loc, element: u64, tag: u64) -> Result<u32, MeshError> {
         self.node_of_tag
             .get(&tag)
             .copied()
-            .ok_or_else(|| element_err(path, line, element, format!("node tag {tag} is not in $Nodes")))
+            .ok_or_else(|| element_err(path, loc, element, format!("node tag {tag} is not in $Nodes")))
     }
 
     /// Registers a node; the tag must be new.
@@ -157,12 +157,27 @@ impl Parsed {
     }
 }
 
-fn element_err(path: &Path, line: usize, element: u64, msg: String) -> MeshError {
-    MeshError::Element {
-        path: path.to_path_buf(),
-        line,
-        element,
-        msg,
+/// Where in the file an element error is.
+#[derive(Clone, Copy)]
+enum Loc {
+    Line(usize),
+    Byte(usize),
+}
+
+fn element_err(path: &Path, loc: Loc, element: u64, msg: String) -> MeshError {
+    match loc {
+        Loc::Line(line) => MeshError::Element {
+            path: path.to_path_buf(),
+            line,
+            kind: "element",
+            element,
+            msg,
+        },
+        Loc::Byte(offset) => MeshError::Binary {
+            path: path.to_path_buf(),
+            offset,
+            msg: format!("element {element}: {msg}"),
+        },
     }
 }
 
@@ -388,7 +403,7 @@ fn nodes_v4(g: &mut G, p: &mut Parsed) -> Result<(), MeshError> {
 }
 
 /// The error for a 3-D element that is not a linear tet, or an unknown type.
-fn bad_element(path: &Path, line: usize, element: u64, ty: i64) -> MeshError {
+fn bad_element(path: &Path, loc: Loc, element: u64, ty: i64) -> MeshError {
     let msg = match element_info(ty) {
         Some((_, _, name)) => format!(
             "type {ty} ({name}) is a 3-D element other than the linear tetrahedron (type 4); \
@@ -396,7 +411,7 @@ fn bad_element(path: &Path, line: usize, element: u64, ty: i64) -> MeshError {
         ),
         None => format!("unknown element type {ty}"),
     };
-    element_err(path, line, element, msg)
+    element_err(path, loc, element, msg)
 }
 
 fn elements_v2(s: &mut Scan, p: &mut Parsed) -> Result<(), MeshError> {
@@ -414,16 +429,16 @@ fn elements_v2(s: &mut Scan, p: &mut Parsed) -> Result<(), MeshError> {
             }
         }
         let Some((nn, dim, _)) = element_info(ty).filter(|&(_, d, _)| d < 3 || ty == TET4) else {
-            return Err(bad_element(s.path(), s.line(), tag, ty));
+            return Err(bad_element(s.path(), Loc::Line(s.line()), tag, ty));
         };
         let mut ids = [0u32; 4];
         let key = (dim as i64, phys);
         let named = phys != 0 && p.names.contains_key(&key);
         for k in 0..nn {
             let t = s.u64("an element's node tag")?;
-            let i = p.node(s.path(), s.line(), tag, t)?;
-            if ty == TET4 {
-                ids[k] = i;
+            let i = p.node(s.path(), Loc::Line(s.line()), tag, t)?;
+            if let Some(slot) = ids.get_mut(k).filter(|_| ty == TET4) {
+                *slot = i;
             }
             if named {
                 p.group_nodes.entry(key).or_default().push(i);
@@ -453,10 +468,10 @@ fn elements_v4(g: &mut G, p: &mut Parsed) -> Result<(), MeshError> {
         }
         let info = element_info(ty);
         let nn = match info {
-            Some((nn, d, _)) if (d < 3 && dim < 3) || ty == TET4 => nn,
+            Some((nn, d, _)) if d < 3 || ty == TET4 => nn,
             _ => {
                 let first = g.size_t("an element tag")?;
-                return Err(bad_element(g.s.path(), g.line(), first, ty));
+                return Err(bad_element(g.s.path(), g.loc(), first, ty));
             }
         };
         // Physical groups this block's nodes go to (only named ones).
@@ -478,9 +493,9 @@ fn elements_v4(g: &mut G, p: &mut Parsed) -> Result<(), MeshError> {
             let mut ids = [0u32; 4];
             for k in 0..nn {
                 let t = g.size_t("an element's node tag")?;
-                let i = p.node(g.s.path(), g.line(), tag, t)?;
-                if ty == TET4 {
-                    ids[k] = i;
+                let i = p.node(g.s.path(), g.loc(), tag, t)?;
+                if let Some(slot) = ids.get_mut(k).filter(|_| ty == TET4) {
+                    *slot = i;
                 }
                 for key in &groups {
                     p.group_nodes.entry(*key).or_default().push(i);
@@ -507,8 +522,8 @@ fn gmsh_name(name: &str) -> String {
         .collect()
 }
 
-/// Writes Gmsh 4.1 ASCII: all nodes in one volume entity (tag 1), the tets in
-/// it, and each node set as a point entity of 1-node elements with a physical
+/// Writes Gmsh 4.1 ASCII: all nodes in one volume entity (tag 1, in an
+/// unnamed physical group 1), the tets in it, and each node set as a point entity of 1-node elements with a physical
 /// group named after the set (tags 1, 2, … in name order).
 pub fn write_gmsh(mesh: &TetMesh, path: &Path) -> Result<(), MeshError> {
     let nodes = mesh.rest();
@@ -530,9 +545,11 @@ pub fn write_gmsh(mesh: &TetMesh, path: &Path) -> Result<(), MeshError> {
             let x = ids.first().map_or(Vec3::zeros(), |&i| nodes[i as usize]);
             writeln!(w, "{} {} {} {} 1 {}", k + 1, x.x, x.y, x.z, k + 1)?;
         }
+        // The volume carries an unnamed physical group (3, 1): readers such as
+        // meshio expect every element block to have one; ours ignores unnamed groups.
         writeln!(
             w,
-            "1 {} {} {} {} {} {} 0 0\n$EndEntities",
+            "1 {} {} {} {} {} {} 1 1 0\n$EndEntities",
             lo.x, lo.y, lo.z, hi.x, hi.y, hi.z
         )?;
         let n = nodes.len();

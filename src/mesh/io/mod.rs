@@ -1,16 +1,39 @@
 //! Mesh file formats: reading volume meshes a user brings and writing them
 //! (and their surfaces) for ParaView and other tools.
 //!
-//! The format is chosen from the file extension ([`Format::from_path`]).
-//! Every reader returns a [`MeshError`] naming the file, the line or element
-//! and what is wrong; no reader panics on any input. Coordinates are read as
-//! they are in the file; callers choose the unit (see [`read_mesh_scaled`]).
+//! The format is chosen from the file extension ([`Format::from_path`]):
+//! [`read_mesh`] / [`read_mesh_scaled`] and [`write_mesh`] dispatch on it;
+//! [`read_mesh_bytes`] and [`read_tetgen_bytes`] parse files held in memory.
+//! Each format lives in its own submodule (`gmsh`, `vtk`, `vtu`, `tetgen`,
+//! `surface`); `scan` is the byte cursor they share. For simulation output,
+//! [`write_vtu_with_data`] and [`PvdSeries`] write ParaView time series.
+//! `docs/FORMATS.md` says what each reader keeps, skips and rejects.
+//!
+//! Every reader returns a [`MeshError`] naming the file, the line, element or
+//! byte offset and what is wrong; no reader panics on any input, and no
+//! header count is trusted for an allocation beyond what the file can hold.
+//! Coordinates are read as they are in the file; callers choose the unit (see
+//! [`read_mesh_scaled`]). Writers print `f64` in shortest round-trip form, so
+//! write-then-read is bit-exact.
+//!
+//! ```
+//! use nvtmm::mesh::arch::{generate, ArchParams};
+//! use nvtmm::mesh::io::{read_mesh, write_mesh};
+//! let mesh = generate(&ArchParams::default(), 300).unwrap().mesh;
+//! let dir = tempfile::tempdir().unwrap();
+//! let path = dir.path().join("arch.vtu");
+//! write_mesh(&mesh, &path).unwrap();
+//! let back = read_mesh(&path).unwrap();
+//! assert_eq!(back.rest(), mesh.rest());
+//! assert_eq!(back.node_sets(), mesh.node_sets());
+//! ```
 
 mod gmsh;
 mod scan;
 mod surface;
 mod tetgen;
 mod vtk;
+mod vtkdata;
 mod vtu;
 
 pub use gmsh::write_gmsh;
@@ -125,12 +148,14 @@ pub enum MeshError {
     },
     /// An element (cell) the reader cannot use: a 3-D element that is not a
     /// linear tetrahedron, or one of an unknown type.
-    #[error("{path}:{line}: element {element}: {msg}")]
+    #[error("{path}:{line}: {kind} {element}: {msg}")]
     Element {
         /// The file.
         path: PathBuf,
-        /// 1-based line number (0 in binary data).
+        /// 1-based line number (for binary VTK, the line of the data's header).
         line: usize,
+        /// What the format calls it: "element" (Gmsh) or "cell" (VTK).
+        kind: &'static str,
         /// The element's tag (Gmsh) or zero-based cell index (VTK).
         element: u64,
         /// What is wrong.
@@ -163,8 +188,12 @@ pub fn read_mesh(path: &Path) -> Result<TetMesh, MeshError> {
 /// file in millimetres). TetGen pairs are found from either file's path.
 pub fn read_mesh_scaled(path: &Path, scale: f64) -> Result<TetMesh, MeshError> {
     let format = Format::from_path(path)?;
+    check_scale(path, scale)?;
     if format == Format::TetGen {
         return tetgen::read(path, scale);
+    }
+    if format.is_surface_only() {
+        return read_mesh_bytes(format, path, &[], scale);
     }
     let bytes = std::fs::read(path).map_err(|source| MeshError::Io {
         path: path.to_path_buf(),
@@ -176,6 +205,7 @@ pub fn read_mesh_scaled(path: &Path, scale: f64) -> Result<TetMesh, MeshError> {
 /// Parses a volume mesh held in memory; `path` only names it in errors.
 /// TetGen needs two files: use [`read_tetgen_bytes`].
 pub fn read_mesh_bytes(format: Format, path: &Path, bytes: &[u8], scale: f64) -> Result<TetMesh, MeshError> {
+    check_scale(path, scale)?;
     let raw = match format {
         Format::Gmsh => gmsh::read(path, bytes)?,
         Format::VtkLegacy => vtk::read(path, bytes)?,
@@ -209,6 +239,18 @@ pub fn write_mesh(mesh: &TetMesh, path: &Path) -> Result<(), MeshError> {
         Format::Ply => write_ply(mesh, path),
         Format::Obj => write_obj(mesh, path),
         Format::Stl => write_stl(mesh, path),
+    }
+}
+
+/// A scale must be finite and positive (a negative one would invert every tet).
+fn check_scale(path: &Path, scale: f64) -> Result<(), MeshError> {
+    if scale.is_finite() && scale > 0.0 {
+        Ok(())
+    } else {
+        Err(MeshError::InvalidData {
+            path: path.to_path_buf(),
+            what: format!("scale {scale} must be finite and positive"),
+        })
     }
 }
 

@@ -40,6 +40,7 @@ pub fn read_tetgen_bytes(
     ele: &[u8],
     scale: f64,
 ) -> Result<TetMesh, MeshError> {
+    super::check_scale(node_path, scale)?;
     let mut s = Scan::new(node_path, node).with_comments(b'#');
     let n = s.u64("the number of points")?;
     let dim = s.u64("the dimension")?;

@@ -72,6 +72,7 @@ pub(crate) fn cells_to_tets(
     let err = |cell: usize, msg: String| MeshError::Element {
         path: path.to_path_buf(),
         line,
+        kind: "cell",
         element: cell as u64,
         msg,
     };
@@ -291,7 +292,7 @@ pub(crate) fn read(path: &Path, data: &[u8]) -> Result<RawMesh, MeshError> {
                         let Some(&k) = list.get(i) else {
                             return Err(s.err_at(line, format!("the cell list ends before cell {c} (of {a})")));
                         };
-                        let k = usize::try_from(k).ok().filter(|&k| k <= list.len() - i - 1);
+                        let k = usize::try_from(k).ok().filter(|&k| k < list.len() - i);
                         let Some(k) = k else {
                             return Err(
                                 s.err_at(line, format!("cell {c}: point count is negative or overruns the list"))
@@ -324,7 +325,7 @@ pub(crate) fn read(path: &Path, data: &[u8]) -> Result<RawMesh, MeshError> {
                 }
                 attributes(&mut s, &arrays, n, is_point, &mut sets)?;
             }
-            "FIELD" => field(&mut s, &arrays)?,
+            "FIELD" => field(&mut s, &arrays, None)?,
             "METADATA" => metadata(&mut s),
             k => return Err(s.err(format!("unknown keyword '{}'", quote(k)))),
         }
@@ -365,7 +366,6 @@ fn attributes(
 ) -> Result<(), MeshError> {
     loop {
         let Some(kw) = s.peek() else { return Ok(()) };
-        let line = s.line();
         match kw {
             "SCALARS" => {
                 s.token("SCALARS")?;
@@ -386,11 +386,7 @@ fn attributes(
                 match name.strip_prefix(SET_PREFIX) {
                     Some(set) if is_point && ncomp == 1 => {
                         let v = arrays.reals(s, total, ty, "node set values")?;
-                        let ids = v.iter().enumerate().filter(|(_, &x)| x != 0.0).map(|(i, _)| i as u32);
-                        if v.len() as u64 != n {
-                            return Err(s.err_at(line, "node set array is short"));
-                        }
-                        sets.insert(set.to_string(), ids.collect());
+                        sets.insert(set.to_string(), members(&v));
                     }
                     _ => arrays.skip(s, total, ty, "scalar values")?,
                 }
@@ -422,7 +418,7 @@ fn attributes(
             }
             "FIELD" => {
                 s.token("FIELD")?;
-                field(s, arrays)?;
+                field(s, arrays, is_point.then_some((n, &mut *sets)))?;
             }
             "METADATA" => {
                 s.token("METADATA")?;
@@ -434,16 +430,28 @@ fn attributes(
 }
 
 /// `FIELD name count` then per array `name ncomp ntuples type` and values.
-fn field(s: &mut Scan, arrays: &Arrays) -> Result<(), MeshError> {
+/// With `sets` (inside `POINT_DATA n`), one-component arrays `set_<name>` of
+/// `n` tuples become node sets (meshio writes point data this way).
+fn field(
+    s: &mut Scan,
+    arrays: &Arrays,
+    mut sets: Option<(u64, &mut BTreeMap<String, Vec<u32>>)>,
+) -> Result<(), MeshError> {
     s.token("the field name")?;
     let count = s.u64("the number of field arrays")?;
     for _ in 0..count {
-        s.token("the field array name")?;
+        let name = unescape(s.token("the field array name")?);
         let ncomp = s.u64("the number of components")?;
         let ntup = s.u64("the number of tuples")?;
         let ty = s.token("the data type")?;
         arrays.start_data(s);
-        arrays.skip(s, ncomp.saturating_mul(ntup), ty, "field values")?;
+        match (name.strip_prefix(SET_PREFIX), sets.as_mut()) {
+            (Some(set), Some((n, sets))) if ncomp == 1 && ntup == *n => {
+                let v = arrays.reals(s, ntup, ty, "node set values")?;
+                sets.insert(set.to_string(), members(&v));
+            }
+            _ => arrays.skip(s, ncomp.saturating_mul(ntup), ty, "field values")?,
+        }
     }
     Ok(())
 }
@@ -491,6 +499,11 @@ pub fn write_vtk(mesh: &TetMesh, path: &Path) -> Result<(), MeshError> {
         }
         Ok(())
     })
+}
+
+/// The nodes of a membership mask (non-zero = member).
+pub(crate) fn members(mask: &[f64]) -> Vec<u32> {
+    (0..mask.len() as u32).filter(|&i| mask[i as usize] != 0.0).collect()
 }
 
 /// A 0/1 mask of a node set.

@@ -1,15 +1,17 @@
-//! VTK XML `.vtu` (ASCII data arrays) and ParaView `.pvd` time series.
+//! VTK XML `.vtu` and ParaView `.pvd` time series.
 //!
-//! The reader understands what the writer produces and what ParaView writes
-//! with "Data Mode: Ascii": one `Piece`, `Points`, `Cells` (`connectivity`,
-//! `offsets`, `types`) and `PointData`; arrays named `set_<name>` become node
-//! sets (non-zero = member). Binary, appended or compressed arrays are
-//! rejected with a message saying so. The XML scanner is a small hand-written
-//! one: the subset VTK writes (elements, attributes, text, comments,
-//! declarations) needs no dependency.
+//! The reader takes one `Piece` with `Points`, `Cells` (`connectivity`,
+//! `offsets`, `types`) and `PointData`, with arrays stored as ascii, inline
+//! binary (base64) or appended (raw or base64), uncompressed or
+//! zlib-compressed ([`super::vtkdata`]): what nvtmm writes and what ParaView
+//! and VTK write by default. Arrays named `set_<name>` become node sets
+//! (non-zero = member). The writer writes ascii. The XML scanner is a small
+//! hand-written one: the subset VTK writes (elements, attributes, text,
+//! comments, declarations, appended bytes after `_`) needs no dependency.
 
-use super::scan::{quote, Scan};
-use super::vtk::{cells_to_tets, membership, SET_PREFIX};
+use super::scan::{quote, Endian, Scan};
+use super::vtk::{cells_to_tets, members, membership, SET_PREFIX};
+use super::vtkdata::{decode, to_f64, to_i64, type_size, Encoding, Source};
 use super::{write_file, MeshError, RawMesh};
 use crate::mesh::{TetMesh, Vec3};
 use std::collections::{BTreeMap, HashMap};
@@ -45,13 +47,13 @@ impl<'a> Xml<'a> {
     }
 
     /// Skips to the next `<`; returns false at end of input.
-    fn to_tag(&mut self) -> bool {
+    fn skip_to_tag(&mut self) -> bool {
         self.s.skip_past(b"<")
     }
 
     fn next(&mut self) -> Result<Option<Ev<'a>>, MeshError> {
         loop {
-            if !self.to_tag() {
+            if !self.skip_to_tag() {
                 return Ok(None);
             }
             let line = self.s.line();
@@ -134,13 +136,22 @@ impl<'a> Xml<'a> {
             attrs.insert(key, unescape(&after[1..1 + close]));
             rest = after[close + 2..].trim_start();
         }
-        let text_line = self.s.line();
-        let text_start = self.s.pos();
+        let mut text_line = self.s.line();
+        let mut text_start = self.s.pos();
+        let rest = &self.data[text_start..];
         let text_end = if self_closing {
             text_start
+        } else if name == "DataArray" {
+            // VTK may put <InformationKey> elements before the values.
+            let end = find(rest, b"</DataArray").unwrap_or(rest.len());
+            if let Some(k) = rfind(&rest[..end], b"</InformationKey>") {
+                let skip = k + b"</InformationKey>".len();
+                text_line += rest[..skip].iter().filter(|&&b| b == b'\n').count();
+                text_start += skip;
+            }
+            self.s.pos() + end
         } else {
-            self.data[text_start..]
-                .iter()
+            rest.iter()
                 .position(|&b| b == b'<')
                 .map_or(self.data.len(), |p| text_start + p)
         };
@@ -152,6 +163,14 @@ impl<'a> Xml<'a> {
             text: (&self.data[text_start..text_end], text_line),
         })
     }
+}
+
+fn find(hay: &[u8], needle: &[u8]) -> Option<usize> {
+    hay.windows(needle.len()).position(|w| w == needle)
+}
+
+fn rfind(hay: &[u8], needle: &[u8]) -> Option<usize> {
+    hay.windows(needle.len()).rposition(|w| w == needle)
 }
 
 fn unescape(v: &str) -> String {
@@ -169,13 +188,32 @@ fn escape(v: &str) -> String {
         .replace('"', "&quot;")
 }
 
+/// How a `DataArray` stores its values.
+#[derive(Clone, Copy, PartialEq)]
+enum Fmt {
+    Ascii,
+    /// Inline base64.
+    Binary,
+    /// In `<AppendedData>`, at this offset.
+    Appended(usize),
+}
+
 /// A `DataArray` found in the file, with its text.
 struct Array<'a> {
     name: String,
     ty: String,
     ncomp: u64,
     line: usize,
+    fmt: Fmt,
     text: (&'a [u8], usize),
+}
+
+/// What decoding binary arrays needs: the file's encoding and its appended data.
+struct Ctx<'a> {
+    path: &'a Path,
+    enc: Encoding,
+    /// Appended data after the `_` marker, and whether it is raw (else base64).
+    appended: Option<(&'a [u8], bool)>,
 }
 
 pub(crate) fn read(path: &Path, data: &[u8]) -> Result<RawMesh, MeshError> {
@@ -189,6 +227,12 @@ pub(crate) fn read(path: &Path, data: &[u8]) -> Result<RawMesh, MeshError> {
     let mut cell_arrays: Vec<Array> = Vec::new();
     let mut point_data: Vec<Array> = Vec::new();
     let mut saw_root = false;
+    let mut enc = Encoding {
+        endian: Endian::Little,
+        header: 4,
+        zlib: false,
+    };
+    let mut appended = None;
     while let Some(ev) = x.next()? {
         match ev {
             Ev::End(name) => {
@@ -204,12 +248,26 @@ pub(crate) fn read(path: &Path, data: &[u8]) -> Result<RawMesh, MeshError> {
                         if let Some(t) = tag.attrs.get("type").filter(|t| *t != "UnstructuredGrid") {
                             return Err(x.err(tag.line, format!("VTKFile type '{}' is not UnstructuredGrid", quote(t))));
                         }
-                        if tag.attrs.contains_key("compressor") {
-                            return Err(x.err(
-                                tag.line,
-                                "compressed .vtu files are not supported; save with ascii data",
-                            ));
-                        }
+                        enc.endian = match tag.attrs.get("byte_order").map(String::as_str) {
+                            None | Some("LittleEndian") => Endian::Little,
+                            Some("BigEndian") => Endian::Big,
+                            Some(o) => return Err(x.err(tag.line, format!("byte_order '{}' is unknown", quote(o)))),
+                        };
+                        enc.header = match tag.attrs.get("header_type").map(String::as_str) {
+                            None | Some("UInt32") => 4,
+                            Some("UInt64") => 8,
+                            Some(h) => return Err(x.err(tag.line, format!("header_type '{}' is unknown", quote(h)))),
+                        };
+                        enc.zlib = match tag.attrs.get("compressor").map(String::as_str) {
+                            None | Some("") => false,
+                            Some("vtkZLibDataCompressor") => true,
+                            Some(c) => {
+                                return Err(x.err(
+                                    tag.line,
+                                    format!("compressor '{}' is not supported (zlib or none are read)", quote(c)),
+                                ))
+                            }
+                        };
                     }
                     "Piece" => {
                         if counts.is_some() {
@@ -227,24 +285,45 @@ pub(crate) fn read(path: &Path, data: &[u8]) -> Result<RawMesh, MeshError> {
                         counts = Some((get("NumberOfPoints")?, get("NumberOfCells")?, tag.line));
                     }
                     "AppendedData" => {
-                        return Err(x.err(
-                            tag.line,
-                            "appended (raw/base64) data is not supported; save with ascii data",
-                        ));
+                        let raw = match tag.attrs.get("encoding").map(String::as_str) {
+                            None | Some("raw") => true,
+                            Some("base64") => false,
+                            Some(e) => {
+                                return Err(x.err(tag.line, format!("AppendedData encoding '{}' is unknown", quote(e))))
+                            }
+                        };
+                        // The data starts after a '_' and may hold any bytes:
+                        // nothing after it is parsed as XML.
+                        let start = x.s.pos();
+                        let Some(us) = data[start..].iter().position(|&b| b == b'_') else {
+                            return Err(x.err(tag.line, "AppendedData has no '_' marker"));
+                        };
+                        appended = Some((&data[start + us + 1..], raw));
+                        stack.clear();
+                        break;
                     }
                     "DataArray" => {
-                        let fmt = tag.attrs.get("format").map_or("ascii", String::as_str);
                         let name = tag.attrs.get("Name").cloned().unwrap_or_default();
-                        if fmt != "ascii" {
-                            return Err(x.err(
-                                tag.line,
-                                format!(
-                                    "DataArray '{}' has format '{}'; only ascii is read",
-                                    quote(&name),
-                                    quote(fmt)
-                                ),
-                            ));
-                        }
+                        let fmt = match tag.attrs.get("format").map_or("ascii", String::as_str) {
+                            "ascii" => Fmt::Ascii,
+                            "binary" => Fmt::Binary,
+                            "appended" => {
+                                let off = tag.attrs.get("offset").and_then(|o| o.trim().parse().ok());
+                                let Some(off) = off else {
+                                    return Err(x.err(
+                                        tag.line,
+                                        format!("appended DataArray '{}' has no valid offset", quote(&name)),
+                                    ));
+                                };
+                                Fmt::Appended(off)
+                            }
+                            f => {
+                                return Err(x.err(
+                                    tag.line,
+                                    format!("DataArray '{}' has unknown format '{}'", quote(&name), quote(f)),
+                                ))
+                            }
+                        };
                         let ncomp = match tag.attrs.get("NumberOfComponents") {
                             None => 1,
                             Some(v) => v.trim().parse().map_err(|_| {
@@ -256,6 +335,7 @@ pub(crate) fn read(path: &Path, data: &[u8]) -> Result<RawMesh, MeshError> {
                             ty: tag.attrs.get("type").cloned().unwrap_or_default(),
                             ncomp,
                             line: tag.line,
+                            fmt,
                             text: tag.text,
                         };
                         match parent {
@@ -279,6 +359,7 @@ pub(crate) fn read(path: &Path, data: &[u8]) -> Result<RawMesh, MeshError> {
     if let Some(open) = stack.last() {
         return Err(x.err(x.s.line(), format!("the file ends inside <{}>", quote(open))));
     }
+    let ctx = Ctx { path, enc, appended };
     let Some((npts, ncells, pline)) = counts else {
         return Err(x.err(1, "no <Piece> element"));
     };
@@ -288,7 +369,7 @@ pub(crate) fn read(path: &Path, data: &[u8]) -> Result<RawMesh, MeshError> {
     if points.ncomp != 3 {
         return Err(x.err(points.line, "Points must have NumberOfComponents=\"3\""));
     }
-    let coords = reals(path, &points, npts.saturating_mul(3))?;
+    let coords = reals(&ctx, &points, npts.saturating_mul(3))?;
     let mut nodes = Vec::with_capacity(coords.len() / 3);
     for (i, c) in coords.chunks_exact(3).enumerate() {
         let p = Vec3::new(c[0], c[1], c[2]);
@@ -307,9 +388,9 @@ pub(crate) fn read(path: &Path, data: &[u8]) -> Result<RawMesh, MeshError> {
             .ok_or_else(|| x.err(pline, format!("no Cells DataArray named '{n}'")))
     };
     let (conn_a, off_a, ty_a) = (find("connectivity")?, find("offsets")?, find("types")?);
-    let offsets = ints(path, off_a, Some(ncells))?;
-    let types = ints(path, ty_a, Some(ncells))?;
-    let conn = ints(path, conn_a, None)?;
+    let offsets = ints(&ctx, off_a, Some(ncells))?;
+    let types = ints(&ctx, ty_a, Some(ncells))?;
+    let conn = ints(&ctx, conn_a, None)?;
     let mut cells = Vec::with_capacity(offsets.len());
     let mut prev = 0usize;
     for (c, &o) in offsets.iter().enumerate() {
@@ -327,10 +408,10 @@ pub(crate) fn read(path: &Path, data: &[u8]) -> Result<RawMesh, MeshError> {
     let mut sets = BTreeMap::new();
     for a in &point_data {
         if let Some(set) = a.name.strip_prefix(SET_PREFIX) {
-            let v = reals(path, a, npts.saturating_mul(a.ncomp))?;
-            let ids = v.iter().enumerate().filter(|(_, &x)| x != 0.0).map(|(i, _)| i as u32);
+            // Check every set_ array parses, but only one-component ones are sets.
+            let v = reals(&ctx, a, npts.saturating_mul(a.ncomp))?;
             if a.ncomp == 1 {
-                sets.insert(set.to_string(), ids.collect());
+                sets.insert(set.to_string(), members(&v));
             }
         }
     }
@@ -362,12 +443,72 @@ fn values<T: std::str::FromStr>(path: &Path, a: &Array, n: Option<u64>) -> Resul
     Ok(v)
 }
 
-fn reals(path: &Path, a: &Array, n: u64) -> Result<Vec<f64>, MeshError> {
-    values(path, a, Some(n))
+/// The decoded bytes of a binary or appended array: at most what `n` values
+/// need (or, for `None`, what the stored bytes could expand to).
+fn binary_bytes(ctx: &Ctx, a: &Array, n: Option<u64>) -> Result<Vec<u8>, MeshError> {
+    let err = |msg: String| ctx_err(ctx, a, msg);
+    let (size, _) = type_size(&a.ty).ok_or_else(|| err(format!("type '{}' is unknown", quote(&a.ty))))?;
+    let src = match a.fmt {
+        Fmt::Appended(off) => {
+            let Some((bytes, raw)) = ctx.appended else {
+                return Err(err("is appended but the file has no <AppendedData>".into()));
+            };
+            let bytes = bytes
+                .get(off..)
+                .ok_or_else(|| err(format!("offset {off} is past the appended data")))?;
+            if raw {
+                Source::Raw(bytes)
+            } else {
+                Source::Base64(bytes)
+            }
+        }
+        _ => Source::Base64(a.text.0),
+    };
+    let stored = match src {
+        Source::Raw(b) | Source::Base64(b) => b.len(),
+    };
+    // zlib expands by at most ~1032x; a declared count beyond that is a lie.
+    let max = n
+        .and_then(|n| usize::try_from(n).ok())
+        .and_then(|n| n.checked_mul(size))
+        .unwrap_or(usize::MAX)
+        .min(stored.saturating_mul(if ctx.enc.zlib { 1100 } else { 1 }));
+    decode(src, ctx.enc, max).map_err(err)
 }
 
-fn ints(path: &Path, a: &Array, n: Option<u64>) -> Result<Vec<i64>, MeshError> {
-    values(path, a, n)
+fn ctx_err(ctx: &Ctx, a: &Array, msg: String) -> MeshError {
+    MeshError::Parse {
+        path: ctx.path.to_path_buf(),
+        line: a.line,
+        msg: format!("DataArray '{}': {msg}", quote(&a.name)),
+    }
+}
+
+/// Checks a decoded array has exactly `n` values.
+fn exact<T>(ctx: &Ctx, a: &Array, v: Vec<T>, n: Option<u64>) -> Result<Vec<T>, MeshError> {
+    match n {
+        Some(n) if v.len() as u64 != n => Err(ctx_err(ctx, a, format!("has {} values, expected {n}", v.len()))),
+        _ => Ok(v),
+    }
+}
+
+fn reals(ctx: &Ctx, a: &Array, n: u64) -> Result<Vec<f64>, MeshError> {
+    if a.fmt == Fmt::Ascii {
+        return values(ctx.path, a, Some(n));
+    }
+    let b = binary_bytes(ctx, a, Some(n))?;
+    let v = to_f64(&b, &a.ty, ctx.enc.endian).ok_or_else(|| ctx_err(ctx, a, "has no numeric type".into()))?;
+    exact(ctx, a, v, Some(n))
+}
+
+fn ints(ctx: &Ctx, a: &Array, n: Option<u64>) -> Result<Vec<i64>, MeshError> {
+    if a.fmt == Fmt::Ascii {
+        return values(ctx.path, a, n);
+    }
+    let b = binary_bytes(ctx, a, n)?;
+    let v = to_i64(&b, &a.ty, ctx.enc.endian)
+        .ok_or_else(|| ctx_err(ctx, a, format!("must hold integers, not '{}'", quote(&a.ty))))?;
+    exact(ctx, a, v, n)
 }
 
 /// Writes a `.vtu` of the mesh at rest with its node sets.
