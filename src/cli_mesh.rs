@@ -108,12 +108,20 @@ pub fn info(file: &Path, json: bool, scale: f64) -> Result<()> {
 pub fn convert(input: &Path, output: &Path, scale: f64) -> Result<()> {
     let m = read_mesh_scaled(input, scale)?;
     write_mesh(&m, output)?;
-    println!(
-        "wrote {}: {} nodes, {} tets",
-        output.display(),
-        m.num_nodes(),
-        m.tets().len()
-    );
+    if nvtmm::mesh::io::Format::from_path(output)?.is_surface_only() {
+        println!(
+            "wrote {}: boundary surface, {} triangles",
+            output.display(),
+            m.surface().len()
+        );
+    } else {
+        println!(
+            "wrote {}: {} nodes, {} tets",
+            output.display(),
+            m.num_nodes(),
+            m.tets().len()
+        );
+    }
     Ok(())
 }
 

@@ -131,6 +131,13 @@ enum MeshCmd {
 }
 
 fn main() -> ExitCode {
+    // Behave like other Unix tools when stdout is closed early
+    // (`nvtmm mesh info x.msh | head`): exit quietly instead of panicking.
+    // SAFETY: called first thing, before any other thread exists; restoring
+    // the default disposition of SIGPIPE has no other effect.
+    unsafe {
+        libc::signal(libc::SIGPIPE, libc::SIG_DFL);
+    }
     let cli = Cli::parse();
     let result = match cli.command {
         Command::Mesh(cmd) => match cmd {
