@@ -29,6 +29,7 @@
 #![warn(missing_docs)]
 
 pub mod bench;
+pub mod experiment;
 pub mod material;
 pub mod mesh;
 pub mod model;

@@ -37,6 +37,31 @@ enum Command {
     /// Benchmarks.
     #[command(subcommand)]
     Bench(BenchCmd),
+    /// Reproduce the paper's experiments.
+    #[command(subcommand)]
+    Experiment(ExperimentCmd),
+}
+
+#[derive(Subcommand)]
+enum ExperimentCmd {
+    /// Fig. 5: constant force from t = 3 s, TMM vs NVTMM (Prony), 10 s.
+    Fig5 {
+        /// Output directory.
+        #[arg(long, default_value = "out/fig5")]
+        out: PathBuf,
+        /// Small mesh and short run (seconds), for tests.
+        #[arg(long)]
+        quick: bool,
+    },
+    /// Tables I and II: visual and haptic rates of MSM, FEM, NVTMM at 1458/5832/23328 nodes.
+    Table {
+        /// Output directory.
+        #[arg(long, default_value = "out/table")]
+        out: PathBuf,
+        /// Only 1458 nodes, few frames.
+        #[arg(long)]
+        quick: bool,
+    },
 }
 
 #[derive(Subcommand)]
@@ -165,6 +190,10 @@ fn main() -> ExitCode {
                 json,
             } => cli_sim::bench_step_cmd(&model, &law, nodes, steps, prony, &linear, json),
             BenchCmd::Extremes { quick, json } => cli_sim::bench_extremes(quick, json),
+        },
+        Command::Experiment(e) => match e {
+            ExperimentCmd::Fig5 { out, quick } => cli_sim::experiment_fig5(&out, quick),
+            ExperimentCmd::Table { out, quick } => cli_sim::experiment_table(&out, quick),
         },
     };
     match result {
