@@ -143,3 +143,15 @@ pub fn experiment_table(out: &Path, quick: bool) -> Result<()> {
     );
     Ok(())
 }
+
+pub fn experiment_trade(out: &Path, quick: bool) -> Result<()> {
+    let (rows, finest) = nvtmm::experiment::trade::run(out, quick)?;
+    println!("{}", nvtmm::experiment::trade::markdown(&rows, finest));
+    println!(
+        "wrote {}, {} and {}",
+        out.join("trade.md").display(),
+        out.join("trade.csv").display(),
+        out.join("trade.png").display()
+    );
+    Ok(())
+}

@@ -62,6 +62,15 @@ enum ExperimentCmd {
         #[arg(long)]
         quick: bool,
     },
+    /// Speed-for-accuracy trade: time per step against error, per knob.
+    Trade {
+        /// Output directory.
+        #[arg(long, default_value = "out/trade")]
+        out: PathBuf,
+        /// A small mesh and fewer settings.
+        #[arg(long)]
+        quick: bool,
+    },
 }
 
 #[derive(Subcommand)]
@@ -194,6 +203,7 @@ fn main() -> ExitCode {
         Command::Experiment(e) => match e {
             ExperimentCmd::Fig5 { out, quick } => cli_sim::experiment_fig5(&out, quick),
             ExperimentCmd::Table { out, quick } => cli_sim::experiment_table(&out, quick),
+            ExperimentCmd::Trade { out, quick } => cli_sim::experiment_trade(&out, quick),
         },
     };
     match result {

@@ -9,6 +9,7 @@
 pub mod fig5;
 pub mod plot;
 pub mod table;
+pub mod trade;
 
 use std::path::{Path, PathBuf};
 

@@ -61,6 +61,8 @@ pub struct TableRow {
     pub paper_haptic_fps: f64,
     /// Median CG iterations per haptic step.
     pub cg_iters: usize,
+    /// Why a measurement failed (the rate is then NaN), if it did.
+    pub failure: Option<String>,
 }
 
 fn time_frames(
@@ -136,8 +138,21 @@ pub fn run(out: &Path, quick: bool) -> Result<Vec<TableRow>, ExperimentError> {
     let mut rows = Vec::new();
     for &(nodes, model, pv, ph) in PAPER.iter().filter(|r| !quick || r.0 == 1458) {
         let kind: ModelKind = model.parse().map_err(ExperimentError::Setup)?;
-        let (visual, _, our_nodes) = time_frames(kind, nodes, 1.0 / 60.0, frames, true)?;
-        let (haptic, cg, _) = time_frames(kind, nodes, 1e-3, frames, false)?;
+        let mut failure = None;
+        let mut measure = |dt: f64, visual: bool| match time_frames(kind, nodes, dt, frames, visual) {
+            Ok(r) => Ok(r),
+            Err(ExperimentError::Step { step, reason, .. }) => {
+                failure = Some(format!(
+                    "{} at dt = {dt:.4} s, step {step}: {reason}",
+                    if visual { "visual" } else { "haptic" }
+                ));
+                Ok((f64::NAN, 0, 0))
+            }
+            Err(e) => Err(e),
+        };
+        let (visual, _, n_visual) = measure(1.0 / 60.0, true)?;
+        let (haptic, cg, n_haptic) = measure(1e-3, false)?;
+        let our_nodes = n_visual.max(n_haptic);
         rows.push(TableRow {
             nodes,
             our_nodes,
@@ -147,6 +162,7 @@ pub fn run(out: &Path, quick: bool) -> Result<Vec<TableRow>, ExperimentError> {
             haptic_fps: haptic,
             paper_haptic_fps: ph,
             cg_iters: cg,
+            failure,
         });
     }
     let csv = out.join("table.csv");

@@ -1,0 +1,435 @@
+//! The speed-for-accuracy trade: time per step against error relative to a
+//! converged reference, one knob at a time.
+//!
+//! Set-up: the benchmark's standard load ([`crate::bench::standard_load`],
+//! a force pressing the arch top, ramped in over 20 ms), simulated to
+//! T = 40 ms. The reference is NVTMM (StVK) on the same mesh with dt =
+//! 0.25 ms, Newton to 1e-10 and Cholesky. Error metrics (documented in
+//! docs/RESULTS.md):
+//! - `err_load_disp`: |u_load(T) − u_ref(T)| / |u_ref(T)| at the loaded node;
+//! - `err_rms_surface`: RMS over surface nodes of |u(T) − u_ref(T)|, divided
+//!   by the RMS of |u_ref(T)| (same mesh only);
+//! - for mesh resolution, the loaded-node displacement against the finest
+//!   mesh (the load sits at the same physical point on every mesh; RMS is
+//!   not compared across meshes).
+//!
+//! Knobs: model (msm, tmm, nvtmm, fem), dt, Newton iterations, CG tolerance,
+//! preconditioner, and mesh resolution. Each row reports the median wall
+//! time per step. The reduced model's knobs (r, contact modes) join when the
+//! reduced model exists.
+
+use super::plot::{line_plot, Series};
+use super::ExperimentError;
+use crate::bench::{standard_load, standard_params};
+use crate::material::{Law, Material};
+use crate::mesh::arch::{generate, Arch, ArchParams};
+use crate::mesh::Vec3;
+use crate::model::ModelKind;
+use crate::scene::build_model;
+use crate::solver::{ImplicitEuler, ImplicitEulerParams, LinearSolverKind, NewtonParams, Preconditioner, TissueState};
+use plotters::style::RGBColor;
+use std::io::Write;
+use std::path::Path;
+use std::time::Instant;
+
+/// Simulated time at which errors are measured (s).
+pub const T_END: f64 = 0.04;
+
+/// One measured configuration.
+#[derive(Debug, Clone, serde::Serialize)]
+pub struct TradeRow {
+    /// Which knob was varied.
+    pub knob: String,
+    /// Its value, as text.
+    pub value: String,
+    /// Model.
+    pub model: String,
+    /// Nodes of the mesh.
+    pub nodes: usize,
+    /// Median wall time per step (ms).
+    pub ms_per_step: f64,
+    /// Wall time to simulate one second (s): ms_per_step / dt.
+    pub wall_per_sim_s: f64,
+    /// Relative error of the loaded node's displacement.
+    pub err_load_disp: f64,
+    /// Relative RMS error of surface displacement (NaN across meshes).
+    pub err_rms_surface: f64,
+}
+
+struct Outcome {
+    u: Vec<Vec3>,
+    ms: f64,
+}
+
+fn run_one(arch: &Arch, kind: ModelKind, params: ImplicitEulerParams) -> Result<Outcome, ExperimentError> {
+    let mesh = &arch.mesh;
+    let mat = Material::aorta();
+    let mut model = build_model(kind, mesh, &mat, Law::Stvk, &[]);
+    let load = standard_load(arch, 0.3);
+    let mut euler = ImplicitEuler::new(mesh, mesh.lumped_mass(mat.density), params)
+        .map_err(|e| ExperimentError::Setup(e.to_string()))?;
+    let mut state = TissueState::at_rest(mesh.num_nodes());
+    let steps = (T_END / params.dt).round() as usize;
+    let mut times = Vec::with_capacity(steps);
+    for step in 1..=steps {
+        let t0 = Instant::now();
+        let rep = euler.step(&mut state, model.as_mut(), &load.loads, &load.fixed);
+        times.push(t0.elapsed().as_secs_f64() * 1e3);
+        if let Some(f) = rep.failure {
+            return Err(ExperimentError::Step {
+                model: kind.name().into(),
+                step,
+                reason: f.to_string(),
+            });
+        }
+    }
+    times.sort_by(f64::total_cmp);
+    Ok(Outcome {
+        u: state.u,
+        ms: times[times.len() / 2],
+    })
+}
+
+fn push_failed(rows: &mut Vec<TradeRow>, knob: &str, value: String, kind: ModelKind, arch: &Arch, reason: String) {
+    rows.push(TradeRow {
+        knob: knob.into(),
+        value: format!("{value} (failed: {reason})"),
+        model: kind.name().into(),
+        nodes: arch.mesh.num_nodes(),
+        ms_per_step: f64::NAN,
+        wall_per_sim_s: f64::NAN,
+        err_load_disp: f64::NAN,
+        err_rms_surface: f64::NAN,
+    });
+}
+
+fn reference_params() -> ImplicitEulerParams {
+    ImplicitEulerParams {
+        dt: 2.5e-4,
+        newton: NewtonParams {
+            max_iters: 8,
+            rel_tol: 1e-10,
+            ..NewtonParams::default()
+        },
+        linear: LinearSolverKind::Cholesky,
+        ..standard_params()
+    }
+}
+
+fn errors(arch: &Arch, u: &[Vec3], reference: &[Vec3]) -> (f64, f64) {
+    let node = standard_load(arch, 0.3).node as usize;
+    let e_load = (u[node] - reference[node]).norm() / reference[node].norm().max(1e-300);
+    let surf = arch.mesh.surface_nodes();
+    let num: f64 = surf
+        .iter()
+        .map(|&i| (u[i as usize] - reference[i as usize]).norm_squared())
+        .sum();
+    let den: f64 = surf.iter().map(|&i| reference[i as usize].norm_squared()).sum();
+    (e_load, (num / den.max(1e-300)).sqrt())
+}
+
+/// Runs the study on an arch of `nodes` nodes (plus coarser and finer meshes
+/// for the resolution knob) and writes `trade.csv`, `trade.png`, `trade.md`.
+/// Returns the rows and the node count of the finest (reference) mesh.
+pub fn run(out: &Path, quick: bool) -> Result<(Vec<TradeRow>, usize), ExperimentError> {
+    std::fs::create_dir_all(out).map_err(|e| ExperimentError::io(out, e))?;
+    let nodes = if quick { 300 } else { 1458 };
+    let arch = generate(&ArchParams::default(), nodes).map_err(|e| ExperimentError::Setup(e.to_string()))?;
+    let reference = run_one(&arch, ModelKind::Nvtmm, reference_params())?;
+    let mut rows = Vec::new();
+    let mut failed: Vec<TradeRow> = Vec::new();
+    let mut push = |knob: &str,
+                    value: String,
+                    kind: ModelKind,
+                    p: ImplicitEulerParams,
+                    arch: &Arch,
+                    o: &Outcome,
+                    reference: &[Vec3]| {
+        let (el, er) = errors(arch, &o.u, reference);
+        rows.push(TradeRow {
+            knob: knob.into(),
+            value,
+            model: kind.name().into(),
+            nodes: arch.mesh.num_nodes(),
+            ms_per_step: o.ms,
+            wall_per_sim_s: o.ms * 1e-3 / p.dt,
+            err_load_disp: el,
+            err_rms_surface: er,
+        });
+    };
+    let base = standard_params();
+    // Model x dt.
+    let dts: &[f64] = if quick {
+        &[5e-4, 2e-3, 1e-2]
+    } else {
+        &[5e-4, 1e-3, 2e-3, 5e-3, 1e-2]
+    };
+    for kind in [ModelKind::Msm, ModelKind::Tmm, ModelKind::Nvtmm, ModelKind::Fem] {
+        for &dt in dts {
+            let p = ImplicitEulerParams { dt, ..base };
+            match run_one(&arch, kind, p) {
+                Ok(o) => push("dt", format!("{dt}"), kind, p, &arch, &o, &reference.u),
+                // A model that cannot take this step is a result, not an abort.
+                Err(ExperimentError::Step { reason, .. }) => {
+                    push_failed(&mut failed, "dt", format!("{dt}"), kind, &arch, reason)
+                }
+                Err(e) => return Err(e),
+            }
+        }
+    }
+    // NVTMM: Newton iterations, CG tolerance, preconditioner (dt = 1 ms).
+    for iters in [1usize, 2, 4] {
+        let p = ImplicitEulerParams {
+            newton: NewtonParams {
+                max_iters: iters,
+                rel_tol: 1e-10,
+                ..NewtonParams::default()
+            },
+            ..base
+        };
+        let o = run_one(&arch, ModelKind::Nvtmm, p)?;
+        push(
+            "newton_iters",
+            iters.to_string(),
+            ModelKind::Nvtmm,
+            p,
+            &arch,
+            &o,
+            &reference.u,
+        );
+    }
+    for tol in [1e-2, 1e-4, 1e-6, 1e-8] {
+        let p = ImplicitEulerParams {
+            linear: LinearSolverKind::Cg {
+                precond: Preconditioner::BlockJacobi,
+                tol,
+                max_iter: 5000,
+                strict: false,
+            },
+            ..base
+        };
+        let o = run_one(&arch, ModelKind::Nvtmm, p)?;
+        push(
+            "cg_tol",
+            format!("{tol:e}"),
+            ModelKind::Nvtmm,
+            p,
+            &arch,
+            &o,
+            &reference.u,
+        );
+    }
+    for (name, lin) in [
+        (
+            "jacobi",
+            LinearSolverKind::Cg {
+                precond: Preconditioner::Jacobi,
+                tol: 1e-6,
+                max_iter: 5000,
+                strict: false,
+            },
+        ),
+        (
+            "block_jacobi",
+            LinearSolverKind::Cg {
+                precond: Preconditioner::BlockJacobi,
+                tol: 1e-6,
+                max_iter: 5000,
+                strict: false,
+            },
+        ),
+        (
+            "block_ssor",
+            LinearSolverKind::Cg {
+                precond: Preconditioner::BlockSsor,
+                tol: 1e-6,
+                max_iter: 5000,
+                strict: false,
+            },
+        ),
+        (
+            "block_ic0",
+            LinearSolverKind::Cg {
+                precond: Preconditioner::BlockIc0,
+                tol: 1e-6,
+                max_iter: 5000,
+                strict: false,
+            },
+        ),
+        ("cholesky", LinearSolverKind::Cholesky),
+    ] {
+        let p = ImplicitEulerParams { linear: lin, ..base };
+        let o = run_one(&arch, ModelKind::Nvtmm, p)?;
+        push(
+            "linear_solver",
+            name.into(),
+            ModelKind::Nvtmm,
+            p,
+            &arch,
+            &o,
+            &reference.u,
+        );
+    }
+    rows.extend(failed);
+    // Mesh resolution: loaded-node displacement against the finest mesh.
+    let sizes: &[usize] = if quick {
+        &[150, 300, 700]
+    } else {
+        &[300, 1458, 5832, 23328]
+    };
+    // Every mesh with the same (benchmark) settings, so the differences are
+    // spatial; the finest mesh is the reference and gets no row.
+    let mut runs = Vec::with_capacity(sizes.len());
+    for &n in sizes {
+        let a = generate(&ArchParams::default(), n).map_err(|e| ExperimentError::Setup(e.to_string()))?;
+        let o = run_one(&a, ModelKind::Nvtmm, base)?;
+        let node = standard_load(&a, 0.3).node as usize;
+        runs.push((a.mesh.num_nodes(), o.ms, o.u[node]));
+    }
+    if let Some(&(_, _, fine_disp)) = runs.last() {
+        for &(n, ms, disp) in &runs[..runs.len() - 1] {
+            rows.push(TradeRow {
+                knob: "mesh_nodes".into(),
+                value: n.to_string(),
+                model: "nvtmm".into(),
+                nodes: n,
+                ms_per_step: ms,
+                wall_per_sim_s: ms * 1e-3 / base.dt,
+                err_load_disp: (disp - fine_disp).norm() / fine_disp.norm().max(1e-300),
+                err_rms_surface: f64::NAN,
+            });
+        }
+    }
+    let finest_nodes = runs.last().map(|r| r.0).unwrap_or(0);
+
+    let csv = out.join("trade.csv");
+    let mut w = std::fs::File::create(&csv).map_err(|e| ExperimentError::io(&csv, e))?;
+    writeln!(
+        w,
+        "knob,value,model,nodes,ms_per_step,wall_per_sim_s,err_load_disp,err_rms_surface"
+    )
+    .map_err(|e| ExperimentError::io(&csv, e))?;
+    for r in &rows {
+        writeln!(
+            w,
+            "{},{},{},{},{:.4},{:.4},{:.3e},{:.3e}",
+            r.knob, r.value, r.model, r.nodes, r.ms_per_step, r.wall_per_sim_s, r.err_load_disp, r.err_rms_surface
+        )
+        .map_err(|e| ExperimentError::io(&csv, e))?;
+    }
+    let colors = [
+        RGBColor(31, 119, 180),
+        RGBColor(255, 127, 14),
+        RGBColor(44, 160, 44),
+        RGBColor(214, 39, 40),
+        RGBColor(148, 103, 189),
+        RGBColor(90, 90, 90),
+    ];
+    let mut series = Vec::new();
+    for (i, m) in ["msm", "tmm", "nvtmm", "fem"].iter().enumerate() {
+        let mut pts: Vec<(f64, f64)> = rows
+            .iter()
+            .filter(|r| r.knob == "dt" && r.model == *m)
+            .map(|r| (r.wall_per_sim_s, r.err_load_disp.max(1e-9)))
+            .collect();
+        pts.sort_by(|a, b| a.0.total_cmp(&b.0));
+        series.push(Series {
+            name: format!("{m}: dt 0.5-10 ms"),
+            color: colors[i],
+            points: pts,
+            markers: true,
+        });
+    }
+    let mut mesh_pts: Vec<(f64, f64)> = rows
+        .iter()
+        .filter(|r| r.knob == "mesh_nodes" && r.err_load_disp > 0.0)
+        .map(|r| (r.wall_per_sim_s, r.err_load_disp))
+        .collect();
+    mesh_pts.sort_by(|a, b| a.0.total_cmp(&b.0));
+    series.push(Series {
+        name: "nvtmm: mesh resolution".into(),
+        color: colors[4],
+        points: mesh_pts,
+        markers: true,
+    });
+    let mut solver_pts: Vec<(f64, f64)> = rows
+        .iter()
+        .filter(|r| matches!(r.knob.as_str(), "cg_tol" | "newton_iters"))
+        .map(|r| (r.wall_per_sim_s, r.err_load_disp.max(1e-9)))
+        .collect();
+    solver_pts.sort_by(|a, b| a.0.total_cmp(&b.0));
+    series.push(Series {
+        name: "nvtmm: Newton iters, CG tol".into(),
+        color: colors[5],
+        points: solver_pts,
+        markers: true,
+    });
+    let png = out.join("trade.png");
+    line_plot(
+        &png,
+        "Speed for accuracy (arch, standard load, error at t = 40 ms)",
+        "wall time per simulated second (s)",
+        "relative error of the loaded node's displacement",
+        &series,
+        true,
+        true,
+    )
+    .map_err(|e| ExperimentError::Plot(png.clone(), e))?;
+    let md = out.join("trade.md");
+    std::fs::write(&md, markdown(&rows, finest_nodes)).map_err(|e| ExperimentError::io(&md, e))?;
+    Ok((rows, finest_nodes))
+}
+
+/// The rows as Markdown, with the recommended settings for the 30 Hz visual
+/// budget (33 ms per step) and the 1 kHz haptic budget (1 ms per step).
+pub fn markdown(rows: &[TradeRow], finest: usize) -> String {
+    let mut s = format!("Machine: {}.\n\n| knob | value | model | nodes | ms/step | wall s per sim s | err (loaded node) | err (RMS surface) |\n|---|---|---|---|---|---|---|---|\n", super::table::machine());
+    for r in rows {
+        s.push_str(&format!(
+            "| {} | {} | {} | {} | {:.2} | {:.2} | {:.2e} | {} |\n",
+            r.knob,
+            r.value,
+            r.model,
+            r.nodes,
+            r.ms_per_step,
+            r.wall_per_sim_s,
+            r.err_load_disp,
+            if r.err_rms_surface.is_nan() {
+                "–".into()
+            } else {
+                format!("{:.2e}", r.err_rms_surface)
+            }
+        ));
+    }
+    for (name, budget) in [
+        ("30 Hz visual (one step ≤ 33 ms)", 33.3),
+        ("1 kHz haptic (one step ≤ 1 ms)", 1.0),
+    ] {
+        s.push_str(&format!("\n**{name}:** "));
+        // Time and solver knobs on the study mesh (errors against its reference).
+        let best = rows
+            .iter()
+            .filter(|r| r.knob != "mesh_nodes" && r.ms_per_step <= budget && r.err_load_disp.is_finite())
+            .min_by(|a, b| a.err_load_disp.total_cmp(&b.err_load_disp));
+        match best {
+            Some(r) => s.push_str(&format!(
+                "on the {}-node mesh, {} with {} = {}: {:.2} ms/step, loaded-node error {:.1e} against the converged run on that mesh. ",
+                r.nodes, r.model, r.knob, r.value, r.ms_per_step, r.err_load_disp
+            )),
+            None => s.push_str("no full-model setting on the study mesh fits this budget on this machine. "),
+        }
+        // Spatial resolution: the finest mesh (other than the reference) that fits.
+        let mesh = rows
+            .iter()
+            .filter(|r| r.knob == "mesh_nodes" && r.ms_per_step <= budget)
+            .max_by_key(|r| r.nodes);
+        match mesh {
+            Some(r) => s.push_str(&format!(
+                "Finest mesh that fits: {} nodes ({:.2} ms/step), loaded-node error {:.1e} against the {finest}-node mesh.\n",
+                r.nodes, r.ms_per_step, r.err_load_disp
+            )),
+            None => s.push_str("No mesh in the study fits this budget with the full model: this is what the reduced model is for.\n"),
+        }
+    }
+    s
+}
