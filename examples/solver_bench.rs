@@ -266,6 +266,7 @@ fn main() {
             rayleigh_beta: 1e-4,
             newton: NewtonParams::linearized(),
             linear,
+            ..ImplicitEulerParams::default()
         };
         let mut euler = match ImplicitEuler::new(mesh, mass.clone(), params) {
             Ok(e) => e,

@@ -75,6 +75,7 @@ pub fn standard_params() -> ImplicitEulerParams {
             max_iter: 1000,
             strict: false,
         },
+        stiffness_every: 1,
     }
 }
 
@@ -95,10 +96,18 @@ pub struct StepBench {
     pub ms_per_step: f64,
     /// 1000 / ms_per_step.
     pub steps_per_sec: f64,
+    /// Mean wall time per step (ms): with `stiffness_every` > 1 the refresh
+    /// steps are slower than the median one, and 1000 / mean is the
+    /// sustained rate.
+    pub mean_ms_per_step: f64,
+    /// Slowest step (ms).
+    pub max_ms_per_step: f64,
     /// Median CG iterations per step.
     pub cg_iters: usize,
     /// Linear solver used.
     pub linear: String,
+    /// Tangent refresh interval (1: exact Newton every step).
+    pub stiffness_every: usize,
     /// Model construction (precomputation) time (s).
     pub setup_s: f64,
     /// Displacement of the loaded node at the end (m).
@@ -133,6 +142,20 @@ pub fn bench_step(
     prony: &[PronyTerm],
     linear: LinearSolverKind,
 ) -> Result<StepBench, BenchError> {
+    bench_step_lagged(kind, law, nodes, steps, prony, linear, 1)
+}
+
+/// [`bench_step`] with the tangent refreshed every `stiffness_every` steps
+/// (`ImplicitEulerParams::stiffness_every`; 1 is exact Newton).
+pub fn bench_step_lagged(
+    kind: ModelKind,
+    law: Law,
+    nodes: usize,
+    steps: usize,
+    prony: &[PronyTerm],
+    linear: LinearSolverKind,
+    stiffness_every: usize,
+) -> Result<StepBench, BenchError> {
     if steps == 0 {
         return Err(BenchError::Arg("--steps must be at least 1".into()));
     }
@@ -145,6 +168,7 @@ pub fn bench_step(
     let mesh = &arch.mesh;
     let params = ImplicitEulerParams {
         linear,
+        stiffness_every,
         ..standard_params()
     };
     let mut euler =
@@ -167,9 +191,11 @@ pub fn bench_step(
             iters.push(rep.linear_iters);
         }
     }
+    let mean = times.iter().sum::<f64>() / times.len() as f64;
     times.sort_by(f64::total_cmp);
     iters.sort_unstable();
     let ms = times[times.len() / 2];
+    let max = times[times.len() - 1];
     Ok(StepBench {
         model: kind.name().into(),
         law: match law {
@@ -181,8 +207,11 @@ pub fn bench_step(
         steps,
         ms_per_step: ms,
         steps_per_sec: 1e3 / ms,
+        mean_ms_per_step: mean,
+        max_ms_per_step: max,
         cg_iters: iters[iters.len() / 2],
         linear: linear_name(&linear),
+        stiffness_every,
         setup_s,
         load_node_displacement_m: state.u[load.node as usize].norm(),
         threads: rayon::current_num_threads(),
@@ -375,6 +404,7 @@ pub fn run_extreme(case: &ExtremeCase, steps: usize) -> ExtremeResult {
             ..NewtonParams::default()
         },
         linear: LinearSolverKind::Cholesky,
+        ..ImplicitEulerParams::default()
     };
     let mut res = ExtremeResult {
         case: case.clone(),

@@ -61,6 +61,10 @@ enum BenchCmd {
         /// Linear solver: cholesky, cg-none, cg-jacobi, cg-block_jacobi, cg-block_ssor, cg-block_ic0.
         #[arg(long, default_value = "cg-block_jacobi")]
         linear: String,
+        /// Re-assemble the tangent and rebuild the preconditioner/factor
+        /// every K steps (1: exact Newton; see docs/SOLVERS.md).
+        #[arg(long, default_value_t = 1)]
+        stiffness_every: usize,
         /// Print JSON.
         #[arg(long)]
         json: bool,
@@ -155,8 +159,9 @@ fn main() -> ExitCode {
                 steps,
                 prony,
                 linear,
+                stiffness_every,
                 json,
-            } => cli_sim::bench_step_cmd(&model, &law, nodes, steps, prony, &linear, json),
+            } => cli_sim::bench_step_cmd(&model, &law, nodes, steps, prony, &linear, stiffness_every, json),
             BenchCmd::Extremes { quick, json } => cli_sim::bench_extremes(quick, json),
         },
     };

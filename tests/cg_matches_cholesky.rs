@@ -134,6 +134,7 @@ fn a_step_with_cg_matches_a_step_with_cholesky() {
                 ..NewtonParams::default()
             },
             linear,
+            ..ImplicitEulerParams::default()
         };
         let mut euler = ImplicitEuler::new(&mesh, mesh.lumped_mass(1100.0), params).unwrap();
         let mut state = TissueState::at_rest(mesh.num_nodes());

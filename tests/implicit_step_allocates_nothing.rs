@@ -92,6 +92,7 @@ fn implicit_step_allocates_nothing() {
                 ..NewtonParams::default()
             },
             linear,
+            ..ImplicitEulerParams::default()
         };
         let mut euler = ImplicitEuler::new(&mesh, mesh.lumped_mass(1100.0), params).unwrap();
         let mut state = TissueState::at_rest(mesh.num_nodes());

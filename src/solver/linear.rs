@@ -467,6 +467,22 @@ impl Cg {
     /// b gives x = 0. A warm start worse than zero is replaced by zero.
     pub fn solve(&mut self, a: &BlockTangent, b: &[Vec3], x: &mut [Vec3]) -> Result<SolveStats, LinearFailure> {
         self.setup(a)?;
+        self.solve_prepared(a, b, x)
+    }
+
+    /// Builds the preconditioner for A (what [`Cg::solve`] does first).
+    pub fn prepare(&mut self, a: &BlockTangent) -> Result<(), LinearFailure> {
+        self.setup(a)
+    }
+
+    /// Solves A x = b with the preconditioner of the last [`Cg::prepare`]
+    /// (built for A or for an earlier matrix with the same pattern).
+    pub fn solve_prepared(
+        &mut self,
+        a: &BlockTangent,
+        b: &[Vec3],
+        x: &mut [Vec3],
+    ) -> Result<SolveStats, LinearFailure> {
         let bnorm = norm(b);
         if !bnorm.is_finite() {
             return Err(LinearFailure::NonFinite);
@@ -568,6 +584,8 @@ pub struct CholeskySolver {
     rhs: Vec<f64>,
     scratch: MemBuffer,
     par: Par,
+    /// Whether `l_values` holds a valid factor.
+    factored: bool,
 }
 
 impl std::fmt::Debug for CholeskySolver {
@@ -631,6 +649,7 @@ impl CholeskySolver {
             rhs: vec![0.0; dofs],
             scratch,
             par,
+            factored: false,
         })
     }
 
@@ -662,6 +681,13 @@ impl CholeskySolver {
 
     /// Factors A (lower triangle read) and solves A x = b.
     pub fn solve(&mut self, a: &BlockTangent, b: &[Vec3], x: &mut [Vec3]) -> Result<SolveStats, LinearFailure> {
+        self.factor(a)?;
+        self.solve_factored(b, x)
+    }
+
+    /// Factors A (lower triangle read) in place, for [`CholeskySolver::solve_factored`].
+    pub fn factor(&mut self, a: &BlockTangent) -> Result<(), LinearFailure> {
+        self.factored = false;
         self.fill(a);
         if self.values.iter().any(|v| !v.is_finite()) {
             return Err(LinearFailure::NonFinite);
@@ -681,6 +707,17 @@ impl CholeskySolver {
                 Default::default(),
             )
             .map_err(|_| LinearFailure::NotPositiveDefinite)?;
+        self.factored = true;
+        Ok(())
+    }
+
+    /// Solves A x = b with the factor of the last successful
+    /// [`CholeskySolver::factor`] (triangular solves only).
+    pub fn solve_factored(&mut self, b: &[Vec3], x: &mut [Vec3]) -> Result<SolveStats, LinearFailure> {
+        if !self.factored {
+            return Err(LinearFailure::NotPositiveDefinite);
+        }
+        let dofs = self.rhs.len();
         for (i, bi) in b.iter().enumerate() {
             self.rhs[3 * i..3 * i + 3].copy_from_slice(bi.as_slice());
         }
@@ -730,6 +767,32 @@ impl LinearSolver {
         match self {
             LinearSolver::Cg(cg) => cg.solve(a, b, x),
             LinearSolver::Cholesky(ch) => ch.solve(a, b, x),
+        }
+    }
+
+    /// Builds what depends on the matrix values only (CG: the
+    /// preconditioner; Cholesky: the numeric factorization), so that several
+    /// [`LinearSolver::solve_prepared`] calls can reuse it.
+    pub fn prepare(&mut self, a: &BlockTangent) -> Result<(), LinearFailure> {
+        match self {
+            LinearSolver::Cg(cg) => cg.prepare(a),
+            LinearSolver::Cholesky(ch) => ch.factor(a),
+        }
+    }
+
+    /// Solves A x = b reusing the last [`LinearSolver::prepare`]. CG iterates
+    /// on `a` itself (preconditioned by what was prepared, possibly for an
+    /// earlier matrix); Cholesky solves with the prepared factor and ignores
+    /// `a`, so `a` must be the prepared matrix for an exact solve.
+    pub fn solve_prepared(
+        &mut self,
+        a: &BlockTangent,
+        b: &[Vec3],
+        x: &mut [Vec3],
+    ) -> Result<SolveStats, LinearFailure> {
+        match self {
+            LinearSolver::Cg(cg) => cg.solve_prepared(a, b, x),
+            LinearSolver::Cholesky(ch) => ch.solve_factored(b, x),
         }
     }
 }
