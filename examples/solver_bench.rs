@@ -284,6 +284,7 @@ fn main() {
         let name = match linear {
             LinearSolverKind::Cg { precond, tol, .. } => format!("CG {precond:?} tol {tol:e}"),
             LinearSolverKind::Cholesky => "Cholesky".into(),
+            LinearSolverKind::CholeskyPcg { refactor_every, .. } => format!("Cholesky-PCG every {refactor_every}"),
         };
         println!(
             "| {name} | {:.1} | {} (median {}, max {}) |",

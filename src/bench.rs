@@ -501,6 +501,7 @@ pub fn linear_name(l: &LinearSolverKind) -> String {
     match l {
         LinearSolverKind::Cg { precond, .. } => format!("cg-{}", precond_name(*precond)),
         LinearSolverKind::Cholesky => "cholesky".into(),
+        LinearSolverKind::CholeskyPcg { refactor_every, .. } => format!("cholesky-pcg:{refactor_every}"),
     }
 }
 
@@ -519,6 +520,26 @@ fn precond_name(p: Preconditioner) -> &'static str {
 pub fn parse_linear(s: &str) -> Result<LinearSolverKind, String> {
     let precond = match s {
         "cholesky" => return Ok(LinearSolverKind::Cholesky),
+        s if s.starts_with("cholesky-pcg") => {
+            let every = match s.strip_prefix("cholesky-pcg").unwrap_or("") {
+                "" => 10,
+                k => k
+                    .strip_prefix(':')
+                    .and_then(|k| k.parse().ok())
+                    .ok_or_else(|| format!("--linear {s}: expected cholesky-pcg or cholesky-pcg:N"))?,
+            };
+            let tol = match standard_params().linear {
+                LinearSolverKind::Cg { tol, .. } => tol,
+                _ => 1e-6,
+            };
+            let kind = LinearSolverKind::CholeskyPcg {
+                tol,
+                max_iter: 30,
+                refactor_every: every,
+            };
+            kind.validate()?;
+            return Ok(kind);
+        }
         "cg" | "cg-block_jacobi" => Preconditioner::BlockJacobi,
         "cg-jacobi" => Preconditioner::Jacobi,
         "cg-none" => Preconditioner::None,
@@ -539,6 +560,6 @@ pub fn parse_linear(s: &str) -> Result<LinearSolverKind, String> {
             max_iter,
             strict,
         }),
-        LinearSolverKind::Cholesky => Ok(LinearSolverKind::Cholesky),
+        other => Ok(other),
     }
 }

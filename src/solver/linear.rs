@@ -59,6 +59,12 @@ fn default_cg_max_iter() -> usize {
 fn default_precond() -> Preconditioner {
     Preconditioner::BlockSsor
 }
+fn default_pcg_max_iter() -> usize {
+    30
+}
+fn default_refactor_every() -> usize {
+    10
+}
 
 /// The linear solver a scene selects (TOML: `linear = { kind = "cg", precond
 /// = "block_ssor", tol = 1e-8, max_iter = 500, strict = false }` or
@@ -88,6 +94,23 @@ pub enum LinearSolverKind {
     /// Newton iteration than the best PCG (`docs/SOLVERS.md`).
     #[default]
     Cholesky,
+    /// CG on the current matrix, preconditioned by the sparse Cholesky factor
+    /// of an earlier one: refactored every `refactor_every` solves, and at
+    /// once whenever CG misses `tol` within `max_iter` or breaks down (so a
+    /// solve never ends worse than CG's tolerance because the factor is
+    /// stale). Solves to `tol` like CG; amortises the factorization.
+    CholeskyPcg {
+        /// Relative residual tolerance ‖b − A x‖ ≤ tol ‖b‖.
+        #[serde(default = "default_cg_tol")]
+        tol: f64,
+        /// CG iterations tried with a lagged factor before refactoring.
+        #[serde(default = "default_pcg_max_iter")]
+        max_iter: usize,
+        /// Refactor after this many solves (1: every solve, i.e. Cholesky
+        /// followed by a residual check).
+        #[serde(default = "default_refactor_every")]
+        refactor_every: usize,
+    },
 }
 
 impl LinearSolverKind {
@@ -99,6 +122,22 @@ impl LinearSolverKind {
             }
             if max_iter == 0 {
                 return Err("linear.max_iter = 0: must be at least 1".into());
+            }
+        }
+        if let LinearSolverKind::CholeskyPcg {
+            tol,
+            max_iter,
+            refactor_every,
+        } = *self
+        {
+            if !(tol.is_finite() && tol > 0.0 && tol < 1.0) {
+                return Err(format!("linear.tol = {tol}: must be in (0, 1)"));
+            }
+            if max_iter == 0 {
+                return Err("linear.max_iter = 0: must be at least 1".into());
+            }
+            if refactor_every == 0 {
+                return Err("linear.refactor_every = 0: must be at least 1".into());
             }
         }
         Ok(())
@@ -738,6 +777,158 @@ impl CholeskySolver {
     }
 }
 
+/// CG preconditioned by a lagged sparse Cholesky factor
+/// ([`LinearSolverKind::CholeskyPcg`]).
+#[derive(Debug)]
+pub struct CholeskyPcg {
+    chol: CholeskySolver,
+    tol: f64,
+    max_iter: usize,
+    refactor_every: usize,
+    /// Solves since the last factorization; `None` when there is no factor.
+    age: Option<usize>,
+    r: Vec<Vec3>,
+    z: Vec<Vec3>,
+    p: Vec<Vec3>,
+    q: Vec<Vec3>,
+}
+
+impl CholeskyPcg {
+    /// Symbolic analysis for matrices with the pattern of `pattern`.
+    pub fn new(
+        pattern: &BlockTangent,
+        tol: f64,
+        max_iter: usize,
+        refactor_every: usize,
+    ) -> Result<CholeskyPcg, String> {
+        let n = pattern.num_nodes();
+        Ok(CholeskyPcg {
+            chol: CholeskySolver::new(pattern)?,
+            tol,
+            max_iter,
+            refactor_every,
+            age: None,
+            r: vec![Vec3::zeros(); n],
+            z: vec![Vec3::zeros(); n],
+            p: vec![Vec3::zeros(); n],
+            q: vec![Vec3::zeros(); n],
+        })
+    }
+
+    /// Factors `a` now (the next solves use this factor).
+    pub fn factor(&mut self, a: &BlockTangent) -> Result<(), LinearFailure> {
+        self.age = None;
+        self.chol.factor(a)?;
+        self.age = Some(0);
+        Ok(())
+    }
+
+    /// Solves A x = b (warm start in `x`) by PCG with the current factor,
+    /// refactoring first when it is `refactor_every` solves old, and once
+    /// more with `a` if CG misses the tolerance.
+    pub fn solve(&mut self, a: &BlockTangent, b: &[Vec3], x: &mut [Vec3]) -> Result<SolveStats, LinearFailure> {
+        let fresh = match self.age {
+            Some(k) if k < self.refactor_every => false,
+            _ => {
+                self.factor(a)?;
+                true
+            }
+        };
+        let first = self.pcg(a, b, x);
+        let out = match first {
+            Ok(s) if s.converged || fresh => Ok(s),
+            _ if !fresh => {
+                // The lagged factor no longer preconditions well enough.
+                self.factor(a)?;
+                x.iter_mut().for_each(|v| *v = Vec3::zeros());
+                self.pcg(a, b, x).map(|s| SolveStats {
+                    iters: s.iters + first.map(|f| f.iters).unwrap_or(0),
+                    ..s
+                })
+            }
+            other => other,
+        };
+        if let Some(k) = self.age.as_mut() {
+            *k += 1;
+        }
+        out
+    }
+
+    fn pcg(&mut self, a: &BlockTangent, b: &[Vec3], x: &mut [Vec3]) -> Result<SolveStats, LinearFailure> {
+        let bnorm = norm(b);
+        if !bnorm.is_finite() {
+            return Err(LinearFailure::NonFinite);
+        }
+        if bnorm == 0.0 {
+            x.iter_mut().for_each(|v| *v = Vec3::zeros());
+            return Ok(SolveStats {
+                iters: 0,
+                rel_residual: 0.0,
+                converged: true,
+            });
+        }
+        let CholeskyPcg {
+            chol,
+            tol,
+            max_iter,
+            r,
+            z,
+            p,
+            q,
+            ..
+        } = self;
+        a.mul(x, q);
+        for ((ri, bi), qi) in r.iter_mut().zip(b).zip(q.iter()) {
+            *ri = bi - qi;
+        }
+        let mut rnorm = norm(r);
+        if !(rnorm.is_finite() && rnorm <= bnorm) {
+            x.iter_mut().for_each(|v| *v = Vec3::zeros());
+            r.copy_from_slice(b);
+            rnorm = bnorm;
+        }
+        let goal = *tol * bnorm;
+        let mut iters = 0;
+        if rnorm > goal {
+            chol.solve_factored(r, z)?;
+            p.copy_from_slice(z);
+            let mut rz = dot(r, z);
+            while iters < *max_iter {
+                a.mul(p, q);
+                let pq = dot(p, q);
+                if !(pq.is_finite() && pq > 0.0 && rz.is_finite() && rz > 0.0) {
+                    return Err(LinearFailure::CgBreakdown { iter: iters });
+                }
+                let alpha = rz / pq;
+                for ((xi, ri), (pi, qi)) in x.iter_mut().zip(r.iter_mut()).zip(p.iter().zip(q.iter())) {
+                    *xi += alpha * pi;
+                    *ri -= alpha * qi;
+                }
+                rnorm = norm(r);
+                iters += 1;
+                if rnorm <= goal {
+                    break;
+                }
+                chol.solve_factored(r, z)?;
+                let rz_new = dot(r, z);
+                let beta = rz_new / rz;
+                rz = rz_new;
+                for (pi, zi) in p.iter_mut().zip(z.iter()) {
+                    *pi = zi + beta * *pi;
+                }
+            }
+        }
+        if !rnorm.is_finite() || x.iter().any(|v| !v.iter().all(|c| c.is_finite())) {
+            return Err(LinearFailure::NonFinite);
+        }
+        Ok(SolveStats {
+            iters,
+            rel_residual: rnorm / bnorm,
+            converged: rnorm <= goal,
+        })
+    }
+}
+
 /// A linear solver built for one pattern, as selected by [`LinearSolverKind`].
 #[derive(Debug)]
 pub enum LinearSolver {
@@ -745,6 +936,8 @@ pub enum LinearSolver {
     Cg(Box<Cg>),
     /// Sparse Cholesky.
     Cholesky(Box<CholeskySolver>),
+    /// CG preconditioned by a lagged sparse Cholesky factor.
+    CholeskyPcg(Box<CholeskyPcg>),
 }
 
 impl LinearSolver {
@@ -759,6 +952,11 @@ impl LinearSolver {
                 strict,
             } => LinearSolver::Cg(Box::new(Cg::new(pattern, precond, tol, max_iter, strict))),
             LinearSolverKind::Cholesky => LinearSolver::Cholesky(Box::new(CholeskySolver::new(pattern)?)),
+            LinearSolverKind::CholeskyPcg {
+                tol,
+                max_iter,
+                refactor_every,
+            } => LinearSolver::CholeskyPcg(Box::new(CholeskyPcg::new(pattern, tol, max_iter, refactor_every)?)),
         })
     }
 
@@ -767,6 +965,7 @@ impl LinearSolver {
         match self {
             LinearSolver::Cg(cg) => cg.solve(a, b, x),
             LinearSolver::Cholesky(ch) => ch.solve(a, b, x),
+            LinearSolver::CholeskyPcg(cp) => cp.solve(a, b, x),
         }
     }
 
@@ -777,6 +976,7 @@ impl LinearSolver {
         match self {
             LinearSolver::Cg(cg) => cg.prepare(a),
             LinearSolver::Cholesky(ch) => ch.factor(a),
+            LinearSolver::CholeskyPcg(cp) => cp.factor(a),
         }
     }
 
@@ -793,6 +993,7 @@ impl LinearSolver {
         match self {
             LinearSolver::Cg(cg) => cg.solve_prepared(a, b, x),
             LinearSolver::Cholesky(ch) => ch.solve_factored(b, x),
+            LinearSolver::CholeskyPcg(cp) => cp.solve(a, b, x),
         }
     }
 }

@@ -291,7 +291,7 @@ pub(crate) fn read(path: &Path, data: &[u8]) -> Result<RawMesh, MeshError> {
                         let Some(&k) = list.get(i) else {
                             return Err(s.err_at(line, format!("the cell list ends before cell {c} (of {a})")));
                         };
-                        let k = usize::try_from(k).ok().filter(|&k| k <= list.len() - i - 1);
+                        let k = usize::try_from(k).ok().filter(|&k| k < list.len() - i);
                         let Some(k) = k else {
                             return Err(
                                 s.err_at(line, format!("cell {c}: point count is negative or overruns the list"))

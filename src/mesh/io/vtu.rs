@@ -45,13 +45,13 @@ impl<'a> Xml<'a> {
     }
 
     /// Skips to the next `<`; returns false at end of input.
-    fn to_tag(&mut self) -> bool {
+    fn skip_to_tag(&mut self) -> bool {
         self.s.skip_past(b"<")
     }
 
     fn next(&mut self) -> Result<Option<Ev<'a>>, MeshError> {
         loop {
-            if !self.to_tag() {
+            if !self.skip_to_tag() {
                 return Ok(None);
             }
             let line = self.s.line();
