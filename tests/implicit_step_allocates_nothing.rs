@@ -53,10 +53,10 @@ static GLOBAL: Counting = Counting;
 #[test]
 fn implicit_step_allocates_nothing() {
     let mesh = block(4, 3, 3, 0.01);
-    let fixed = mesh.node_set("x0").unwrap().to_vec();
+    let fixed = mesh.node_set("x_min").unwrap().to_vec();
     let loads = Loads {
         nodal: vec![NodalLoad {
-            nodes: mesh.node_set("x1").unwrap().to_vec(),
+            nodes: mesh.node_set("x_max").unwrap().to_vec(),
             force: Vec3::new(0.5, 0.2, 0.0),
             profile: TimeProfile::Sine {
                 freq_hz: 10.0,
