@@ -108,6 +108,8 @@ pub struct StepBench {
     pub linear: String,
     /// Tangent refresh interval (1: exact Newton every step).
     pub stiffness_every: usize,
+    /// Whether the residual was re-evaluated after the last update.
+    pub check_final_residual: bool,
     /// Model construction (precomputation) time (s).
     pub setup_s: f64,
     /// Displacement of the loaded node at the end (m).
@@ -156,6 +158,25 @@ pub fn bench_step_lagged(
     linear: LinearSolverKind,
     stiffness_every: usize,
 ) -> Result<StepBench, BenchError> {
+    let params = ImplicitEulerParams {
+        linear,
+        stiffness_every,
+        ..standard_params()
+    };
+    bench_step_params(kind, law, nodes, steps, prony, params)
+}
+
+/// [`bench_step`] with any integrator settings (the standard load's are
+/// [`standard_params`]).
+pub fn bench_step_params(
+    kind: ModelKind,
+    law: Law,
+    nodes: usize,
+    steps: usize,
+    prony: &[PronyTerm],
+    params: ImplicitEulerParams,
+) -> Result<StepBench, BenchError> {
+    let (linear, stiffness_every) = (params.linear, params.stiffness_every);
     if steps == 0 {
         return Err(BenchError::Arg("--steps must be at least 1".into()));
     }
@@ -166,11 +187,6 @@ pub fn bench_step_lagged(
     let setup_s = t0.elapsed().as_secs_f64();
     let load = standard_load(&arch, 0.3);
     let mesh = &arch.mesh;
-    let params = ImplicitEulerParams {
-        linear,
-        stiffness_every,
-        ..standard_params()
-    };
     let mut euler =
         ImplicitEuler::new(mesh, mesh.lumped_mass(mat.density), params).map_err(|e| BenchError::Arg(e.to_string()))?;
     let mut state = TissueState::at_rest(mesh.num_nodes());
@@ -212,6 +228,7 @@ pub fn bench_step_lagged(
         cg_iters: iters[iters.len() / 2],
         linear: linear_name(&linear),
         stiffness_every,
+        check_final_residual: params.newton.check_final_residual,
         setup_s,
         load_node_displacement_m: state.u[load.node as usize].norm(),
         threads: rayon::current_num_threads(),

@@ -1,9 +1,10 @@
 //! `nvtmm simulate …` and `nvtmm bench …` subcommands.
 
-use nvtmm::bench::{bench_step_lagged, extremes_cases, extremes_markdown, parse_linear, run_extreme};
+use nvtmm::bench::{bench_step_params, extremes_cases, extremes_markdown, parse_linear, run_extreme, standard_params};
 use nvtmm::material::{Law, PronyTerm};
 use nvtmm::model::ModelKind;
 use nvtmm::scene::Scene;
+use nvtmm::solver::ImplicitEulerParams;
 use std::path::Path;
 
 type Result<T> = std::result::Result<T, Box<dyn std::error::Error>>;
@@ -48,6 +49,7 @@ pub fn bench_step_cmd(
     prony: bool,
     linear: &str,
     stiffness_every: usize,
+    no_final_residual: bool,
     json: bool,
 ) -> Result<()> {
     let linear = parse_linear(linear)?;
@@ -65,7 +67,15 @@ pub fn bench_step_cmd(
     if prony && !matches!(kind, ModelKind::Nvtmm | ModelKind::Fem) {
         return Err("--prony applies to the nvtmm and fem models".into());
     }
-    let r = bench_step_lagged(kind, law, nodes, steps, &terms, linear, stiffness_every)?;
+    let r = {
+        let mut params = ImplicitEulerParams {
+            linear,
+            stiffness_every,
+            ..standard_params()
+        };
+        params.newton.check_final_residual = !no_final_residual;
+        bench_step_params(kind, law, nodes, steps, &terms, params)?
+    };
     if json {
         println!("{}", serde_json::to_string_pretty(&r)?);
     } else {

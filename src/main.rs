@@ -65,6 +65,10 @@ enum BenchCmd {
         /// every K steps (1: exact Newton; see docs/SOLVERS.md).
         #[arg(long, default_value_t = 1)]
         stiffness_every: usize,
+        /// Skip the residual re-evaluation after the last Newton update (one
+        /// force evaluation less per step; same state, no final residual).
+        #[arg(long)]
+        no_final_residual: bool,
         /// Print JSON.
         #[arg(long)]
         json: bool,
@@ -160,8 +164,19 @@ fn main() -> ExitCode {
                 prony,
                 linear,
                 stiffness_every,
+                no_final_residual,
                 json,
-            } => cli_sim::bench_step_cmd(&model, &law, nodes, steps, prony, &linear, stiffness_every, json),
+            } => cli_sim::bench_step_cmd(
+                &model,
+                &law,
+                nodes,
+                steps,
+                prony,
+                &linear,
+                stiffness_every,
+                no_final_residual,
+                json,
+            ),
             BenchCmd::Extremes { quick, json } => cli_sim::bench_extremes(quick, json),
         },
     };

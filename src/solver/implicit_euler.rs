@@ -61,6 +61,9 @@ fn default_dt() -> f64 {
 fn default_stiffness_every() -> usize {
     1
 }
+fn default_true() -> bool {
+    true
+}
 
 /// Newton iteration control.
 #[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
@@ -83,6 +86,15 @@ pub struct NewtonParams {
     /// The step fails if ‖r_k‖ > max_residual_growth ‖r_0‖ (divergence).
     #[serde(default = "default_growth")]
     pub max_residual_growth: f64,
+    /// Re-evaluate the residual after the last allowed update (one extra
+    /// force evaluation per step) so the report carries the committed
+    /// state's true residual and `converged` flag. The default, true. With
+    /// false a step that uses all `max_iters` updates stops right after the
+    /// last one: the committed state is bitwise the same, but the report
+    /// lacks its residual and says `converged = false`; this needs
+    /// `require_convergence = false`.
+    #[serde(default = "default_true")]
+    pub check_final_residual: bool,
 }
 
 impl Default for NewtonParams {
@@ -93,6 +105,7 @@ impl Default for NewtonParams {
             abs_tol: 0.0,
             require_convergence: false,
             max_residual_growth: default_growth(),
+            check_final_residual: true,
         }
     }
 }
@@ -183,6 +196,12 @@ impl ImplicitEulerParams {
         }
         if !(n.abs_tol.is_finite() && n.abs_tol >= 0.0) {
             return Err(format!("newton.abs_tol = {}: must be finite and >= 0", n.abs_tol));
+        }
+        if n.require_convergence && !n.check_final_residual {
+            return Err(
+                "newton.check_final_residual = false: needs newton.require_convergence = false (convergence would be unknown)"
+                    .into(),
+            );
         }
         if !(n.max_residual_growth.is_finite() && n.max_residual_growth >= 1.0) {
             return Err(format!(
@@ -420,6 +439,13 @@ impl ImplicitEuler {
         &self.a
     }
 
+    /// ut = u₀ + h v₁ (the iterate the step commits).
+    fn set_iterate(&mut self, h: f64) {
+        for ((ut, u0), v1) in self.ut.iter_mut().zip(&self.u0).zip(&self.v1) {
+            *ut = u0 + h * v1;
+        }
+    }
+
     /// Advances `state` by one step of length `params.dt`. Calls
     /// `model.begin_step(dt)` first and `model.end_step(&u)` after a
     /// successful step. On failure `state` is left bitwise unchanged (and
@@ -490,9 +516,7 @@ impl ImplicitEuler {
         let mut k = 0;
         loop {
             // Residual at the current iterate.
-            for ((ut, u0), v1) in self.ut.iter_mut().zip(&self.u0).zip(&self.v1) {
-                *ut = u0 + h * v1;
-            }
+            self.set_iterate(h);
             self.f.copy_from_slice(&self.fext);
             model.add_forces(&self.ut, &mut self.f);
             if !all_finite(&self.f) {
@@ -568,6 +592,10 @@ impl ImplicitEuler {
                 }
                 k += 1;
                 rep.newton_iters = k;
+                if k == np.max_iters && !np.check_final_residual {
+                    self.set_iterate(h);
+                    break;
+                }
                 continue;
             }
 
@@ -639,6 +667,10 @@ impl ImplicitEuler {
             }
             k += 1;
             rep.newton_iters = k;
+            if k == np.max_iters && !np.check_final_residual {
+                self.set_iterate(h);
+                break;
+            }
         }
         if !rep.converged && np.require_convergence {
             rep.failure = Some(StepFailure::NotConverged {
