@@ -86,4 +86,10 @@ fn main() {
         "  cholesky factor {tf:8.3}, solve {ts:8.3} (L: {} entries); block mat-vec {tm:8.3}",
         ch.factor_nnz()
     );
+    ch.set_parallel(true);
+    let tf = time(reps, || ch.factor(&a).expect("factor"));
+    let ts = time(reps, || {
+        ch.solve_factored(&b, &mut x).expect("solve");
+    });
+    println!("  cholesky on rayon: factor {tf:8.3}, solve {ts:8.3}");
 }

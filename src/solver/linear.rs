@@ -672,9 +672,13 @@ impl CholeskySolver {
         )
         .map_err(|e| format!("sparse Cholesky symbolic analysis failed: {e:?}"))?;
         let par = Par::Seq;
+        // Sized for both the sequential and the rayon path (`set_par`).
+        let rayon = Par::rayon(0);
         let req = StackReq::any_of(&[
             symbolic.factorize_numeric_llt_scratch::<f64>(par, Default::default()),
             symbolic.solve_in_place_scratch::<f64>(1, par),
+            symbolic.factorize_numeric_llt_scratch::<f64>(rayon, Default::default()),
+            symbolic.solve_in_place_scratch::<f64>(1, rayon),
         ]);
         let scratch = MemBuffer::try_new(req).map_err(|_| "sparse Cholesky: out of memory for scratch".to_string())?;
         let l_values = vec![0.0; symbolic.len_val()];
@@ -690,6 +694,13 @@ impl CholeskySolver {
             par,
             factored: false,
         })
+    }
+
+    /// Runs the factorization and solves on rayon (`true`) or on the calling
+    /// thread only (`false`, the default: allocation-free and, on the
+    /// shared 2-core machine, not slower; `docs/BENCHMARKS.md`).
+    pub fn set_parallel(&mut self, parallel: bool) {
+        self.par = if parallel { Par::rayon(0) } else { Par::Seq };
     }
 
     /// Number of stored entries of the factor L.
