@@ -266,6 +266,7 @@ fn main() {
             rayleigh_beta: 1e-4,
             newton: NewtonParams::linearized(),
             linear,
+            ..ImplicitEulerParams::default()
         };
         let mut euler = match ImplicitEuler::new(mesh, mass.clone(), params) {
             Ok(e) => e,
@@ -283,6 +284,7 @@ fn main() {
         let name = match linear {
             LinearSolverKind::Cg { precond, tol, .. } => format!("CG {precond:?} tol {tol:e}"),
             LinearSolverKind::Cholesky => "Cholesky".into(),
+            LinearSolverKind::CholeskyPcg { refactor_every, .. } => format!("Cholesky-PCG every {refactor_every}"),
         };
         println!(
             "| {name} | {:.1} | {} (median {}, max {}) |",

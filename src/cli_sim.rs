@@ -1,9 +1,10 @@
 //! `nvtmm simulate …` and `nvtmm bench …` subcommands.
 
-use nvtmm::bench::{bench_step, extremes_cases, extremes_markdown, parse_linear, run_extreme};
+use nvtmm::bench::{bench_step_params, extremes_cases, extremes_markdown, parse_linear, run_extreme, standard_params};
 use nvtmm::material::{Law, PronyTerm};
 use nvtmm::model::ModelKind;
 use nvtmm::scene::Scene;
+use nvtmm::solver::ImplicitEulerParams;
 use std::path::Path;
 
 type Result<T> = std::result::Result<T, Box<dyn std::error::Error>>;
@@ -39,6 +40,7 @@ pub fn simulate(scene_path: &Path, out: Option<&Path>, quiet: bool) -> Result<()
     Ok(())
 }
 
+#[allow(clippy::too_many_arguments)] // one per CLI flag
 pub fn bench_step_cmd(
     model: &str,
     law: &str,
@@ -46,6 +48,8 @@ pub fn bench_step_cmd(
     steps: usize,
     prony: bool,
     linear: &str,
+    stiffness_every: usize,
+    no_final_residual: bool,
     json: bool,
 ) -> Result<()> {
     let linear = parse_linear(linear)?;
@@ -63,13 +67,36 @@ pub fn bench_step_cmd(
     if prony && !matches!(kind, ModelKind::Nvtmm | ModelKind::Fem) {
         return Err("--prony applies to the nvtmm and fem models".into());
     }
-    let r = bench_step(kind, law, nodes, steps, &terms, linear)?;
+    let r = {
+        let mut params = ImplicitEulerParams {
+            linear,
+            stiffness_every,
+            ..standard_params()
+        };
+        params.newton.check_final_residual = !no_final_residual;
+        bench_step_params(kind, law, nodes, steps, &terms, params)?
+    };
     if json {
         println!("{}", serde_json::to_string_pretty(&r)?);
     } else {
         println!(
-            "{} ({}, {}) {} nodes / {} tets: {:.3} ms/step median over {} steps ({:.1} steps/s), {} CG iterations median, setup {:.2} s, {} threads",
-            r.model, r.law, r.linear, r.nodes, r.tets, r.ms_per_step, r.steps, r.steps_per_sec, r.cg_iters, r.setup_s, r.threads
+            "{} ({}, {}, stiffness every {}) {} nodes / {} tets: {:.3} ms/step median over {} steps ({:.1} steps/s; mean {:.3} ms = {:.1} steps/s, max {:.3} ms), {} CG iterations median, loaded node {:.4} mm, setup {:.2} s, {} threads",
+            r.model,
+            r.law,
+            r.linear,
+            r.stiffness_every,
+            r.nodes,
+            r.tets,
+            r.ms_per_step,
+            r.steps,
+            r.steps_per_sec,
+            r.mean_ms_per_step,
+            1e3 / r.mean_ms_per_step,
+            r.max_ms_per_step,
+            r.cg_iters,
+            r.load_node_displacement_m * 1e3,
+            r.setup_s,
+            r.threads
         );
     }
     Ok(())

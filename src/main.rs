@@ -93,8 +93,16 @@ enum BenchCmd {
         #[arg(long)]
         prony: bool,
         /// Linear solver: cholesky, cg-none, cg-jacobi, cg-block_jacobi, cg-block_ssor, cg-block_ic0.
-        #[arg(long, default_value = "cg-block_jacobi")]
+        #[arg(long, default_value = "cg-block_ic0")]
         linear: String,
+        /// Re-assemble the tangent and rebuild the preconditioner/factor
+        /// every K steps (1: exact Newton; see docs/SOLVERS.md).
+        #[arg(long, default_value_t = 1)]
+        stiffness_every: usize,
+        /// Skip the residual re-evaluation after the last Newton update (one
+        /// force evaluation less per step; same state, no final residual).
+        #[arg(long)]
+        no_final_residual: bool,
         /// Print JSON.
         #[arg(long)]
         json: bool,
@@ -196,8 +204,20 @@ fn main() -> ExitCode {
                 steps,
                 prony,
                 linear,
+                stiffness_every,
+                no_final_residual,
                 json,
-            } => cli_sim::bench_step_cmd(&model, &law, nodes, steps, prony, &linear, json),
+            } => cli_sim::bench_step_cmd(
+                &model,
+                &law,
+                nodes,
+                steps,
+                prony,
+                &linear,
+                stiffness_every,
+                no_final_residual,
+                json,
+            ),
             BenchCmd::Extremes { quick, json } => cli_sim::bench_extremes(quick, json),
         },
         Command::Experiment(e) => match e {

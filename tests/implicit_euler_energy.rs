@@ -35,6 +35,7 @@ fn energies(c: f64, alpha: f64, beta: f64, steps: usize) -> Vec<f64> {
             ..NewtonParams::default()
         },
         linear: LinearSolverKind::Cholesky,
+        ..ImplicitEulerParams::default()
     };
     let mass = mesh.lumped_mass(1100.0);
     let mut euler = ImplicitEuler::new(&mesh, mass.clone(), params).unwrap();

@@ -81,7 +81,14 @@ fn implicit_step_allocates_nothing() {
     })
     .collect();
     kinds.push(LinearSolverKind::Cholesky);
-    for linear in kinds {
+    kinds.push(LinearSolverKind::CholeskyPcg {
+        tol: 1e-10,
+        max_iter: 30,
+        refactor_every: 3,
+    });
+    // Each solver with exact Newton and with the lagged tangent.
+    let cases: Vec<(LinearSolverKind, usize)> = kinds.iter().flat_map(|&l| [(l, 1), (l, 3)]).collect();
+    for (linear, stiffness_every) in cases {
         let mut model = Springs::new(&mesh, 100.0, 1e6);
         let params = ImplicitEulerParams {
             dt: 2e-3,
@@ -92,6 +99,7 @@ fn implicit_step_allocates_nothing() {
                 ..NewtonParams::default()
             },
             linear,
+            stiffness_every,
         };
         let mut euler = ImplicitEuler::new(&mesh, mesh.lumped_mass(1100.0), params).unwrap();
         let mut state = TissueState::at_rest(mesh.num_nodes());
@@ -102,7 +110,11 @@ fn implicit_step_allocates_nothing() {
             ok &= euler.step(&mut state, &mut model, &loads, &fixed).ok();
         }
         ON.with(|c| c.set(false));
-        assert!(ok, "{linear:?}: a step failed");
-        assert_eq!(COUNT.load(Ordering::SeqCst), 0, "{linear:?}: step allocated");
+        assert!(ok, "{linear:?}, stiffness_every {stiffness_every}: a step failed");
+        assert_eq!(
+            COUNT.load(Ordering::SeqCst),
+            0,
+            "{linear:?}, stiffness_every {stiffness_every}: step allocated"
+        );
     }
 }

@@ -35,6 +35,7 @@ fn run(linear: LinearSolverKind, beta: f64) -> Vec<f64> {
             ..NewtonParams::default()
         },
         linear,
+        ..ImplicitEulerParams::default()
     };
     let mut euler = ImplicitEuler::new(&mesh, mesh.lumped_mass(1100.0), params).unwrap();
     let mut state = TissueState::at_rest(mesh.num_nodes());

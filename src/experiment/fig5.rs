@@ -147,6 +147,7 @@ fn simulate(kind: ModelKind, p: &Fig5Params, prony: &[PronyTerm]) -> Result<(Tra
             max_iter: 2000,
             strict: false,
         },
+        stiffness_every: 1,
     };
     let mut euler = ImplicitEuler::new(mesh, mesh.lumped_mass(p.material.density), params)
         .map_err(|e| ExperimentError::Setup(e.to_string()))?;

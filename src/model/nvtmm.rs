@@ -456,47 +456,70 @@ impl ForceModel for Nvtmm {
                 }
             });
         }
-        let mut local = BlockTangent {
-            diag: vec![Mat3::zeros(); self.n],
-            off: vec![Mat3::zeros(); self.edges.len()],
-            edges: Vec::new(),
-        };
-        let mut add = |x: u32, y: u32, e: u32, m: Mat3| {
-            if x == y {
-                local.diag[x as usize] += m;
-            } else if x < y && e != NONE {
-                local.off[e as usize] += m;
-            }
-        };
-        for p in 0..np {
-            let [a, b] = self.pair_members(p);
-            let members: &[u32] = if a == b { &[a][..] } else { &[a, b][..] };
-            let range = self.c_ptr[p] as usize..self.c_ptr[p + 1] as usize;
-            for (slot, &zt) in range.clone().zip(&z[range]) {
-                let t = self.c_col[slot];
-                let cpt = self.c_val[slot];
-                for (m, &r) in members.iter().enumerate() {
-                    let hr = h(p, m);
-                    let e = self.c_edge[slot][m];
-                    // (r, t): h_{P,r} ⊗ (𝒞_Pt + 2 z_Pt); (t, r): 𝒞_Pt ⊗ h_{P,r}.
-                    add(r, t, e, hr * (cpt + zt * 2.0).transpose());
-                    add(t, r, e, cpt * hr.transpose());
+        // Assembly: each 𝒞 slot scatters into blocks of both its nodes, so
+        // the pairs are split into one contiguous range per thread (balanced
+        // on 𝒞 slots), each summed into its own block buffers, and the
+        // buffers are added afterwards by block. The split depends on the
+        // thread count only, so the result is deterministic.
+        let ne = self.edges.len();
+        let parts = rayon::current_num_threads().clamp(1, 16);
+        let total = self.c_val.len();
+        let bounds: Vec<usize> = (0..=parts)
+            .map(|c| {
+                if c == parts {
+                    np
+                } else {
+                    let goal = (total * c / parts) as u32;
+                    self.c_ptr[..np].partition_point(|&x| x < goal)
                 }
+            })
+            .collect();
+        let partial: Vec<(Vec<Mat3>, Vec<Mat3>)> = (0..parts)
+            .into_par_iter()
+            .map(|c| {
+                let mut diag = vec![Mat3::zeros(); self.n];
+                let mut off = vec![Mat3::zeros(); ne];
+                let mut add = |x: u32, y: u32, e: u32, m: Mat3| {
+                    if x == y {
+                        diag[x as usize] += m;
+                    } else if x < y && e != NONE {
+                        off[e as usize] += m;
+                    }
+                };
+                for p in bounds[c]..bounds[c + 1] {
+                    let [a, b] = self.pair_members(p);
+                    let members: &[u32] = if a == b { &[a][..] } else { &[a, b][..] };
+                    let range = self.c_ptr[p] as usize..self.c_ptr[p + 1] as usize;
+                    for (slot, &zt) in range.clone().zip(&z[range]) {
+                        let t = self.c_col[slot];
+                        let cpt = self.c_val[slot];
+                        for (m, &r) in members.iter().enumerate() {
+                            let hr = h(p, m);
+                            let e = self.c_edge[slot][m];
+                            // (r, t): h_{P,r} ⊗ (𝒞_Pt + 2 z_Pt); (t, r): 𝒞_Pt ⊗ h_{P,r}.
+                            add(r, t, e, hr * (cpt + zt * 2.0).transpose());
+                            add(t, r, e, cpt * hr.transpose());
+                        }
+                    }
+                }
+                (diag, off)
+            })
+            .collect();
+        // Plus K₀ and w_P ∂h_{P,r}/∂U_t: 2w I on vertices, w I on edges.
+        kt.diag.par_iter_mut().enumerate().for_each(|(i, d)| {
+            let mut acc = self.k0.diag[i] + Mat3::identity() * (2.0 * w[i]);
+            for (pd, _) in &partial {
+                acc += pd[i];
             }
-        }
-        // w_P ∂h_{P,r}/∂U_t: 2w I on vertices, w I on edges.
-        for (i, d) in local.diag.iter_mut().enumerate() {
-            *d += Mat3::identity() * (2.0 * w[i]);
-        }
-        for (e, o) in local.off.iter_mut().enumerate() {
-            *o += Mat3::identity() * w[self.n + e];
-        }
-        for (a, b) in kt.diag.iter_mut().zip(local.diag.iter().zip(&self.k0.diag)) {
-            *a += b.0 + b.1;
-        }
-        for (a, b) in kt.off.iter_mut().zip(local.off.iter().zip(&self.k0.off)) {
-            *a += b.0 + b.1;
-        }
+            *d += acc;
+        });
+        kt.off.par_iter_mut().enumerate().for_each(|(e, o)| {
+            let mut acc = self.k0.off[e] + Mat3::identity() * w[self.n + e];
+            for (_, po) in &partial {
+                acc += po[e];
+            }
+            *o += acc;
+        });
     }
 
     fn energy(&self, u: &[Vec3]) -> f64 {

@@ -20,6 +20,14 @@
 //! the step is exactly the linearized implicit Euler step SOFA's
 //! `EulerImplicitSolver` takes (A = (1 + hα) M + (hβ + h²) K(u₀)).
 //!
+//! With `stiffness_every = k > 1` the Newton matrix A (and the linear
+//! solver's preconditioner or factor, and the stiffness-damping tangent) is
+//! built at the first Newton iteration of every k-th step only and reused
+//! until the next refresh: a chord method whose residual still uses the
+//! exact forces, trading Newton's quadratic convergence (and, with one
+//! iteration, some accuracy per step) for skipping the assembly and the
+//! factorization.
+//!
 //! Fixed nodes keep u = 0 and v = 0: their rows and columns of A are replaced
 //! by the identity and their residual is zero.
 //!
@@ -50,6 +58,12 @@ fn default_growth() -> f64 {
 fn default_dt() -> f64 {
     1e-3
 }
+fn default_stiffness_every() -> usize {
+    1
+}
+fn default_true() -> bool {
+    true
+}
 
 /// Newton iteration control.
 #[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
@@ -72,6 +86,15 @@ pub struct NewtonParams {
     /// The step fails if ‖r_k‖ > max_residual_growth ‖r_0‖ (divergence).
     #[serde(default = "default_growth")]
     pub max_residual_growth: f64,
+    /// Re-evaluate the residual after the last allowed update (one extra
+    /// force evaluation per step) so the report carries the committed
+    /// state's true residual and `converged` flag. The default, true. With
+    /// false a step that uses all `max_iters` updates stops right after the
+    /// last one: the committed state is bitwise the same, but the report
+    /// lacks its residual and says `converged = false`; this needs
+    /// `require_convergence = false`.
+    #[serde(default = "default_true")]
+    pub check_final_residual: bool,
 }
 
 impl Default for NewtonParams {
@@ -82,6 +105,7 @@ impl Default for NewtonParams {
             abs_tol: 0.0,
             require_convergence: false,
             max_residual_growth: default_growth(),
+            check_final_residual: true,
         }
     }
 }
@@ -115,6 +139,18 @@ pub struct ImplicitEulerParams {
     /// Linear solver for the Newton systems.
     #[serde(default)]
     pub linear: LinearSolverKind,
+    /// Tangent refresh interval k ≥ 1. With 1 (the default) every Newton
+    /// iteration re-assembles K and rebuilds the preconditioner or
+    /// factorization: exact Newton. With k > 1 the Newton matrix A, the
+    /// stiffness-damping tangent and the preconditioner/factor are rebuilt
+    /// only at the first Newton iteration of every k-th step and reused for
+    /// every Newton iteration of the steps in between (a chord method; with
+    /// one Newton iteration a semi-implicit step with a lagged Jacobian).
+    /// The residual always uses the exact current forces. It is also rebuilt
+    /// after a failed step and when the fixed set changes. Accuracy cost:
+    /// `docs/SOLVERS.md`.
+    #[serde(default = "default_stiffness_every")]
+    pub stiffness_every: usize,
 }
 
 impl Default for ImplicitEulerParams {
@@ -125,6 +161,7 @@ impl Default for ImplicitEulerParams {
             rayleigh_beta: 0.0,
             newton: NewtonParams::default(),
             linear: LinearSolverKind::default(),
+            stiffness_every: default_stiffness_every(),
         }
     }
 }
@@ -160,11 +197,20 @@ impl ImplicitEulerParams {
         if !(n.abs_tol.is_finite() && n.abs_tol >= 0.0) {
             return Err(format!("newton.abs_tol = {}: must be finite and >= 0", n.abs_tol));
         }
+        if n.require_convergence && !n.check_final_residual {
+            return Err(
+                "newton.check_final_residual = false: needs newton.require_convergence = false (convergence would be unknown)"
+                    .into(),
+            );
+        }
         if !(n.max_residual_growth.is_finite() && n.max_residual_growth >= 1.0) {
             return Err(format!(
                 "newton.max_residual_growth = {}: must be finite and >= 1",
                 n.max_residual_growth
             ));
+        }
+        if self.stiffness_every == 0 {
+            return Err("stiffness_every = 0: must be at least 1".into());
         }
         self.linear.validate()
     }
@@ -313,6 +359,11 @@ pub struct ImplicitEuler {
     mass: Vec<f64>,
     linear: LinearSolver,
     fixed_mask: Vec<bool>,
+    /// The fixed set the lagged tangent was built with.
+    lag_mask: Vec<bool>,
+    /// Steps completed since the lagged tangent (A and the prepared linear
+    /// solver) was built; `None` when there is none to reuse.
+    tangent_age: Option<usize>,
     u0: Vec<Vec3>,
     v1: Vec<Vec3>,
     ut: Vec<Vec3>,
@@ -356,6 +407,8 @@ impl ImplicitEuler {
             mass,
             linear,
             fixed_mask: vec![false; n],
+            lag_mask: vec![false; n],
+            tangent_age: None,
             u0: zeros.clone(),
             v1: zeros.clone(),
             ut: zeros.clone(),
@@ -386,11 +439,33 @@ impl ImplicitEuler {
         &self.a
     }
 
+    /// ut = u₀ + h v₁ (the iterate the step commits).
+    fn set_iterate(&mut self, h: f64) {
+        for ((ut, u0), v1) in self.ut.iter_mut().zip(&self.u0).zip(&self.v1) {
+            *ut = u0 + h * v1;
+        }
+    }
+
     /// Advances `state` by one step of length `params.dt`. Calls
     /// `model.begin_step(dt)` first and `model.end_step(&u)` after a
     /// successful step. On failure `state` is left bitwise unchanged (and
     /// `end_step` is not called) and the report says why.
     pub fn step(
+        &mut self,
+        state: &mut TissueState,
+        model: &mut dyn ForceModel,
+        loads: &Loads,
+        fixed: &[u32],
+    ) -> StepReport {
+        let rep = self.step_inner(state, model, loads, fixed);
+        if !rep.ok() {
+            // A, K or the prepared solver may be half-updated.
+            self.tangent_age = None;
+        }
+        rep
+    }
+
+    fn step_inner(
         &mut self,
         state: &mut TissueState,
         model: &mut dyn ForceModel,
@@ -419,6 +494,16 @@ impl ImplicitEuler {
         for &i in fixed {
             self.fixed_mask[i as usize] = true;
         }
+        // Tangent reuse (`stiffness_every` > 1): rebuild A at the first
+        // Newton iteration when it is k steps old, missing, or built for
+        // another fixed set; otherwise every iteration reuses it.
+        let every = self.params.stiffness_every;
+        let lagged = every > 1;
+        let rebuild = match self.tangent_age {
+            Some(age) => age + 1 >= every || self.lag_mask != self.fixed_mask,
+            None => true,
+        };
+        let mut built = false;
         for ((u0, u), &fx) in self.u0.iter_mut().zip(&state.u).zip(&self.fixed_mask) {
             *u0 = if fx { Vec3::zeros() } else { *u };
         }
@@ -431,9 +516,7 @@ impl ImplicitEuler {
         let mut k = 0;
         loop {
             // Residual at the current iterate.
-            for ((ut, u0), v1) in self.ut.iter_mut().zip(&self.u0).zip(&self.v1) {
-                *ut = u0 + h * v1;
-            }
+            self.set_iterate(h);
             self.f.copy_from_slice(&self.fext);
             model.add_forces(&self.ut, &mut self.f);
             if !all_finite(&self.f) {
@@ -485,6 +568,37 @@ impl ImplicitEuler {
                 break;
             }
 
+            if lagged && !(k == 0 && rebuild) {
+                // Chord iteration on the lagged A (exact forces in r).
+                for (i, x) in self.r.iter_mut().enumerate() {
+                    *x = -*x;
+                    self.dv[i] = if k == 0 && !self.fixed_mask[i] {
+                        state.v[i]
+                    } else {
+                        Vec3::zeros()
+                    };
+                }
+                match self.linear.solve_prepared(&self.a, &self.r, &mut self.dv) {
+                    Ok(s) => rep.linear_iters += s.iters,
+                    Err(reason) => {
+                        rep.failure = Some(StepFailure::Linear { newton_iter: k, reason });
+                        return rep;
+                    }
+                }
+                for ((v1, dv), &fx) in self.v1.iter_mut().zip(&self.dv).zip(&self.fixed_mask) {
+                    if !fx {
+                        *v1 += dv;
+                    }
+                }
+                k += 1;
+                rep.newton_iters = k;
+                if k == np.max_iters && !np.check_final_residual {
+                    self.set_iterate(h);
+                    break;
+                }
+                continue;
+            }
+
             // Newton matrix A = (1 + hα) M + hβ K₀ + h² K(u_k).
             self.k.clear();
             model.add_stiffness(&self.ut, &mut self.k);
@@ -515,6 +629,14 @@ impl ImplicitEuler {
                 self.a.add_scaled(ck0, &self.k0);
             }
             project_fixed(&mut self.a, &self.fixed_mask);
+            if lagged {
+                if let Err(reason) = self.linear.prepare(&self.a) {
+                    rep.failure = Some(StepFailure::Linear { newton_iter: k, reason });
+                    return rep;
+                }
+                built = true;
+                self.lag_mask.copy_from_slice(&self.fixed_mask);
+            }
 
             // Solve A Δv = −r, warm-starting CG with v₀ at the first
             // iteration (Δv = v₁ there) and zero afterwards.
@@ -526,7 +648,12 @@ impl ImplicitEuler {
                     Vec3::zeros()
                 };
             }
-            match self.linear.solve(&self.a, &self.r, &mut self.dv) {
+            let solved = if lagged {
+                self.linear.solve_prepared(&self.a, &self.r, &mut self.dv)
+            } else {
+                self.linear.solve(&self.a, &self.r, &mut self.dv)
+            };
+            match solved {
                 Ok(s) => rep.linear_iters += s.iters,
                 Err(reason) => {
                     rep.failure = Some(StepFailure::Linear { newton_iter: k, reason });
@@ -540,12 +667,23 @@ impl ImplicitEuler {
             }
             k += 1;
             rep.newton_iters = k;
+            if k == np.max_iters && !np.check_final_residual {
+                self.set_iterate(h);
+                break;
+            }
         }
         if !rep.converged && np.require_convergence {
             rep.failure = Some(StepFailure::NotConverged {
                 rel_residual: rep.residuals().last().copied().unwrap_or(f64::NAN),
             });
             return rep;
+        }
+        if lagged {
+            self.tangent_age = if built {
+                Some(0)
+            } else {
+                self.tangent_age.map(|a| a + 1)
+            };
         }
         // Accept: ut = u₀ + h v₁ belongs to the final v₁.
         state.u.copy_from_slice(&self.ut);

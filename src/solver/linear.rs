@@ -59,6 +59,12 @@ fn default_cg_max_iter() -> usize {
 fn default_precond() -> Preconditioner {
     Preconditioner::BlockSsor
 }
+fn default_pcg_max_iter() -> usize {
+    30
+}
+fn default_refactor_every() -> usize {
+    10
+}
 
 /// The linear solver a scene selects (TOML: `linear = { kind = "cg", precond
 /// = "block_ssor", tol = 1e-8, max_iter = 500, strict = false }` or
@@ -88,6 +94,23 @@ pub enum LinearSolverKind {
     /// Newton iteration than the best PCG (`docs/SOLVERS.md`).
     #[default]
     Cholesky,
+    /// CG on the current matrix, preconditioned by the sparse Cholesky factor
+    /// of an earlier one: refactored every `refactor_every` solves, and at
+    /// once whenever CG misses `tol` within `max_iter` or breaks down (so a
+    /// solve never ends worse than CG's tolerance because the factor is
+    /// stale). Solves to `tol` like CG; amortises the factorization.
+    CholeskyPcg {
+        /// Relative residual tolerance ‖b − A x‖ ≤ tol ‖b‖.
+        #[serde(default = "default_cg_tol")]
+        tol: f64,
+        /// CG iterations tried with a lagged factor before refactoring.
+        #[serde(default = "default_pcg_max_iter")]
+        max_iter: usize,
+        /// Refactor after this many solves (1: every solve, i.e. Cholesky
+        /// followed by a residual check).
+        #[serde(default = "default_refactor_every")]
+        refactor_every: usize,
+    },
 }
 
 impl LinearSolverKind {
@@ -99,6 +122,22 @@ impl LinearSolverKind {
             }
             if max_iter == 0 {
                 return Err("linear.max_iter = 0: must be at least 1".into());
+            }
+        }
+        if let LinearSolverKind::CholeskyPcg {
+            tol,
+            max_iter,
+            refactor_every,
+        } = *self
+        {
+            if !(tol.is_finite() && tol > 0.0 && tol < 1.0) {
+                return Err(format!("linear.tol = {tol}: must be in (0, 1)"));
+            }
+            if max_iter == 0 {
+                return Err("linear.max_iter = 0: must be at least 1".into());
+            }
+            if refactor_every == 0 {
+                return Err("linear.refactor_every = 0: must be at least 1".into());
             }
         }
         Ok(())
@@ -467,6 +506,22 @@ impl Cg {
     /// b gives x = 0. A warm start worse than zero is replaced by zero.
     pub fn solve(&mut self, a: &BlockTangent, b: &[Vec3], x: &mut [Vec3]) -> Result<SolveStats, LinearFailure> {
         self.setup(a)?;
+        self.solve_prepared(a, b, x)
+    }
+
+    /// Builds the preconditioner for A (what [`Cg::solve`] does first).
+    pub fn prepare(&mut self, a: &BlockTangent) -> Result<(), LinearFailure> {
+        self.setup(a)
+    }
+
+    /// Solves A x = b with the preconditioner of the last [`Cg::prepare`]
+    /// (built for A or for an earlier matrix with the same pattern).
+    pub fn solve_prepared(
+        &mut self,
+        a: &BlockTangent,
+        b: &[Vec3],
+        x: &mut [Vec3],
+    ) -> Result<SolveStats, LinearFailure> {
         let bnorm = norm(b);
         if !bnorm.is_finite() {
             return Err(LinearFailure::NonFinite);
@@ -568,6 +623,8 @@ pub struct CholeskySolver {
     rhs: Vec<f64>,
     scratch: MemBuffer,
     par: Par,
+    /// Whether `l_values` holds a valid factor.
+    factored: bool,
 }
 
 impl std::fmt::Debug for CholeskySolver {
@@ -615,9 +672,13 @@ impl CholeskySolver {
         )
         .map_err(|e| format!("sparse Cholesky symbolic analysis failed: {e:?}"))?;
         let par = Par::Seq;
+        // Sized for both the sequential and the rayon path (`set_par`).
+        let rayon = Par::rayon(0);
         let req = StackReq::any_of(&[
             symbolic.factorize_numeric_llt_scratch::<f64>(par, Default::default()),
             symbolic.solve_in_place_scratch::<f64>(1, par),
+            symbolic.factorize_numeric_llt_scratch::<f64>(rayon, Default::default()),
+            symbolic.solve_in_place_scratch::<f64>(1, rayon),
         ]);
         let scratch = MemBuffer::try_new(req).map_err(|_| "sparse Cholesky: out of memory for scratch".to_string())?;
         let l_values = vec![0.0; symbolic.len_val()];
@@ -631,7 +692,15 @@ impl CholeskySolver {
             rhs: vec![0.0; dofs],
             scratch,
             par,
+            factored: false,
         })
+    }
+
+    /// Runs the factorization and solves on rayon (`true`) or on the calling
+    /// thread only (`false`, the default: allocation-free and, on the
+    /// shared 2-core machine, not slower; `docs/BENCHMARKS.md`).
+    pub fn set_parallel(&mut self, parallel: bool) {
+        self.par = if parallel { Par::rayon(0) } else { Par::Seq };
     }
 
     /// Number of stored entries of the factor L.
@@ -662,6 +731,13 @@ impl CholeskySolver {
 
     /// Factors A (lower triangle read) and solves A x = b.
     pub fn solve(&mut self, a: &BlockTangent, b: &[Vec3], x: &mut [Vec3]) -> Result<SolveStats, LinearFailure> {
+        self.factor(a)?;
+        self.solve_factored(b, x)
+    }
+
+    /// Factors A (lower triangle read) in place, for [`CholeskySolver::solve_factored`].
+    pub fn factor(&mut self, a: &BlockTangent) -> Result<(), LinearFailure> {
+        self.factored = false;
         self.fill(a);
         if self.values.iter().any(|v| !v.is_finite()) {
             return Err(LinearFailure::NonFinite);
@@ -681,6 +757,17 @@ impl CholeskySolver {
                 Default::default(),
             )
             .map_err(|_| LinearFailure::NotPositiveDefinite)?;
+        self.factored = true;
+        Ok(())
+    }
+
+    /// Solves A x = b with the factor of the last successful
+    /// [`CholeskySolver::factor`] (triangular solves only).
+    pub fn solve_factored(&mut self, b: &[Vec3], x: &mut [Vec3]) -> Result<SolveStats, LinearFailure> {
+        if !self.factored {
+            return Err(LinearFailure::NotPositiveDefinite);
+        }
+        let dofs = self.rhs.len();
         for (i, bi) in b.iter().enumerate() {
             self.rhs[3 * i..3 * i + 3].copy_from_slice(bi.as_slice());
         }
@@ -701,6 +788,158 @@ impl CholeskySolver {
     }
 }
 
+/// CG preconditioned by a lagged sparse Cholesky factor
+/// ([`LinearSolverKind::CholeskyPcg`]).
+#[derive(Debug)]
+pub struct CholeskyPcg {
+    chol: CholeskySolver,
+    tol: f64,
+    max_iter: usize,
+    refactor_every: usize,
+    /// Solves since the last factorization; `None` when there is no factor.
+    age: Option<usize>,
+    r: Vec<Vec3>,
+    z: Vec<Vec3>,
+    p: Vec<Vec3>,
+    q: Vec<Vec3>,
+}
+
+impl CholeskyPcg {
+    /// Symbolic analysis for matrices with the pattern of `pattern`.
+    pub fn new(
+        pattern: &BlockTangent,
+        tol: f64,
+        max_iter: usize,
+        refactor_every: usize,
+    ) -> Result<CholeskyPcg, String> {
+        let n = pattern.num_nodes();
+        Ok(CholeskyPcg {
+            chol: CholeskySolver::new(pattern)?,
+            tol,
+            max_iter,
+            refactor_every,
+            age: None,
+            r: vec![Vec3::zeros(); n],
+            z: vec![Vec3::zeros(); n],
+            p: vec![Vec3::zeros(); n],
+            q: vec![Vec3::zeros(); n],
+        })
+    }
+
+    /// Factors `a` now (the next solves use this factor).
+    pub fn factor(&mut self, a: &BlockTangent) -> Result<(), LinearFailure> {
+        self.age = None;
+        self.chol.factor(a)?;
+        self.age = Some(0);
+        Ok(())
+    }
+
+    /// Solves A x = b (warm start in `x`) by PCG with the current factor,
+    /// refactoring first when it is `refactor_every` solves old, and once
+    /// more with `a` if CG misses the tolerance.
+    pub fn solve(&mut self, a: &BlockTangent, b: &[Vec3], x: &mut [Vec3]) -> Result<SolveStats, LinearFailure> {
+        let fresh = match self.age {
+            Some(k) if k < self.refactor_every => false,
+            _ => {
+                self.factor(a)?;
+                true
+            }
+        };
+        let first = self.pcg(a, b, x);
+        let out = match first {
+            Ok(s) if s.converged || fresh => Ok(s),
+            _ if !fresh => {
+                // The lagged factor no longer preconditions well enough.
+                self.factor(a)?;
+                x.iter_mut().for_each(|v| *v = Vec3::zeros());
+                self.pcg(a, b, x).map(|s| SolveStats {
+                    iters: s.iters + first.map(|f| f.iters).unwrap_or(0),
+                    ..s
+                })
+            }
+            other => other,
+        };
+        if let Some(k) = self.age.as_mut() {
+            *k += 1;
+        }
+        out
+    }
+
+    fn pcg(&mut self, a: &BlockTangent, b: &[Vec3], x: &mut [Vec3]) -> Result<SolveStats, LinearFailure> {
+        let bnorm = norm(b);
+        if !bnorm.is_finite() {
+            return Err(LinearFailure::NonFinite);
+        }
+        if bnorm == 0.0 {
+            x.iter_mut().for_each(|v| *v = Vec3::zeros());
+            return Ok(SolveStats {
+                iters: 0,
+                rel_residual: 0.0,
+                converged: true,
+            });
+        }
+        let CholeskyPcg {
+            chol,
+            tol,
+            max_iter,
+            r,
+            z,
+            p,
+            q,
+            ..
+        } = self;
+        a.mul(x, q);
+        for ((ri, bi), qi) in r.iter_mut().zip(b).zip(q.iter()) {
+            *ri = bi - qi;
+        }
+        let mut rnorm = norm(r);
+        if !(rnorm.is_finite() && rnorm <= bnorm) {
+            x.iter_mut().for_each(|v| *v = Vec3::zeros());
+            r.copy_from_slice(b);
+            rnorm = bnorm;
+        }
+        let goal = *tol * bnorm;
+        let mut iters = 0;
+        if rnorm > goal {
+            chol.solve_factored(r, z)?;
+            p.copy_from_slice(z);
+            let mut rz = dot(r, z);
+            while iters < *max_iter {
+                a.mul(p, q);
+                let pq = dot(p, q);
+                if !(pq.is_finite() && pq > 0.0 && rz.is_finite() && rz > 0.0) {
+                    return Err(LinearFailure::CgBreakdown { iter: iters });
+                }
+                let alpha = rz / pq;
+                for ((xi, ri), (pi, qi)) in x.iter_mut().zip(r.iter_mut()).zip(p.iter().zip(q.iter())) {
+                    *xi += alpha * pi;
+                    *ri -= alpha * qi;
+                }
+                rnorm = norm(r);
+                iters += 1;
+                if rnorm <= goal {
+                    break;
+                }
+                chol.solve_factored(r, z)?;
+                let rz_new = dot(r, z);
+                let beta = rz_new / rz;
+                rz = rz_new;
+                for (pi, zi) in p.iter_mut().zip(z.iter()) {
+                    *pi = zi + beta * *pi;
+                }
+            }
+        }
+        if !rnorm.is_finite() || x.iter().any(|v| !v.iter().all(|c| c.is_finite())) {
+            return Err(LinearFailure::NonFinite);
+        }
+        Ok(SolveStats {
+            iters,
+            rel_residual: rnorm / bnorm,
+            converged: rnorm <= goal,
+        })
+    }
+}
+
 /// A linear solver built for one pattern, as selected by [`LinearSolverKind`].
 #[derive(Debug)]
 pub enum LinearSolver {
@@ -708,6 +947,8 @@ pub enum LinearSolver {
     Cg(Box<Cg>),
     /// Sparse Cholesky.
     Cholesky(Box<CholeskySolver>),
+    /// CG preconditioned by a lagged sparse Cholesky factor.
+    CholeskyPcg(Box<CholeskyPcg>),
 }
 
 impl LinearSolver {
@@ -722,6 +963,11 @@ impl LinearSolver {
                 strict,
             } => LinearSolver::Cg(Box::new(Cg::new(pattern, precond, tol, max_iter, strict))),
             LinearSolverKind::Cholesky => LinearSolver::Cholesky(Box::new(CholeskySolver::new(pattern)?)),
+            LinearSolverKind::CholeskyPcg {
+                tol,
+                max_iter,
+                refactor_every,
+            } => LinearSolver::CholeskyPcg(Box::new(CholeskyPcg::new(pattern, tol, max_iter, refactor_every)?)),
         })
     }
 
@@ -730,6 +976,35 @@ impl LinearSolver {
         match self {
             LinearSolver::Cg(cg) => cg.solve(a, b, x),
             LinearSolver::Cholesky(ch) => ch.solve(a, b, x),
+            LinearSolver::CholeskyPcg(cp) => cp.solve(a, b, x),
+        }
+    }
+
+    /// Builds what depends on the matrix values only (CG: the
+    /// preconditioner; Cholesky: the numeric factorization), so that several
+    /// [`LinearSolver::solve_prepared`] calls can reuse it.
+    pub fn prepare(&mut self, a: &BlockTangent) -> Result<(), LinearFailure> {
+        match self {
+            LinearSolver::Cg(cg) => cg.prepare(a),
+            LinearSolver::Cholesky(ch) => ch.factor(a),
+            LinearSolver::CholeskyPcg(cp) => cp.factor(a),
+        }
+    }
+
+    /// Solves A x = b reusing the last [`LinearSolver::prepare`]. CG iterates
+    /// on `a` itself (preconditioned by what was prepared, possibly for an
+    /// earlier matrix); Cholesky solves with the prepared factor and ignores
+    /// `a`, so `a` must be the prepared matrix for an exact solve.
+    pub fn solve_prepared(
+        &mut self,
+        a: &BlockTangent,
+        b: &[Vec3],
+        x: &mut [Vec3],
+    ) -> Result<SolveStats, LinearFailure> {
+        match self {
+            LinearSolver::Cg(cg) => cg.solve_prepared(a, b, x),
+            LinearSolver::Cholesky(ch) => ch.solve_factored(b, x),
+            LinearSolver::CholeskyPcg(cp) => cp.solve(a, b, x),
         }
     }
 }

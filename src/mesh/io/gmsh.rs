@@ -434,6 +434,8 @@ fn elements_v2(s: &mut Scan, p: &mut Parsed) -> Result<(), MeshError> {
         let mut ids = [0u32; 4];
         let key = (dim as i64, phys);
         let named = phys != 0 && p.names.contains_key(&key);
+        // Not an iterator over `ids`: non-tet elements have more than 4 nodes.
+        #[allow(clippy::needless_range_loop)]
         for k in 0..nn {
             let t = s.u64("an element's node tag")?;
             let i = p.node(s.path(), Loc::Line(s.line()), tag, t)?;
@@ -491,6 +493,8 @@ fn elements_v4(g: &mut G, p: &mut Parsed) -> Result<(), MeshError> {
         for _ in 0..n {
             let tag = g.size_t("an element tag")?;
             let mut ids = [0u32; 4];
+            // Not an iterator over `ids`: non-tet elements have more than 4 nodes.
+            #[allow(clippy::needless_range_loop)]
             for k in 0..nn {
                 let t = g.size_t("an element's node tag")?;
                 let i = p.node(g.s.path(), g.loc(), tag, t)?;
