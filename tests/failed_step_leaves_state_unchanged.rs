@@ -267,3 +267,18 @@ fn bad_parameters_are_refused_with_the_key() {
     zero[2] = 0.0;
     assert!(ImplicitEuler::new(&s.mesh, zero, ImplicitEulerParams::default()).is_err());
 }
+
+#[test]
+fn finite_blowup_is_a_failure_not_a_state() {
+    // A soft linear model under an enormous load: the solve is finite, but
+    // the new displacement would be kilometres on a 3 cm block.
+    let mut s = setup();
+    let mut model = Springs::new(&s.mesh, 1e-3, 0.0);
+    let p = params(NewtonParams::default(), LinearSolverKind::Cholesky);
+    let mut loads = s.loads.clone();
+    loads.nodal[0].force = Vec3::new(1e9, 0.0, 0.0);
+    match fail_once(&mut s, p, &mut model, &loads) {
+        StepFailure::Blowup { max_displacement } => assert!(max_displacement > 0.3, "{max_displacement}"),
+        f => panic!("unexpected {f:?}"),
+    }
+}

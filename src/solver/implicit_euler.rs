@@ -252,7 +252,18 @@ pub enum StepFailure {
         /// Final ‖r‖ / ‖r_0‖.
         rel_residual: f64,
     },
+    /// The new displacement is finite but absurd: larger than
+    /// [`MAX_DISPLACEMENT_DIAGONALS`] times the mesh's bounding-box diagonal
+    /// (a blow-up that produced no NaN).
+    Blowup {
+        /// Largest nodal displacement of the rejected iterate (m).
+        max_displacement: f64,
+    },
 }
+
+/// A step whose largest displacement exceeds this many bounding-box
+/// diagonals of the rest mesh is rejected as a blow-up.
+pub const MAX_DISPLACEMENT_DIAGONALS: f64 = 10.0;
 
 impl std::fmt::Display for StepFailure {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
@@ -275,6 +286,10 @@ impl std::fmt::Display for StepFailure {
             StepFailure::NotConverged { rel_residual } => {
                 write!(f, "Newton not converged (relative residual {rel_residual:e})")
             }
+            StepFailure::Blowup { max_displacement } => write!(
+                f,
+                "blow-up: a displacement of {max_displacement:e} m exceeds {MAX_DISPLACEMENT_DIAGONALS} mesh diagonals"
+            ),
         }
     }
 }
@@ -355,6 +370,8 @@ pub enum SolverError {
 /// The backward Euler integrator with its preallocated work memory.
 #[derive(Debug)]
 pub struct ImplicitEuler {
+    /// Bounding-box diagonal of the rest mesh (m), for the blow-up check.
+    diagonal: f64,
     params: ImplicitEulerParams,
     mass: Vec<f64>,
     linear: LinearSolver,
@@ -402,7 +419,9 @@ impl ImplicitEuler {
         let k = BlockTangent::zeros(mesh);
         let linear = LinearSolver::new(&params.linear, &k).map_err(SolverError::Linear)?;
         let zeros = vec![Vec3::zeros(); n];
+        let (lo, hi) = mesh.bbox();
         Ok(ImplicitEuler {
+            diagonal: (hi - lo).norm(),
             params,
             mass,
             linear,
@@ -675,6 +694,13 @@ impl ImplicitEuler {
         if !rep.converged && np.require_convergence {
             rep.failure = Some(StepFailure::NotConverged {
                 rel_residual: rep.residuals().last().copied().unwrap_or(f64::NAN),
+            });
+            return rep;
+        }
+        let max_u = self.ut.iter().map(|u| u.norm()).fold(0.0, f64::max);
+        if max_u > MAX_DISPLACEMENT_DIAGONALS * self.diagonal {
+            rep.failure = Some(StepFailure::Blowup {
+                max_displacement: max_u,
             });
             return rep;
         }
