@@ -138,11 +138,11 @@ pub fn run(out: &Path, quick: bool) -> Result<Vec<TableRow>, ExperimentError> {
     let mut rows = Vec::new();
     for &(nodes, model, pv, ph) in PAPER.iter().filter(|r| !quick || r.0 == 1458) {
         let kind: ModelKind = model.parse().map_err(ExperimentError::Setup)?;
-        let mut failure = None;
+        let mut failures: Vec<String> = Vec::new();
         let mut measure = |dt: f64, visual: bool| match time_frames(kind, nodes, dt, frames, visual) {
             Ok(r) => Ok(r),
             Err(ExperimentError::Step { step, reason, .. }) => {
-                failure = Some(format!(
+                failures.push(format!(
                     "{} at dt = {dt:.4} s, step {step}: {reason}",
                     if visual { "visual" } else { "haptic" }
                 ));
@@ -150,9 +150,16 @@ pub fn run(out: &Path, quick: bool) -> Result<Vec<TableRow>, ExperimentError> {
             }
             Err(e) => Err(e),
         };
-        let (visual, _, n_visual) = measure(1.0 / 60.0, true)?;
-        let (haptic, cg, n_haptic) = measure(1e-3, false)?;
-        let our_nodes = n_visual.max(n_haptic);
+        let (visual, _, _) = measure(1.0 / 60.0, true)?;
+        let (haptic, cg, _) = measure(1e-3, false)?;
+        let our_nodes = generate(&ArchParams::default(), nodes)
+            .map(|a| a.mesh.num_nodes())
+            .unwrap_or(0);
+        let failure = if failures.is_empty() {
+            None
+        } else {
+            Some(failures.join("; "))
+        };
         rows.push(TableRow {
             nodes,
             our_nodes,
@@ -221,17 +228,32 @@ pub fn markdown(rows: &[TableRow]) -> String {
          |---|---|---|---|---|---|---|---|\n",
         machine()
     );
+    let fps = |v: f64| {
+        if v.is_finite() {
+            format!("{v:.1}")
+        } else {
+            "failed¹".into()
+        }
+    };
     for r in rows {
         s.push_str(&format!(
-            "| {} ({}) | {} | {:.1} | {} | {:.1} | {} | – (not built yet) | {} |\n",
+            "| {} ({}) | {} | {} | {} | {} | {} | – (not built yet) | {} |\n",
             r.nodes,
             r.our_nodes,
             r.model,
-            r.visual_fps,
+            fps(r.visual_fps),
             r.paper_visual_fps,
-            r.haptic_fps,
+            fps(r.haptic_fps),
             r.paper_haptic_fps,
             r.cg_iters
+        ));
+    }
+    for r in rows.iter().filter(|r| r.failure.is_some()) {
+        s.push_str(&format!(
+            "\n¹ {} at {} nodes: {}\n",
+            r.model,
+            r.nodes,
+            r.failure.as_deref().unwrap_or("")
         ));
     }
     s

@@ -187,16 +187,26 @@ pub fn run(out: &Path, quick: bool) -> Result<(Vec<TradeRow>, usize), Experiment
             },
             ..base
         };
-        let o = run_one(&arch, ModelKind::Nvtmm, p)?;
-        push(
-            "newton_iters",
-            iters.to_string(),
-            ModelKind::Nvtmm,
-            p,
-            &arch,
-            &o,
-            &reference.u,
-        );
+        match run_one(&arch, ModelKind::Nvtmm, p) {
+            Ok(o) => push(
+                "newton_iters",
+                iters.to_string(),
+                ModelKind::Nvtmm,
+                p,
+                &arch,
+                &o,
+                &reference.u,
+            ),
+            Err(ExperimentError::Step { reason, .. }) => push_failed(
+                &mut failed,
+                "newton_iters",
+                iters.to_string(),
+                ModelKind::Nvtmm,
+                &arch,
+                reason,
+            ),
+            Err(e) => return Err(e),
+        }
     }
     for tol in [1e-2, 1e-4, 1e-6, 1e-8] {
         let p = ImplicitEulerParams {
@@ -208,16 +218,26 @@ pub fn run(out: &Path, quick: bool) -> Result<(Vec<TradeRow>, usize), Experiment
             },
             ..base
         };
-        let o = run_one(&arch, ModelKind::Nvtmm, p)?;
-        push(
-            "cg_tol",
-            format!("{tol:e}"),
-            ModelKind::Nvtmm,
-            p,
-            &arch,
-            &o,
-            &reference.u,
-        );
+        match run_one(&arch, ModelKind::Nvtmm, p) {
+            Ok(o) => push(
+                "cg_tol",
+                format!("{tol:e}"),
+                ModelKind::Nvtmm,
+                p,
+                &arch,
+                &o,
+                &reference.u,
+            ),
+            Err(ExperimentError::Step { reason, .. }) => push_failed(
+                &mut failed,
+                "cg_tol",
+                format!("{tol:e}"),
+                ModelKind::Nvtmm,
+                &arch,
+                reason,
+            ),
+            Err(e) => return Err(e),
+        }
     }
     for (name, lin) in [
         (
@@ -259,16 +279,26 @@ pub fn run(out: &Path, quick: bool) -> Result<(Vec<TradeRow>, usize), Experiment
         ("cholesky", LinearSolverKind::Cholesky),
     ] {
         let p = ImplicitEulerParams { linear: lin, ..base };
-        let o = run_one(&arch, ModelKind::Nvtmm, p)?;
-        push(
-            "linear_solver",
-            name.into(),
-            ModelKind::Nvtmm,
-            p,
-            &arch,
-            &o,
-            &reference.u,
-        );
+        match run_one(&arch, ModelKind::Nvtmm, p) {
+            Ok(o) => push(
+                "linear_solver",
+                name.into(),
+                ModelKind::Nvtmm,
+                p,
+                &arch,
+                &o,
+                &reference.u,
+            ),
+            Err(ExperimentError::Step { reason, .. }) => push_failed(
+                &mut failed,
+                "linear_solver",
+                name.into(),
+                ModelKind::Nvtmm,
+                &arch,
+                reason,
+            ),
+            Err(e) => return Err(e),
+        }
     }
     rows.extend(failed);
     // Mesh resolution: loaded-node displacement against the finest mesh.
