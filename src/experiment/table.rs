@@ -18,7 +18,7 @@
 //! report the median over the timed frames.
 
 use super::ExperimentError;
-use crate::bench::{arch_top_node, standard_load, standard_params};
+use crate::bench::{arch_top_node, standard_load, standard_params, STANDARD_FORCE_N};
 use crate::material::{Law, Material};
 use crate::mesh::arch::{generate, ArchParams};
 use crate::mesh::Vec3;
@@ -76,7 +76,7 @@ fn time_frames(
     let mesh = &arch.mesh;
     let mat = Material::aorta();
     let mut model = build_model(kind, mesh, &mat, Law::Stvk, &[]);
-    let load = standard_load(&arch, 0.3);
+    let load = standard_load(&arch, STANDARD_FORCE_N);
     let node = arch_top_node(&arch) as usize;
     let params = ImplicitEulerParams {
         dt,

@@ -20,7 +20,7 @@
 
 use super::plot::{line_plot, Series};
 use super::ExperimentError;
-use crate::bench::{standard_load, standard_params};
+use crate::bench::{standard_load, standard_params, STANDARD_FORCE_N};
 use crate::material::{Law, Material};
 use crate::mesh::arch::{generate, Arch, ArchParams};
 use crate::mesh::Vec3;
@@ -65,7 +65,7 @@ fn run_one(arch: &Arch, kind: ModelKind, params: ImplicitEulerParams) -> Result<
     let mesh = &arch.mesh;
     let mat = Material::aorta();
     let mut model = build_model(kind, mesh, &mat, Law::Stvk, &[]);
-    let load = standard_load(arch, 0.3);
+    let load = standard_load(arch, STANDARD_FORCE_N);
     let mut euler = ImplicitEuler::new(mesh, mesh.lumped_mass(mat.density), params)
         .map_err(|e| ExperimentError::Setup(e.to_string()))?;
     let mut state = TissueState::at_rest(mesh.num_nodes());
@@ -117,7 +117,7 @@ fn reference_params() -> ImplicitEulerParams {
 }
 
 fn errors(arch: &Arch, u: &[Vec3], reference: &[Vec3]) -> (f64, f64) {
-    let node = standard_load(arch, 0.3).node as usize;
+    let node = standard_load(arch, STANDARD_FORCE_N).node as usize;
     let e_load = (u[node] - reference[node]).norm() / reference[node].norm().max(1e-300);
     let surf = arch.mesh.surface_nodes();
     let num: f64 = surf
@@ -312,9 +312,21 @@ pub fn run(out: &Path, quick: bool) -> Result<(Vec<TradeRow>, usize), Experiment
     let mut runs = Vec::with_capacity(sizes.len());
     for &n in sizes {
         let a = generate(&ArchParams::default(), n).map_err(|e| ExperimentError::Setup(e.to_string()))?;
-        let o = run_one(&a, ModelKind::Nvtmm, base)?;
-        let node = standard_load(&a, 0.3).node as usize;
-        runs.push((a.mesh.num_nodes(), o.ms, o.u[node]));
+        match run_one(&a, ModelKind::Nvtmm, base) {
+            Ok(o) => {
+                let node = standard_load(&a, STANDARD_FORCE_N).node as usize;
+                runs.push((a.mesh.num_nodes(), o.ms, o.u[node]));
+            }
+            Err(ExperimentError::Step { reason, .. }) => push_failed(
+                &mut rows,
+                "mesh_nodes",
+                a.mesh.num_nodes().to_string(),
+                ModelKind::Nvtmm,
+                &a,
+                reason,
+            ),
+            Err(e) => return Err(e),
+        }
     }
     if let Some(&(_, _, fine_disp)) = runs.last() {
         for &(n, ms, disp) in &runs[..runs.len() - 1] {
