@@ -106,10 +106,12 @@ fn modes_are_mass_orthonormal_eigenvectors_matching_a_dense_solve() {
     let a = (&a + a.transpose()) * 0.5;
     let mut dense: Vec<f64> = SymmetricEigen::new(a).eigenvalues.iter().copied().collect();
     dense.sort_by(f64::total_cmp);
-    let mut worst_rel: f64 = 0.0;
-    for j in 0..r {
-        worst_rel = worst_rel.max((basis.omega2[j] - dense[j]).abs() / dense[j]);
-    }
+    let worst_rel = basis
+        .omega2
+        .iter()
+        .zip(&dense)
+        .map(|(w, d)| (w - d).abs() / d)
+        .fold(0.0f64, f64::max);
     println!(
         "free DOFs {}, iterations {}, worst residual {worst:e}, worst eigenvalue error {worst_rel:e}, f = {:.2?} Hz",
         idx.len(),
@@ -154,7 +156,11 @@ fn augmented_basis_is_mass_orthonormal_with_diagonal_stiffness() {
     for i in 0..kr.nrows() {
         for j in 0..kr.ncols() {
             let expect = if i == j { basis.omega2[i] } else { 0.0 };
-            assert!((kr[(i, j)] - expect).abs() <= 1e-8 * kmax, "K_r[{i},{j}] = {}", kr[(i, j)]);
+            assert!(
+                (kr[(i, j)] - expect).abs() <= 1e-8 * kmax,
+                "K_r[{i},{j}] = {}",
+                kr[(i, j)]
+            );
         }
     }
 }
@@ -164,12 +170,24 @@ fn bad_inputs_are_errors() {
     let s = setup();
     let n = s.arch.mesh.num_nodes();
     let e = ModalBasis::compute(&s.arch.mesh, &s.model, &s.u, &s.mass, &[n as u32], 4, None);
-    assert!(matches!(e, Err(nvtmm::reduced::ReducedError::NodeOutOfRange { .. })), "{e:?}");
+    assert!(
+        matches!(e, Err(nvtmm::reduced::ReducedError::NodeOutOfRange { .. })),
+        "{e:?}"
+    );
     let e = ModalBasis::compute(&s.arch.mesh, &s.model, &s.u, &s.mass, &s.fixed, 0, None);
-    assert!(matches!(e, Err(nvtmm::reduced::ReducedError::BadModeCount { .. })), "{e:?}");
+    assert!(
+        matches!(e, Err(nvtmm::reduced::ReducedError::BadModeCount { .. })),
+        "{e:?}"
+    );
     // Nothing fixed: K is singular (rigid motions).
     let e = ModalBasis::compute(&s.arch.mesh, &s.model, &s.u, &s.mass, &[], 4, None);
-    assert!(matches!(e, Err(nvtmm::reduced::ReducedError::NotPositiveDefinite)), "{e:?}");
+    assert!(
+        matches!(e, Err(nvtmm::reduced::ReducedError::NotPositiveDefinite)),
+        "{e:?}"
+    );
     let e = ModalBasis::compute(&s.arch.mesh, &s.model, &s.u, &s.mass[1..], &s.fixed, 4, None);
-    assert!(matches!(e, Err(nvtmm::reduced::ReducedError::SizeMismatch { .. })), "{e:?}");
+    assert!(
+        matches!(e, Err(nvtmm::reduced::ReducedError::SizeMismatch { .. })),
+        "{e:?}"
+    );
 }

@@ -71,7 +71,15 @@ fn setup() -> Setup {
 
 /// Relative error at the loaded node of the reduced static solution.
 fn reduced_error(s: &Setup, basis: &ModalBasis) -> f64 {
-    let dynamics = ReducedDynamics::<R>::new(basis, &DynamicsParams { dt: 1e-3, alpha: 0.0, beta: 0.0 }).expect("model");
+    let dynamics = ReducedDynamics::<R>::new(
+        basis,
+        &DynamicsParams {
+            dt: 1e-3,
+            alpha: 0.0,
+            beta: 0.0,
+        },
+    )
+    .expect("model");
     let fr = dynamics.project_nodal(&[(s.node, s.force)]).expect("node in mesh");
     let q = dynamics.static_solve(&fr).expect("K_r SPD");
     let mut d = dynamics.clone();
@@ -104,7 +112,10 @@ fn reduced_static_response_converges_to_full() {
         errors.push(e);
         warm = Some(basis);
     }
-    assert!(errors.windows(2).all(|w| w[1] <= w[0]), "errors not monotone: {errors:?}");
+    assert!(
+        errors.windows(2).all(|w| w[1] <= w[0]),
+        "errors not monotone: {errors:?}"
+    );
     // Measured on this mesh: 0.81, 0.65, 0.48, 0.37 for r = 4, 8, 16, 32; a
     // point load is local, so global modes converge to it slowly.
     assert!(errors[3] <= 0.4, "error at r = 32 is {:.3e}", errors[3]);

@@ -86,10 +86,14 @@ pub enum ReducedError {
     NonFinite,
     /// K on the free DOFs is not positive definite (too few nodes fixed to
     /// remove the rigid motions, or u beyond a buckling point).
-    #[error("the stiffness on the free nodes is not positive definite (are enough nodes fixed?)")]
+    #[error(
+        "the stiffness on the free nodes is not positive definite (too few nodes fixed, or u past a stability limit)"
+    )]
     NotPositiveDefinite,
     /// The subspace iteration hit [`MAX_ITERATIONS`].
-    #[error("the subspace iteration did not converge in {iterations} iterations (worst relative residual {residual:e})")]
+    #[error(
+        "the subspace iteration did not converge in {iterations} iterations (worst relative residual {residual:e})"
+    )]
     NotConverged {
         /// Iterations done.
         iterations: usize,
@@ -201,7 +205,10 @@ impl ModalBasis {
         let problem = FreeProblem::new(&k, mass, fixed)?;
         let nf = problem.dofs();
         if r == 0 || r > nf {
-            return Err(ReducedError::BadModeCount { asked: r, free_dofs: nf });
+            return Err(ReducedError::BadModeCount {
+                asked: r,
+                free_dofs: nf,
+            });
         }
         for &c in contact {
             if c as usize >= n {
@@ -468,7 +475,9 @@ fn rayleigh_ritz(problem: &FreeProblem, q: &DMatrix<f64>) -> (DMatrix<f64>, DMat
     let eig = SymmetricEigen::new(h);
     let mut order: Vec<usize> = (0..eig.eigenvalues.len()).collect();
     order.sort_by(|&a, &b| eig.eigenvalues[a].total_cmp(&eig.eigenvalues[b]));
-    let s = DMatrix::from_fn(eig.eigenvectors.nrows(), order.len(), |i, j| eig.eigenvectors[(i, order[j])]);
+    let s = DMatrix::from_fn(eig.eigenvectors.nrows(), order.len(), |i, j| {
+        eig.eigenvectors[(i, order[j])]
+    });
     let lambda = order.iter().map(|&j| eig.eigenvalues[j]).collect();
     (q * &s, aq * s, lambda)
 }
@@ -485,11 +494,7 @@ fn worst_residual(problem: &FreeProblem, y: &DMatrix<f64>, ay: &DMatrix<f64>, la
             res += (s * (a - lambda[j] * y[(i, j)])).powi(2);
             kphi += (s * a).powi(2);
         }
-        let rel = if kphi > 0.0 {
-            (res / kphi).sqrt()
-        } else {
-            f64::INFINITY
-        };
+        let rel = if kphi > 0.0 { (res / kphi).sqrt() } else { f64::INFINITY };
         worst = worst.max(if rel.is_nan() { f64::INFINITY } else { rel });
     }
     worst
