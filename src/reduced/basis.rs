@@ -279,7 +279,8 @@ impl ModalBasis {
 
     /// Displacement of one node for reduced coordinates `q`, from that node's
     /// three rows of Φ only.
-    pub fn displacement_at(&self, node: usize, q: &DVector<f64>) -> Option<Vec3> {
+    pub fn displacement_at(&self, node: u32, q: &DVector<f64>) -> Option<Vec3> {
+        let node = node as usize;
         if node >= self.num_nodes() || q.len() != self.len() {
             return None;
         }

@@ -199,3 +199,68 @@ impl<const R: usize> ReducedDynamics<R> {
         self.dt
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// One node, one mode along x with ω² = 4 (unit mass).
+    fn one_mode() -> ModalBasis {
+        ModalBasis {
+            phi: DMatrix::from_column_slice(3, 1, &[1.0, 0.0, 0.0]),
+            omega2: vec![4.0],
+            num_static: 0,
+            fixed: Vec::new(),
+            iterations: 0,
+        }
+    }
+
+    #[test]
+    fn step_matches_the_scalar_implicit_euler_recurrence() {
+        let p = DynamicsParams {
+            dt: 0.01,
+            alpha: 0.3,
+            beta: 0.02,
+        };
+        let mut d = ReducedDynamics::<4>::new(&one_mode(), &p).unwrap();
+        let f = d.project_nodal(&[(0, Vec3::new(2.0, 5.0, -1.0))]).unwrap();
+        assert_eq!(f[0], 2.0);
+        assert!(f.iter().skip(1).all(|&v| v == 0.0));
+        let (k, h) = (4.0, p.dt);
+        let (mut q, mut v) = (0.0f64, 0.0f64);
+        let mut forced = f;
+        // Forcing on inactive coordinates is ignored.
+        forced[3] = 7.0;
+        for _ in 0..200 {
+            v = (v + h * (2.0 - k * q)) / (1.0 + h * (p.alpha + p.beta * k) + h * h * k);
+            q += h * v;
+            d.step(&forced);
+        }
+        assert!((d.q()[0] - q).abs() <= 1e-12 * q.abs());
+        assert!((d.displacement_at(0).unwrap() - Vec3::new(q, 0.0, 0.0)).norm() <= 1e-12 * q.abs());
+        assert!(d.q().iter().skip(1).all(|&v| v == 0.0));
+        assert_eq!(d.static_solve(&f).unwrap()[0], 0.5);
+    }
+
+    #[test]
+    fn bad_sizes_and_parameters_are_errors() {
+        let b = one_mode();
+        let p = DynamicsParams {
+            dt: 1e-3,
+            alpha: 0.0,
+            beta: 0.0,
+        };
+        assert!(matches!(
+            ReducedDynamics::<0>::new(&b, &p),
+            Err(ReducedError::Capacity { size: 1, capacity: 0 })
+        ));
+        let bad = DynamicsParams { dt: 0.0, ..p };
+        assert!(matches!(
+            ReducedDynamics::<2>::new(&b, &bad),
+            Err(ReducedError::BadParameter { name: "dt", .. })
+        ));
+        let d = ReducedDynamics::<2>::new(&b, &p).unwrap();
+        assert_eq!(d.project_nodal(&[(1, Vec3::zeros())]), Err(NodeOutOfRange(1)));
+        assert_eq!(d.displacement_at(1), None);
+    }
+}
