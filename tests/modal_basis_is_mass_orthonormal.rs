@@ -185,6 +185,15 @@ fn bad_inputs_are_errors() {
         matches!(e, Err(nvtmm::reduced::ReducedError::NotPositiveDefinite)),
         "{e:?}"
     );
+    let params = nvtmm::reduced::BasisParams {
+        tol: 0.0,
+        max_iterations: 10,
+    };
+    let e = ModalBasis::compute_with(&s.arch.mesh, &s.model, &s.u, &s.mass, &s.fixed, 4, &[], None, &params);
+    assert!(
+        matches!(e, Err(nvtmm::reduced::ReducedError::BadParameter { name: "tol", .. })),
+        "{e:?}"
+    );
     let e = ModalBasis::compute(&s.arch.mesh, &s.model, &s.u, &s.mass[1..], &s.fixed, 4, None);
     assert!(
         matches!(e, Err(nvtmm::reduced::ReducedError::SizeMismatch { .. })),

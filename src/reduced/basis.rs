@@ -25,8 +25,8 @@ use faer::sparse::{SparseColMat, Triplet};
 use faer::{MatMut, Side};
 use nalgebra::{DMatrix, DVector, SymmetricEigen};
 
-/// Relative eigen-residual ‖Kφ − ω²Mφ‖ / ‖Kφ‖ every wanted mode reaches
-/// before [`ModalBasis::compute`] returns. Eigenvalues are then accurate to
+/// Default relative eigen-residual ‖Kφ − ω²Mφ‖ / ‖Kφ‖ every wanted mode
+/// reaches before [`ModalBasis::compute`] returns. Eigenvalues are then accurate to
 /// about its square.
 pub const RESIDUAL_TOL: f64 = 1e-10;
 
@@ -39,8 +39,28 @@ pub const ACCEPT_TOL: f64 = 1e-8;
 /// See [`ACCEPT_TOL`].
 pub const STAGNATION_ITERATIONS: usize = 8;
 
-/// Subspace iterations allowed before [`ReducedError::NotConverged`].
+/// Default number of subspace iterations allowed before
+/// [`ReducedError::NotConverged`].
 pub const MAX_ITERATIONS: usize = 1000;
+
+/// Stopping rule of the subspace iteration.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct BasisParams {
+    /// Relative eigen-residual ‖Kφ − ω²Mφ‖ / ‖Kφ‖ every wanted mode must
+    /// reach, in (0, 1). Default [`RESIDUAL_TOL`].
+    pub tol: f64,
+    /// Iteration limit. Default [`MAX_ITERATIONS`].
+    pub max_iterations: usize,
+}
+
+impl Default for BasisParams {
+    fn default() -> Self {
+        BasisParams {
+            tol: RESIDUAL_TOL,
+            max_iterations: MAX_ITERATIONS,
+        }
+    }
+}
 
 /// Why a basis or a reduced model could not be built.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
@@ -90,7 +110,7 @@ pub enum ReducedError {
         "the stiffness on the free nodes is not positive definite (too few nodes fixed, or u past a stability limit)"
     )]
     NotPositiveDefinite,
-    /// The subspace iteration hit [`MAX_ITERATIONS`].
+    /// The subspace iteration hit its iteration limit ([`BasisParams`]).
     #[error(
         "the subspace iteration did not converge in {iterations} iterations (worst relative residual {residual:e})"
     )]
@@ -184,6 +204,31 @@ impl ModalBasis {
         contact: &[u32],
         warm: Option<&ModalBasis>,
     ) -> Result<ModalBasis, ReducedError> {
+        ModalBasis::compute_with(mesh, model, u, mass, fixed, r, contact, warm, &BasisParams::default())
+    }
+
+    /// As [`ModalBasis::compute_augmented`] with a chosen tolerance and
+    /// iteration limit: a looser tolerance is what lets a warm start pay off
+    /// when the basis is refreshed often.
+    #[allow(clippy::too_many_arguments)]
+    pub fn compute_with(
+        mesh: &TetMesh,
+        model: &dyn ForceModel,
+        u: &[Vec3],
+        mass: &[f64],
+        fixed: &[u32],
+        r: usize,
+        contact: &[u32],
+        warm: Option<&ModalBasis>,
+        params: &BasisParams,
+    ) -> Result<ModalBasis, ReducedError> {
+        if !(params.tol > 0.0 && params.tol < 1.0) {
+            return Err(ReducedError::BadParameter {
+                name: "tol",
+                value: params.tol,
+                allowed: "in (0, 1)",
+            });
+        }
         let n = mesh.num_nodes();
         if u.len() != n {
             return Err(ReducedError::SizeMismatch {
@@ -220,7 +265,7 @@ impl ModalBasis {
             }
         }
         let warm_y = warm.map(|w| problem.to_y(&w.phi));
-        let (mut y, mut lambda, iterations) = subspace_iteration(&problem, r, warm_y.as_ref())?;
+        let (mut y, mut lambda, iterations) = subspace_iteration(&problem, r, warm_y.as_ref(), params)?;
         let mut num_static = 0;
         if !contact.is_empty() {
             let (ya, la, ns) = augment(&problem, &y, contact);
@@ -507,6 +552,7 @@ fn subspace_iteration(
     problem: &FreeProblem,
     r: usize,
     warm: Option<&DMatrix<f64>>,
+    params: &BasisParams,
 ) -> Result<(DMatrix<f64>, Vec<f64>, usize), ReducedError> {
     let nf = problem.dofs();
     // Bathe's block size: convergence of mode r goes as (λ_r / λ_{p+1})^k.
@@ -521,7 +567,7 @@ fn subspace_iteration(
     let mut residual = f64::INFINITY;
     // Best residual so far and the iteration it last halved.
     let (mut best, mut best_it) = (f64::INFINITY, 0);
-    for it in 1..=MAX_ITERATIONS {
+    for it in 1..=params.max_iterations {
         problem.apply_inverse(&mut y);
         let q = orthonormalize(y);
         let (ritz, aritz, lambda) = rayleigh_ritz(problem, &q);
@@ -530,7 +576,7 @@ fn subspace_iteration(
             (best, best_it) = (residual, it);
         }
         let stagnated = residual <= ACCEPT_TOL && it - best_it >= STAGNATION_ITERATIONS;
-        if residual <= RESIDUAL_TOL || stagnated {
+        if residual <= params.tol || stagnated {
             return Ok((ritz.columns(0, r).into_owned(), lambda[..r].to_vec(), it));
         }
         if !residual.is_finite() && it > 1 {
@@ -539,7 +585,7 @@ fn subspace_iteration(
         y = ritz;
     }
     Err(ReducedError::NotConverged {
-        iterations: MAX_ITERATIONS,
+        iterations: params.max_iterations,
         residual,
     })
 }

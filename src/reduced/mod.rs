@@ -17,5 +17,5 @@
 pub mod basis;
 pub mod dynamics;
 
-pub use basis::{ModalBasis, ReducedError};
+pub use basis::{BasisParams, ModalBasis, ReducedError};
 pub use dynamics::{DynamicsParams, NodeOutOfRange, ReducedDynamics};
