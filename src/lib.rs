@@ -33,6 +33,7 @@ pub mod experiment;
 pub mod material;
 pub mod mesh;
 pub mod model;
+pub mod reduced;
 pub mod scene;
 pub mod simulate;
 pub mod solver;

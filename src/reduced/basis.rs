@@ -1,0 +1,632 @@
+//! The modal basis: the r lowest vibration modes of the full model linearized
+//! at a displacement u, K(u) φ = ω² M φ, with the fixed nodes removed, the
+//! lumped mass M, and Φᵀ M Φ = I.
+//!
+//! Method: shift-invert (shift 0) block subspace iteration with Rayleigh–Ritz.
+//! With y = M^½ x the problem is the standard symmetric A y = λ y,
+//! A = M^-½ K M^-½; each iteration applies A⁻¹ = M^½ K⁻¹ M^½ to a block of
+//! p ≥ r vectors (one sparse Cholesky factorization of K on the free DOFs,
+//! faer, reused by every solve), orthonormalizes the block (QR) and rotates
+//! it to the Ritz vectors of A (dense symmetric eigen of the p×p projection,
+//! nalgebra). The iteration stops when every one of the r wanted modes has
+//! ‖Kφ − ω²Mφ‖ ≤ [`RESIDUAL_TOL`] ‖Kφ‖ (or has stagnated at the rounding
+//! floor below [`ACCEPT_TOL`]). A block rather than a Lanczos recurrence because it takes a previous basis as a warm start directly:
+//! after a small change of u the old modes are nearly converged already.
+//!
+//! Static (attachment) modes K⁻¹ e_d for the DOFs of given contact nodes can
+//! be added ([`ModalBasis::compute_augmented`]): they make the reduced model's
+//! stiffness at those nodes exact, which a few vibration modes alone cannot.
+
+use crate::mesh::{TetMesh, Vec3};
+use crate::model::{BlockTangent, ForceModel};
+use faer::linalg::solvers::Solve;
+use faer::sparse::linalg::solvers::Llt;
+use faer::sparse::{SparseColMat, Triplet};
+use faer::{MatMut, Side};
+use nalgebra::{DMatrix, DVector, SymmetricEigen};
+
+/// Default relative eigen-residual ‖Kφ − ω²Mφ‖ / ‖Kφ‖ every wanted mode
+/// reaches before [`ModalBasis::compute`] returns. Eigenvalues are then accurate to
+/// about its square.
+pub const RESIDUAL_TOL: f64 = 1e-10;
+
+/// Rounding puts a floor under the residual that grows with the condition
+/// number of K (≈ 2e-10 on a 1000-node arch). Once the worst residual is
+/// below this bound and has stopped halving for [`STAGNATION_ITERATIONS`]
+/// iterations, the basis is accepted as converged to rounding.
+pub const ACCEPT_TOL: f64 = 1e-8;
+
+/// See [`ACCEPT_TOL`].
+pub const STAGNATION_ITERATIONS: usize = 8;
+
+/// Default number of subspace iterations allowed before
+/// [`ReducedError::NotConverged`].
+pub const MAX_ITERATIONS: usize = 1000;
+
+/// Stopping rule of the subspace iteration.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct BasisParams {
+    /// Relative eigen-residual ‖Kφ − ω²Mφ‖ / ‖Kφ‖ every wanted mode must
+    /// reach, in (0, 1). Default [`RESIDUAL_TOL`].
+    pub tol: f64,
+    /// Iteration limit. Default [`MAX_ITERATIONS`].
+    pub max_iterations: usize,
+}
+
+impl Default for BasisParams {
+    fn default() -> Self {
+        BasisParams {
+            tol: RESIDUAL_TOL,
+            max_iterations: MAX_ITERATIONS,
+        }
+    }
+}
+
+/// Why a basis or a reduced model could not be built.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum ReducedError {
+    /// An input array does not have one entry per mesh node.
+    #[error("{what} has {got} entries, the mesh has {expected} nodes")]
+    SizeMismatch {
+        /// Which input.
+        what: &'static str,
+        /// Its length.
+        got: usize,
+        /// The number of mesh nodes.
+        expected: usize,
+    },
+    /// A node index (fixed or contact node) is not a node of the mesh.
+    #[error("{what} node {node} is out of range (the mesh has {nodes} nodes)")]
+    NodeOutOfRange {
+        /// "fixed" or "contact".
+        what: &'static str,
+        /// The offending index.
+        node: u32,
+        /// The number of mesh nodes.
+        nodes: usize,
+    },
+    /// A free node's lumped mass is not positive and finite.
+    #[error("the lumped mass of free node {node} is {mass}; it must be positive and finite")]
+    BadMass {
+        /// The node.
+        node: usize,
+        /// Its mass (kg).
+        mass: f64,
+    },
+    /// Zero modes, or more modes than free degrees of freedom.
+    #[error("asked for {asked} modes; between 1 and {free_dofs} (the free degrees of freedom) are possible")]
+    BadModeCount {
+        /// Modes asked for.
+        asked: usize,
+        /// Free degrees of freedom.
+        free_dofs: usize,
+    },
+    /// The stiffness has a NaN or infinite entry.
+    #[error("the stiffness K(u) has a non-finite entry")]
+    NonFinite,
+    /// K on the free DOFs is not positive definite (too few nodes fixed to
+    /// remove the rigid motions, or u beyond a buckling point).
+    #[error(
+        "the stiffness on the free nodes is not positive definite (too few nodes fixed, or u past a stability limit)"
+    )]
+    NotPositiveDefinite,
+    /// The subspace iteration hit its iteration limit ([`BasisParams`]).
+    #[error(
+        "the subspace iteration did not converge in {iterations} iterations (worst relative residual {residual:e})"
+    )]
+    NotConverged {
+        /// Iterations done.
+        iterations: usize,
+        /// Worst relative eigen-residual of a wanted mode.
+        residual: f64,
+    },
+    /// A warm-start basis was made for a mesh of another size.
+    #[error("the warm-start basis has {got} rows, this mesh needs {expected}")]
+    WarmStartMismatch {
+        /// Rows of the warm basis.
+        got: usize,
+        /// 3 × nodes.
+        expected: usize,
+    },
+    /// A reduced model's capacity is smaller than the basis.
+    #[error("the basis has {size} columns but the reduced model's capacity is {capacity}")]
+    Capacity {
+        /// Columns of the basis.
+        size: usize,
+        /// The const-generic capacity R.
+        capacity: usize,
+    },
+    /// A dynamics parameter is out of range.
+    #[error("{name} = {value} is out of range ({allowed})")]
+    BadParameter {
+        /// Parameter name.
+        name: &'static str,
+        /// Its value.
+        value: f64,
+        /// The allowed range.
+        allowed: &'static str,
+    },
+}
+
+/// A mass-orthonormal reduced basis of the full model at one linearization
+/// point.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ModalBasis {
+    /// The basis, 3n × m: row 3i + c is component c of node i, one column per
+    /// basis vector; the rows of fixed nodes are zero. Φᵀ M Φ = I.
+    pub phi: DMatrix<f64>,
+    /// ΦᵀKΦ is diag(`omega2`), ascending (rad²/s²). For pure vibration modes
+    /// these are the eigenvalues ω²; for an augmented basis they are the
+    /// Ritz values of the augmented subspace.
+    pub omega2: Vec<f64>,
+    /// Number of static (attachment) directions in the basis (0: the columns
+    /// are the lowest vibration modes). When non-zero the columns are the
+    /// Ritz vectors of span{modes, attachments}: still M-orthonormal with a
+    /// diagonal reduced stiffness, but no longer eigenvectors of the full
+    /// problem.
+    pub num_static: usize,
+    /// The fixed nodes (sorted, unique), whose rows of Φ are zero.
+    pub fixed: Vec<u32>,
+    /// Subspace iterations the computation took.
+    pub iterations: usize,
+}
+
+impl ModalBasis {
+    /// The `r` lowest vibration modes of K(u) φ = ω² M φ, K from
+    /// `model.add_stiffness(u, ..)`, `mass` the lumped mass per node, the
+    /// nodes in `fixed` removed. `warm` (a basis from a nearby u on the same
+    /// mesh) starts the iteration from its columns.
+    pub fn compute(
+        mesh: &TetMesh,
+        model: &dyn ForceModel,
+        u: &[Vec3],
+        mass: &[f64],
+        fixed: &[u32],
+        r: usize,
+        warm: Option<&ModalBasis>,
+    ) -> Result<ModalBasis, ReducedError> {
+        ModalBasis::compute_augmented(mesh, model, u, mass, fixed, r, &[], warm)
+    }
+
+    /// As [`ModalBasis::compute`], then adds the static modes K⁻¹ e_d for the
+    /// three DOFs of each free node in `contact` (fixed contact nodes are
+    /// skipped), M-orthonormalizes them against the modes (directions already
+    /// in the span are dropped) and rotates the whole basis to its Ritz
+    /// vectors, so that ΦᵀKΦ stays diagonal.
+    #[allow(clippy::too_many_arguments)]
+    pub fn compute_augmented(
+        mesh: &TetMesh,
+        model: &dyn ForceModel,
+        u: &[Vec3],
+        mass: &[f64],
+        fixed: &[u32],
+        r: usize,
+        contact: &[u32],
+        warm: Option<&ModalBasis>,
+    ) -> Result<ModalBasis, ReducedError> {
+        ModalBasis::compute_with(mesh, model, u, mass, fixed, r, contact, warm, &BasisParams::default())
+    }
+
+    /// As [`ModalBasis::compute_augmented`] with a chosen tolerance and
+    /// iteration limit: a looser tolerance is what lets a warm start pay off
+    /// when the basis is refreshed often.
+    #[allow(clippy::too_many_arguments)]
+    pub fn compute_with(
+        mesh: &TetMesh,
+        model: &dyn ForceModel,
+        u: &[Vec3],
+        mass: &[f64],
+        fixed: &[u32],
+        r: usize,
+        contact: &[u32],
+        warm: Option<&ModalBasis>,
+        params: &BasisParams,
+    ) -> Result<ModalBasis, ReducedError> {
+        if !(params.tol > 0.0 && params.tol < 1.0) {
+            return Err(ReducedError::BadParameter {
+                name: "tol",
+                value: params.tol,
+                allowed: "in (0, 1)",
+            });
+        }
+        let n = mesh.num_nodes();
+        if u.len() != n {
+            return Err(ReducedError::SizeMismatch {
+                what: "the displacement",
+                got: u.len(),
+                expected: n,
+            });
+        }
+        if let Some(w) = warm {
+            if w.phi.nrows() != 3 * n {
+                return Err(ReducedError::WarmStartMismatch {
+                    got: w.phi.nrows(),
+                    expected: 3 * n,
+                });
+            }
+        }
+        let mut k = BlockTangent::zeros(mesh);
+        model.add_stiffness(u, &mut k);
+        let problem = FreeProblem::new(&k, mass, fixed)?;
+        let nf = problem.dofs();
+        if r == 0 || r > nf {
+            return Err(ReducedError::BadModeCount {
+                asked: r,
+                free_dofs: nf,
+            });
+        }
+        for &c in contact {
+            if c as usize >= n {
+                return Err(ReducedError::NodeOutOfRange {
+                    what: "contact",
+                    node: c,
+                    nodes: n,
+                });
+            }
+        }
+        let warm_y = warm.map(|w| problem.to_y(&w.phi));
+        let (mut y, mut lambda, iterations) = subspace_iteration(&problem, r, warm_y.as_ref(), params)?;
+        let mut num_static = 0;
+        if !contact.is_empty() {
+            let (ya, la, ns) = augment(&problem, &y, contact);
+            y = ya;
+            lambda = la;
+            num_static = ns;
+        }
+        let mut fixed: Vec<u32> = fixed.to_vec();
+        fixed.sort_unstable();
+        fixed.dedup();
+        Ok(ModalBasis {
+            phi: problem.to_phi(&y),
+            omega2: lambda,
+            num_static,
+            fixed,
+            iterations,
+        })
+    }
+
+    /// Number of basis vectors (columns).
+    pub fn len(&self) -> usize {
+        self.phi.ncols()
+    }
+
+    /// Whether the basis has no columns.
+    pub fn is_empty(&self) -> bool {
+        self.phi.ncols() == 0
+    }
+
+    /// Number of mesh nodes the basis is defined on.
+    pub fn num_nodes(&self) -> usize {
+        self.phi.nrows() / 3
+    }
+
+    /// The generalized force Φᵀ f of nodal forces `f` (one per node).
+    pub fn project(&self, f: &[Vec3]) -> DVector<f64> {
+        let mut q = DVector::zeros(self.len());
+        for (i, fi) in f.iter().enumerate().take(self.num_nodes()) {
+            for c in 0..3 {
+                if fi[c] != 0.0 {
+                    q.axpy(fi[c], &self.phi.row(3 * i + c).transpose(), 1.0);
+                }
+            }
+        }
+        q
+    }
+
+    /// The nodal displacement Φ q of reduced coordinates `q`.
+    pub fn expand(&self, q: &DVector<f64>) -> Vec<Vec3> {
+        let x = &self.phi * q;
+        x.as_slice()
+            .chunks_exact(3)
+            .map(|c| Vec3::new(c[0], c[1], c[2]))
+            .collect()
+    }
+
+    /// Displacement of one node for reduced coordinates `q`, from that node's
+    /// three rows of Φ only.
+    pub fn displacement_at(&self, node: u32, q: &DVector<f64>) -> Option<Vec3> {
+        let node = node as usize;
+        if node >= self.num_nodes() || q.len() != self.len() {
+            return None;
+        }
+        let row = |c: usize| self.phi.row(3 * node + c).transpose().dot(q);
+        Some(Vec3::new(row(0), row(1), row(2)))
+    }
+}
+
+/// K restricted to the free DOFs, its Cholesky factor and M^½ there.
+struct FreeProblem {
+    /// First free DOF of each node, `None` for fixed nodes.
+    dof_of_node: Vec<Option<usize>>,
+    /// M^½ per free DOF.
+    sqrt_m: Vec<f64>,
+    /// K_ff as (row, col, value), both triangles, for products.
+    entries: Vec<(usize, usize, f64)>,
+    llt: Llt<usize, f64>,
+}
+
+impl FreeProblem {
+    fn new(k: &BlockTangent, mass: &[f64], fixed: &[u32]) -> Result<FreeProblem, ReducedError> {
+        let n = k.num_nodes();
+        if mass.len() != n {
+            return Err(ReducedError::SizeMismatch {
+                what: "the lumped mass",
+                got: mass.len(),
+                expected: n,
+            });
+        }
+        let mut is_fixed = vec![false; n];
+        for &f in fixed {
+            match is_fixed.get_mut(f as usize) {
+                Some(x) => *x = true,
+                None => {
+                    return Err(ReducedError::NodeOutOfRange {
+                        what: "fixed",
+                        node: f,
+                        nodes: n,
+                    })
+                }
+            }
+        }
+        let mut dof_of_node = vec![None; n];
+        let mut sqrt_m = Vec::new();
+        for i in 0..n {
+            if is_fixed[i] {
+                continue;
+            }
+            let m = mass[i];
+            if !(m.is_finite() && m > 0.0) {
+                return Err(ReducedError::BadMass { node: i, mass: m });
+            }
+            dof_of_node[i] = Some(sqrt_m.len());
+            sqrt_m.extend([m.sqrt(); 3]);
+        }
+        let mut entries = Vec::new();
+        let mut push_block = |a: usize, b: usize, m: &crate::model::Mat3| {
+            for r in 0..3 {
+                for c in 0..3 {
+                    if m[(r, c)] != 0.0 {
+                        entries.push((a + r, b + c, m[(r, c)]));
+                    }
+                }
+            }
+        };
+        for (i, d) in k.diag.iter().enumerate() {
+            if let Some(a) = dof_of_node[i] {
+                push_block(a, a, d);
+            }
+        }
+        for (o, &[i, j]) in k.off.iter().zip(&k.edges) {
+            if let (Some(a), Some(b)) = (dof_of_node[i as usize], dof_of_node[j as usize]) {
+                push_block(a, b, o);
+                push_block(b, a, &o.transpose());
+            }
+        }
+        if entries.iter().any(|e| !e.2.is_finite()) {
+            return Err(ReducedError::NonFinite);
+        }
+        let nf = sqrt_m.len();
+        let triplets: Vec<Triplet<usize, usize, f64>> = entries
+            .iter()
+            .map(|&(row, col, val)| Triplet { row, col, val })
+            .collect();
+        let kff = SparseColMat::<usize, f64>::try_new_from_triplets(nf, nf, &triplets)
+            .map_err(|_| ReducedError::NotPositiveDefinite)?;
+        let llt = kff
+            .sp_cholesky(Side::Lower)
+            .map_err(|_| ReducedError::NotPositiveDefinite)?;
+        Ok(FreeProblem {
+            dof_of_node,
+            sqrt_m,
+            entries,
+            llt,
+        })
+    }
+
+    fn dofs(&self) -> usize {
+        self.sqrt_m.len()
+    }
+
+    /// Y ← A⁻¹ Y = M^½ K⁻¹ M^½ Y.
+    fn apply_inverse(&self, y: &mut DMatrix<f64>) {
+        self.scale_rows(y, false);
+        let (rows, cols) = y.shape();
+        self.llt
+            .solve_in_place(MatMut::from_column_major_slice_mut(y.as_mut_slice(), rows, cols));
+        self.scale_rows(y, false);
+    }
+
+    /// A Y = M^-½ K M^-½ Y.
+    fn apply(&self, y: &DMatrix<f64>) -> DMatrix<f64> {
+        let mut x = y.clone();
+        self.scale_rows(&mut x, true);
+        let mut out = DMatrix::zeros(y.nrows(), y.ncols());
+        for c in 0..y.ncols() {
+            let (xc, mut oc) = (x.column(c), out.column_mut(c));
+            for &(i, j, v) in &self.entries {
+                oc[i] += v * xc[j];
+            }
+        }
+        self.scale_rows(&mut out, true);
+        out
+    }
+
+    /// Multiplies row i by M^½ (or by M^-½ if `inverse`).
+    fn scale_rows(&self, y: &mut DMatrix<f64>, inverse: bool) {
+        for mut col in y.column_iter_mut() {
+            for (v, s) in col.iter_mut().zip(&self.sqrt_m) {
+                if inverse {
+                    *v /= s;
+                } else {
+                    *v *= s;
+                }
+            }
+        }
+    }
+
+    /// Full 3n-row Φ = M^-½ Y, zero on fixed nodes.
+    fn to_phi(&self, y: &DMatrix<f64>) -> DMatrix<f64> {
+        let n = self.dof_of_node.len();
+        let mut phi = DMatrix::zeros(3 * n, y.ncols());
+        for (i, d) in self.dof_of_node.iter().enumerate() {
+            if let Some(a) = *d {
+                for c in 0..3 {
+                    let s = 1.0 / self.sqrt_m[a + c];
+                    for k in 0..y.ncols() {
+                        phi[(3 * i + c, k)] = y[(a + c, k)] * s;
+                    }
+                }
+            }
+        }
+        phi
+    }
+
+    /// Y = M^½ Φ restricted to the free DOFs.
+    fn to_y(&self, phi: &DMatrix<f64>) -> DMatrix<f64> {
+        let mut y = DMatrix::zeros(self.dofs(), phi.ncols());
+        for (i, d) in self.dof_of_node.iter().enumerate() {
+            if let Some(a) = *d {
+                for c in 0..3 {
+                    for k in 0..phi.ncols() {
+                        y[(a + c, k)] = phi[(3 * i + c, k)] * self.sqrt_m[a + c];
+                    }
+                }
+            }
+        }
+        y
+    }
+}
+
+/// Deterministic values in [−1, 1) (splitmix64), to fill a start block.
+fn pseudo_random(seed: &mut u64) -> f64 {
+    *seed = seed.wrapping_add(0x9E37_79B9_7F4A_7C15);
+    let mut z = *seed;
+    z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+    z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+    z ^= z >> 31;
+    (z >> 11) as f64 / (1u64 << 52) as f64 - 1.0
+}
+
+/// Orthonormal columns spanning Y's (thin QR).
+fn orthonormalize(y: DMatrix<f64>) -> DMatrix<f64> {
+    y.qr().q()
+}
+
+/// Rayleigh–Ritz of A on the orthonormal block Q: returns the Ritz vectors,
+/// A times them, and the Ritz values, ascending.
+fn rayleigh_ritz(problem: &FreeProblem, q: &DMatrix<f64>) -> (DMatrix<f64>, DMatrix<f64>, Vec<f64>) {
+    let aq = problem.apply(q);
+    let h = q.transpose() * &aq;
+    let h = (&h + h.transpose()) * 0.5;
+    let eig = SymmetricEigen::new(h);
+    let mut order: Vec<usize> = (0..eig.eigenvalues.len()).collect();
+    order.sort_by(|&a, &b| eig.eigenvalues[a].total_cmp(&eig.eigenvalues[b]));
+    let s = DMatrix::from_fn(eig.eigenvectors.nrows(), order.len(), |i, j| {
+        eig.eigenvectors[(i, order[j])]
+    });
+    let lambda = order.iter().map(|&j| eig.eigenvalues[j]).collect();
+    (q * &s, aq * s, lambda)
+}
+
+/// Worst relative residual ‖Kφ − ω²Mφ‖ / ‖Kφ‖ over the first `r` Ritz
+/// pairs, in x = M^-½ y coordinates: Kφ = M^½ A y and the residual is
+/// M^½ (A y − λ y).
+fn worst_residual(problem: &FreeProblem, y: &DMatrix<f64>, ay: &DMatrix<f64>, lambda: &[f64], r: usize) -> f64 {
+    let mut worst: f64 = 0.0;
+    for j in 0..r {
+        let (mut res, mut kphi) = (0.0, 0.0);
+        for (i, s) in problem.sqrt_m.iter().enumerate() {
+            let a = ay[(i, j)];
+            res += (s * (a - lambda[j] * y[(i, j)])).powi(2);
+            kphi += (s * a).powi(2);
+        }
+        let rel = if kphi > 0.0 { (res / kphi).sqrt() } else { f64::INFINITY };
+        worst = worst.max(if rel.is_nan() { f64::INFINITY } else { rel });
+    }
+    worst
+}
+
+/// The `r` lowest eigenpairs of A in y coordinates (orthonormal columns),
+/// and the iterations taken.
+fn subspace_iteration(
+    problem: &FreeProblem,
+    r: usize,
+    warm: Option<&DMatrix<f64>>,
+    params: &BasisParams,
+) -> Result<(DMatrix<f64>, Vec<f64>, usize), ReducedError> {
+    let nf = problem.dofs();
+    // Bathe's block size: convergence of mode r goes as (λ_r / λ_{p+1})^k.
+    let p = (2 * r).max(r + 8).min(nf);
+    let mut seed = 0x5EED_u64;
+    let mut y = DMatrix::from_fn(nf, p, |_, _| pseudo_random(&mut seed));
+    if let Some(w) = warm {
+        let m = w.ncols().min(p);
+        y.columns_mut(0, m).copy_from(&w.columns(0, m));
+    }
+    let mut y = orthonormalize(y);
+    let mut residual = f64::INFINITY;
+    // Best residual so far and the iteration it last halved.
+    let (mut best, mut best_it) = (f64::INFINITY, 0);
+    for it in 1..=params.max_iterations {
+        problem.apply_inverse(&mut y);
+        let q = orthonormalize(y);
+        let (ritz, aritz, lambda) = rayleigh_ritz(problem, &q);
+        residual = worst_residual(problem, &ritz, &aritz, &lambda, r);
+        if residual <= 0.5 * best {
+            (best, best_it) = (residual, it);
+        }
+        let stagnated = residual <= ACCEPT_TOL && it - best_it >= STAGNATION_ITERATIONS;
+        if residual <= params.tol || stagnated {
+            return Ok((ritz.columns(0, r).into_owned(), lambda[..r].to_vec(), it));
+        }
+        if !residual.is_finite() && it > 1 {
+            break;
+        }
+        y = ritz;
+    }
+    Err(ReducedError::NotConverged {
+        iterations: params.max_iterations,
+        residual,
+    })
+}
+
+/// Adds the attachment directions of the free `contact` nodes to the modes
+/// `y` and rotates to Ritz vectors. Returns the basis, its Ritz values and
+/// how many attachment directions were kept.
+fn augment(problem: &FreeProblem, y: &DMatrix<f64>, contact: &[u32]) -> (DMatrix<f64>, Vec<f64>, usize) {
+    let mut dofs: Vec<usize> = contact
+        .iter()
+        .filter_map(|&c| problem.dof_of_node.get(c as usize).copied().flatten())
+        .collect();
+    dofs.sort_unstable();
+    dofs.dedup();
+    // A⁻¹ (M^-½ e_d) = M^½ K⁻¹ e_d: the attachment mode K⁻¹ e_d in y coordinates.
+    let mut att = DMatrix::zeros(problem.dofs(), 3 * dofs.len());
+    for (k, &d) in dofs.iter().enumerate() {
+        for c in 0..3 {
+            att[(d + c, 3 * k + c)] = 1.0 / problem.sqrt_m[d + c];
+        }
+    }
+    problem.apply_inverse(&mut att);
+    let mut cols: Vec<DVector<f64>> = y.column_iter().map(|c| c.into_owned()).collect();
+    let r = cols.len();
+    for a in att.column_iter() {
+        let mut v = a.into_owned();
+        let norm0 = v.norm();
+        // Twice is enough (Kahan–Parlett) for classical Gram–Schmidt.
+        for _ in 0..2 {
+            for c in &cols {
+                let d = c.dot(&v);
+                v.axpy(-d, c, 1.0);
+            }
+        }
+        let norm = v.norm();
+        if norm > 1e-8 * norm0 && norm.is_finite() {
+            cols.push(v / norm);
+        }
+    }
+    let kept = cols.len() - r;
+    let s = DMatrix::from_columns(&cols);
+    let (ritz, _, lambda) = rayleigh_ritz(problem, &s);
+    (ritz, lambda, kept)
+}

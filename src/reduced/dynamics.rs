@@ -1,0 +1,266 @@
+//! Linear reduced dynamics for the haptic loop: q̈ + D_r q̇ + K_r q = Φᵀ f in
+//! the r coordinates of a mass-orthonormal basis (reduced mass I), with
+//! Rayleigh damping D_r = α I + β K_r, integrated by implicit Euler:
+//!
+//! ```text
+//! (I + h D_r + h² K_r) q̇ₙ₊₁ = q̇ₙ + h (fₙ₊₁ − K_r qₙ),   qₙ₊₁ = qₙ + h q̇ₙ₊₁
+//! ```
+//!
+//! All matrices are nalgebra fixed-size with a const-generic capacity `R`;
+//! a basis of r ≤ R columns fills the leading block and the rest is the
+//! identity in the system matrix and zero elsewhere, so the unused
+//! coordinates stay at rest. The system matrix is factored (Cholesky) once at
+//! construction; [`ReducedDynamics::step`] is two triangular solves and two
+//! small mat-vecs on the stack and never allocates.
+
+use super::basis::{ModalBasis, ReducedError};
+use crate::mesh::Vec3;
+use nalgebra::{Cholesky, Const, DMatrix, SMatrix, SVector};
+
+/// Time step and Rayleigh damping of the reduced model.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct DynamicsParams {
+    /// Time step h (s), e.g. 1e-3 for the 1 kHz loop.
+    pub dt: f64,
+    /// Mass-proportional damping α (1/s).
+    pub alpha: f64,
+    /// Stiffness-proportional damping β (s).
+    pub beta: f64,
+}
+
+/// A node index outside the basis (returned by the RT-path helpers; carries
+/// the index, allocates nothing).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct NodeOutOfRange(pub u32);
+
+/// The reduced model with capacity `R`: state (q, q̇), the reduced stiffness,
+/// the factored implicit-Euler matrix and, per node, its 3 rows of Φ.
+#[derive(Debug, Clone)]
+pub struct ReducedDynamics<const R: usize> {
+    r: usize,
+    dt: f64,
+    k: SMatrix<f64, R, R>,
+    system: Cholesky<f64, Const<R>>,
+    rows: Vec<SMatrix<f64, 3, R>>,
+    q: SVector<f64, R>,
+    qd: SVector<f64, R>,
+}
+
+impl<const R: usize> ReducedDynamics<R> {
+    /// A reduced model on `basis` with K_r = diag(ω²) (the basis is
+    /// mass-orthonormal with diagonal reduced stiffness), at rest.
+    pub fn new(basis: &ModalBasis, params: &DynamicsParams) -> Result<ReducedDynamics<R>, ReducedError> {
+        let k = DMatrix::from_diagonal(&nalgebra::DVector::from_column_slice(&basis.omega2));
+        ReducedDynamics::with_stiffness(basis, &k, params)
+    }
+
+    /// A reduced model on `basis` with a given symmetric reduced stiffness
+    /// `k_r` (m × m, m the basis size), e.g. ΦᵀK(ū)Φ at another
+    /// linearization point, at rest.
+    pub fn with_stiffness(
+        basis: &ModalBasis,
+        k_r: &DMatrix<f64>,
+        params: &DynamicsParams,
+    ) -> Result<ReducedDynamics<R>, ReducedError> {
+        let r = basis.len();
+        if r > R {
+            return Err(ReducedError::Capacity { size: r, capacity: R });
+        }
+        if k_r.nrows() != r || k_r.ncols() != r {
+            return Err(ReducedError::SizeMismatch {
+                what: "the reduced stiffness",
+                got: k_r.nrows(),
+                expected: r,
+            });
+        }
+        if k_r.iter().any(|v| !v.is_finite()) {
+            return Err(ReducedError::NonFinite);
+        }
+        let check = |name, value: f64, ok: bool, allowed| {
+            if ok && value.is_finite() {
+                Ok(())
+            } else {
+                Err(ReducedError::BadParameter { name, value, allowed })
+            }
+        };
+        check("dt", params.dt, params.dt > 0.0, "> 0 s")?;
+        check("alpha", params.alpha, params.alpha >= 0.0, ">= 0 1/s")?;
+        check("beta", params.beta, params.beta >= 0.0, ">= 0 s")?;
+        let mut k = SMatrix::<f64, R, R>::zeros();
+        for i in 0..r {
+            for j in 0..r {
+                k[(i, j)] = 0.5 * (k_r[(i, j)] + k_r[(j, i)]);
+            }
+        }
+        let h = params.dt;
+        // Unused coordinates: K = 0 and D = αI there, so the system is
+        // (1 + hα) on their diagonal; step() also zeroes their forcing.
+        let a = SMatrix::<f64, R, R>::identity() * (1.0 + h * params.alpha) + k * (h * params.beta + h * h);
+        let system = Cholesky::new(a).ok_or(ReducedError::NotPositiveDefinite)?;
+        let n = basis.num_nodes();
+        let mut rows = vec![SMatrix::<f64, 3, R>::zeros(); n];
+        for (i, row) in rows.iter_mut().enumerate() {
+            for c in 0..3 {
+                for j in 0..r {
+                    row[(c, j)] = basis.phi[(3 * i + c, j)];
+                }
+            }
+        }
+        Ok(ReducedDynamics {
+            r,
+            dt: h,
+            k,
+            system,
+            rows,
+            q: SVector::zeros(),
+            qd: SVector::zeros(),
+        })
+    }
+
+    /// One implicit Euler step under the reduced force `f` (Φᵀ f_ext, e.g.
+    /// from [`ReducedDynamics::project_nodal`]). Entries beyond the active
+    /// size are ignored. Allocates nothing.
+    pub fn step(&mut self, f: &SVector<f64, R>) {
+        let mut rhs = self.qd + (f - self.k * self.q) * self.dt;
+        for v in rhs.iter_mut().skip(self.r) {
+            *v = 0.0;
+        }
+        self.system.solve_mut(&mut rhs);
+        self.qd = rhs;
+        self.q += self.qd * self.dt;
+    }
+
+    /// Φᵀ f for forces on a few nodes, from those nodes' rows of Φ only.
+    pub fn project_nodal(&self, loads: &[(u32, Vec3)]) -> Result<SVector<f64, R>, NodeOutOfRange> {
+        let mut out = SVector::<f64, R>::zeros();
+        for &(node, f) in loads {
+            let row = self.rows.get(node as usize).ok_or(NodeOutOfRange(node))?;
+            out += row.tr_mul(&f);
+        }
+        Ok(out)
+    }
+
+    /// Displacement Φ q at one node (None if the node is not in the mesh).
+    pub fn displacement_at(&self, node: u32) -> Option<Vec3> {
+        self.rows.get(node as usize).map(|row| row * self.q)
+    }
+
+    /// Velocity Φ q̇ at one node (None if the node is not in the mesh).
+    pub fn velocity_at(&self, node: u32) -> Option<Vec3> {
+        self.rows.get(node as usize).map(|row| row * self.qd)
+    }
+
+    /// The static reduced response: q solving K_r q = f on the active
+    /// coordinates (None if K_r is singular there). Does not touch the state.
+    pub fn static_solve(&self, f: &SVector<f64, R>) -> Option<SVector<f64, R>> {
+        let mut k = self.k;
+        for i in self.r..R {
+            k[(i, i)] = 1.0;
+        }
+        let mut q = Cholesky::new(k)?.solve(f);
+        for v in q.iter_mut().skip(self.r) {
+            *v = 0.0;
+        }
+        Some(q)
+    }
+
+    /// Reduced coordinates q.
+    pub fn q(&self) -> &SVector<f64, R> {
+        &self.q
+    }
+
+    /// Reduced velocities q̇.
+    pub fn qd(&self) -> &SVector<f64, R> {
+        &self.qd
+    }
+
+    /// Sets the state (entries beyond the active size are zeroed).
+    pub fn set_state(&mut self, q: &SVector<f64, R>, qd: &SVector<f64, R>) {
+        self.q = *q;
+        self.qd = *qd;
+        for i in self.r..R {
+            self.q[i] = 0.0;
+            self.qd[i] = 0.0;
+        }
+    }
+
+    /// Active size r (basis columns in use).
+    pub fn active(&self) -> usize {
+        self.r
+    }
+
+    /// The reduced stiffness K_r (zero beyond the active block).
+    pub fn stiffness(&self) -> &SMatrix<f64, R, R> {
+        &self.k
+    }
+
+    /// Time step (s).
+    pub fn dt(&self) -> f64 {
+        self.dt
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// One node, one mode along x with ω² = 4 (unit mass).
+    fn one_mode() -> ModalBasis {
+        ModalBasis {
+            phi: DMatrix::from_column_slice(3, 1, &[1.0, 0.0, 0.0]),
+            omega2: vec![4.0],
+            num_static: 0,
+            fixed: Vec::new(),
+            iterations: 0,
+        }
+    }
+
+    #[test]
+    fn step_matches_the_scalar_implicit_euler_recurrence() {
+        let p = DynamicsParams {
+            dt: 0.01,
+            alpha: 0.3,
+            beta: 0.02,
+        };
+        let mut d = ReducedDynamics::<4>::new(&one_mode(), &p).unwrap();
+        let f = d.project_nodal(&[(0, Vec3::new(2.0, 5.0, -1.0))]).unwrap();
+        assert_eq!(f[0], 2.0);
+        assert!(f.iter().skip(1).all(|&v| v == 0.0));
+        let (k, h) = (4.0, p.dt);
+        let (mut q, mut v) = (0.0f64, 0.0f64);
+        let mut forced = f;
+        // Forcing on inactive coordinates is ignored.
+        forced[3] = 7.0;
+        for _ in 0..200 {
+            v = (v + h * (2.0 - k * q)) / (1.0 + h * (p.alpha + p.beta * k) + h * h * k);
+            q += h * v;
+            d.step(&forced);
+        }
+        assert!((d.q()[0] - q).abs() <= 1e-12 * q.abs());
+        assert!((d.displacement_at(0).unwrap() - Vec3::new(q, 0.0, 0.0)).norm() <= 1e-12 * q.abs());
+        assert!(d.q().iter().skip(1).all(|&v| v == 0.0));
+        assert_eq!(d.static_solve(&f).unwrap()[0], 0.5);
+    }
+
+    #[test]
+    fn bad_sizes_and_parameters_are_errors() {
+        let b = one_mode();
+        let p = DynamicsParams {
+            dt: 1e-3,
+            alpha: 0.0,
+            beta: 0.0,
+        };
+        assert!(matches!(
+            ReducedDynamics::<0>::new(&b, &p),
+            Err(ReducedError::Capacity { size: 1, capacity: 0 })
+        ));
+        let bad = DynamicsParams { dt: 0.0, ..p };
+        assert!(matches!(
+            ReducedDynamics::<2>::new(&b, &bad),
+            Err(ReducedError::BadParameter { name: "dt", .. })
+        ));
+        let d = ReducedDynamics::<2>::new(&b, &p).unwrap();
+        assert_eq!(d.project_nodal(&[(1, Vec3::zeros())]), Err(NodeOutOfRange(1)));
+        assert_eq!(d.displacement_at(1), None);
+    }
+}

@@ -1,0 +1,202 @@
+//! The modal basis of a small arch (both ends fixed, linear tensor-mass
+//! stiffness at rest) is what it claims: Φᵀ M Φ = I, each column an
+//! eigenvector of K φ = ω² M φ, ω² positive and ascending, and the lowest
+//! eigenvalues those of a dense generalized eigen solve of the same problem.
+//! A warm start from the converged basis takes fewer iterations to the same modes,
+//! and a basis augmented with attachment modes stays M-orthonormal with
+//! diagonal reduced stiffness.
+
+use nalgebra::{DMatrix, SymmetricEigen};
+use nvtmm::material::Material;
+use nvtmm::mesh::arch::{generate, Arch, ArchParams};
+use nvtmm::mesh::Vec3;
+use nvtmm::model::{tmm::Tmm, BlockTangent, ForceModel};
+use nvtmm::reduced::ModalBasis;
+
+struct Setup {
+    arch: Arch,
+    model: Tmm,
+    mass: Vec<f64>,
+    fixed: Vec<u32>,
+    u: Vec<Vec3>,
+}
+
+fn setup() -> Setup {
+    let arch = generate(&ArchParams::default(), 300).expect("arch");
+    let mat = Material::aorta();
+    let model = Tmm::new(&arch.mesh, &mat);
+    let mass = arch.mesh.lumped_mass(mat.density);
+    let mut fixed = arch.mesh.node_set("inlet").expect("inlet").to_vec();
+    fixed.extend_from_slice(arch.mesh.node_set("outlet_descending").expect("outlet"));
+    let u = vec![Vec3::zeros(); arch.mesh.num_nodes()];
+    Setup {
+        arch,
+        model,
+        mass,
+        fixed,
+        u,
+    }
+}
+
+/// Per-DOF mass and free mask.
+fn dof_mass(s: &Setup) -> (Vec<f64>, Vec<bool>) {
+    let n = s.arch.mesh.num_nodes();
+    let mut free = vec![true; 3 * n];
+    for &f in &s.fixed {
+        for c in 0..3 {
+            free[3 * f as usize + c] = false;
+        }
+    }
+    let m = (0..3 * n).map(|d| s.mass[d / 3]).collect();
+    (m, free)
+}
+
+fn stiffness(s: &Setup) -> DMatrix<f64> {
+    let mut k = BlockTangent::zeros(&s.arch.mesh);
+    s.model.add_stiffness(&s.u, &mut k);
+    k.to_dense()
+}
+
+#[test]
+fn modes_are_mass_orthonormal_eigenvectors_matching_a_dense_solve() {
+    let s = setup();
+    let r = 16;
+    let basis = ModalBasis::compute(&s.arch.mesh, &s.model, &s.u, &s.mass, &s.fixed, r, None).expect("basis");
+    assert_eq!(basis.len(), r);
+    assert_eq!(basis.num_static, 0);
+    let (m, free) = dof_mass(&s);
+    let phi = &basis.phi;
+
+    // Φᵀ M Φ = I.
+    let mphi = DMatrix::from_fn(phi.nrows(), r, |i, j| m[i] * phi[(i, j)]);
+    let gram = phi.transpose() * &mphi;
+    let orth = (&gram - DMatrix::identity(r, r)).abs().max();
+    assert!(orth <= 1e-8, "max |ΦᵀMΦ − I| = {orth:e}");
+
+    // Fixed rows are zero.
+    for (d, f) in free.iter().enumerate() {
+        if !f {
+            assert!(phi.row(d).iter().all(|&v| v == 0.0));
+        }
+    }
+
+    // Each column satisfies K φ = ω² M φ on the free DOFs.
+    let k = stiffness(&s);
+    let kphi = &k * phi;
+    let mut worst: f64 = 0.0;
+    for j in 0..r {
+        let (mut res, mut norm) = (0.0f64, 0.0f64);
+        for d in (0..phi.nrows()).filter(|&d| free[d]) {
+            res += (kphi[(d, j)] - basis.omega2[j] * mphi[(d, j)]).powi(2);
+            norm += kphi[(d, j)].powi(2);
+        }
+        worst = worst.max((res / norm).sqrt());
+    }
+    assert!(worst <= 1e-6, "worst relative eigen-residual {worst:e}");
+
+    // ω² positive and ascending.
+    assert!(basis.omega2[0] > 0.0);
+    assert!(basis.omega2.windows(2).all(|w| w[0] <= w[1]), "{:?}", basis.omega2);
+
+    // Dense generalized eigen solve of the same free problem.
+    let idx: Vec<usize> = (0..phi.nrows()).filter(|&d| free[d]).collect();
+    let a = DMatrix::from_fn(idx.len(), idx.len(), |i, j| {
+        k[(idx[i], idx[j])] / (m[idx[i]] * m[idx[j]]).sqrt()
+    });
+    let a = (&a + a.transpose()) * 0.5;
+    let mut dense: Vec<f64> = SymmetricEigen::new(a).eigenvalues.iter().copied().collect();
+    dense.sort_by(f64::total_cmp);
+    let worst_rel = basis
+        .omega2
+        .iter()
+        .zip(&dense)
+        .map(|(w, d)| (w - d).abs() / d)
+        .fold(0.0f64, f64::max);
+    println!(
+        "free DOFs {}, iterations {}, worst residual {worst:e}, worst eigenvalue error {worst_rel:e}, f = {:.2?} Hz",
+        idx.len(),
+        basis.iterations,
+        basis
+            .omega2
+            .iter()
+            .map(|w| w.sqrt() / (2.0 * std::f64::consts::PI))
+            .collect::<Vec<_>>()
+    );
+    assert!(worst_rel <= 1e-8, "worst relative eigenvalue error {worst_rel:e}");
+}
+
+#[test]
+fn warm_start_converges_faster_to_the_same_modes() {
+    let s = setup();
+    let cold = ModalBasis::compute(&s.arch.mesh, &s.model, &s.u, &s.mass, &s.fixed, 12, None).expect("cold");
+    let warm = ModalBasis::compute(&s.arch.mesh, &s.model, &s.u, &s.mass, &s.fixed, 12, Some(&cold)).expect("warm");
+    println!("cold {} iterations, warm {}", cold.iterations, warm.iterations);
+    assert!(warm.iterations < cold.iterations);
+    for (a, b) in cold.omega2.iter().zip(&warm.omega2) {
+        assert!((a - b).abs() <= 1e-10 * a, "{a} vs {b}");
+    }
+}
+
+#[test]
+fn augmented_basis_is_mass_orthonormal_with_diagonal_stiffness() {
+    let s = setup();
+    let contact = [s.arch.node(s.arch.top_ring, 0, s.arch.grid.layers - 1) as u32];
+    let basis = ModalBasis::compute_augmented(&s.arch.mesh, &s.model, &s.u, &s.mass, &s.fixed, 8, &contact, None)
+        .expect("augmented");
+    assert_eq!(basis.num_static, 3);
+    assert_eq!(basis.len(), 11);
+    let (m, _) = dof_mass(&s);
+    let phi = &basis.phi;
+    let mphi = DMatrix::from_fn(phi.nrows(), phi.ncols(), |i, j| m[i] * phi[(i, j)]);
+    let gram = phi.transpose() * &mphi;
+    let orth = (&gram - DMatrix::identity(phi.ncols(), phi.ncols())).abs().max();
+    assert!(orth <= 1e-8, "max |ΦᵀMΦ − I| = {orth:e}");
+    let kr = phi.transpose() * stiffness(&s) * phi;
+    let kmax = kr.abs().max();
+    for i in 0..kr.nrows() {
+        for j in 0..kr.ncols() {
+            let expect = if i == j { basis.omega2[i] } else { 0.0 };
+            assert!(
+                (kr[(i, j)] - expect).abs() <= 1e-8 * kmax,
+                "K_r[{i},{j}] = {}",
+                kr[(i, j)]
+            );
+        }
+    }
+}
+
+#[test]
+fn bad_inputs_are_errors() {
+    let s = setup();
+    let n = s.arch.mesh.num_nodes();
+    let e = ModalBasis::compute(&s.arch.mesh, &s.model, &s.u, &s.mass, &[n as u32], 4, None);
+    assert!(
+        matches!(e, Err(nvtmm::reduced::ReducedError::NodeOutOfRange { .. })),
+        "{e:?}"
+    );
+    let e = ModalBasis::compute(&s.arch.mesh, &s.model, &s.u, &s.mass, &s.fixed, 0, None);
+    assert!(
+        matches!(e, Err(nvtmm::reduced::ReducedError::BadModeCount { .. })),
+        "{e:?}"
+    );
+    // Nothing fixed: K is singular (rigid motions).
+    let e = ModalBasis::compute(&s.arch.mesh, &s.model, &s.u, &s.mass, &[], 4, None);
+    assert!(
+        matches!(e, Err(nvtmm::reduced::ReducedError::NotPositiveDefinite)),
+        "{e:?}"
+    );
+    let params = nvtmm::reduced::BasisParams {
+        tol: 0.0,
+        max_iterations: 10,
+    };
+    let e = ModalBasis::compute_with(&s.arch.mesh, &s.model, &s.u, &s.mass, &s.fixed, 4, &[], None, &params);
+    assert!(
+        matches!(e, Err(nvtmm::reduced::ReducedError::BadParameter { name: "tol", .. })),
+        "{e:?}"
+    );
+    let e = ModalBasis::compute(&s.arch.mesh, &s.model, &s.u, &s.mass[1..], &s.fixed, 4, None);
+    assert!(
+        matches!(e, Err(nvtmm::reduced::ReducedError::SizeMismatch { .. })),
+        "{e:?}"
+    );
+}
