@@ -137,26 +137,32 @@ pub fn run(out: &Path, quick: bool) -> Result<(Vec<TradeRow>, usize), Experiment
     let arch = generate(&ArchParams::default(), nodes).map_err(|e| ExperimentError::Setup(e.to_string()))?;
     let reference = run_one(&arch, ModelKind::Nvtmm, reference_params())?;
     let mut rows = Vec::new();
-    let mut failed: Vec<TradeRow> = Vec::new();
-    let mut push = |knob: &str,
-                    value: String,
-                    kind: ModelKind,
-                    p: ImplicitEulerParams,
-                    arch: &Arch,
-                    o: &Outcome,
-                    reference: &[Vec3]| {
-        let (el, er) = errors(arch, &o.u, reference);
-        rows.push(TradeRow {
-            knob: knob.into(),
-            value,
-            model: kind.name().into(),
-            nodes: arch.mesh.num_nodes(),
-            ms_per_step: o.ms,
-            wall_per_sim_s: o.ms * 1e-3 / p.dt,
-            err_load_disp: el,
-            err_rms_surface: er,
-        });
-    };
+    // Runs one setting on the study mesh; a model that cannot take the step
+    // is a result (a "failed" row), not an abort.
+    let record =
+        |rows: &mut Vec<TradeRow>, knob: &str, value: String, kind: ModelKind, p: ImplicitEulerParams| match run_one(
+            &arch, kind, p,
+        ) {
+            Ok(o) => {
+                let (el, er) = errors(&arch, &o.u, &reference.u);
+                rows.push(TradeRow {
+                    knob: knob.into(),
+                    value,
+                    model: kind.name().into(),
+                    nodes: arch.mesh.num_nodes(),
+                    ms_per_step: o.ms,
+                    wall_per_sim_s: o.ms * 1e-3 / p.dt,
+                    err_load_disp: el,
+                    err_rms_surface: er,
+                });
+                Ok(())
+            }
+            Err(ExperimentError::Step { reason, .. }) => {
+                push_failed(rows, knob, value, kind, &arch, reason);
+                Ok(())
+            }
+            Err(e) => Err(e),
+        };
     let base = standard_params();
     // Model x dt.
     let dts: &[f64] = if quick {
@@ -166,141 +172,58 @@ pub fn run(out: &Path, quick: bool) -> Result<(Vec<TradeRow>, usize), Experiment
     };
     for kind in [ModelKind::Msm, ModelKind::Tmm, ModelKind::Nvtmm, ModelKind::Fem] {
         for &dt in dts {
-            let p = ImplicitEulerParams { dt, ..base };
-            match run_one(&arch, kind, p) {
-                Ok(o) => push("dt", format!("{dt}"), kind, p, &arch, &o, &reference.u),
-                // A model that cannot take this step is a result, not an abort.
-                Err(ExperimentError::Step { reason, .. }) => {
-                    push_failed(&mut failed, "dt", format!("{dt}"), kind, &arch, reason)
-                }
-                Err(e) => return Err(e),
-            }
+            record(
+                &mut rows,
+                "dt",
+                format!("{dt}"),
+                kind,
+                ImplicitEulerParams { dt, ..base },
+            )?;
         }
     }
-    // NVTMM: Newton iterations, CG tolerance, preconditioner (dt = 1 ms).
+    // NVTMM: Newton iterations, CG tolerance, linear solver (dt = 1 ms).
     for iters in [1usize, 2, 4] {
-        let p = ImplicitEulerParams {
-            newton: NewtonParams {
-                max_iters: iters,
-                rel_tol: 1e-10,
-                ..NewtonParams::default()
-            },
-            ..base
+        let newton = NewtonParams {
+            max_iters: iters,
+            rel_tol: 1e-10,
+            ..NewtonParams::default()
         };
-        match run_one(&arch, ModelKind::Nvtmm, p) {
-            Ok(o) => push(
-                "newton_iters",
-                iters.to_string(),
-                ModelKind::Nvtmm,
-                p,
-                &arch,
-                &o,
-                &reference.u,
-            ),
-            Err(ExperimentError::Step { reason, .. }) => push_failed(
-                &mut failed,
-                "newton_iters",
-                iters.to_string(),
-                ModelKind::Nvtmm,
-                &arch,
-                reason,
-            ),
-            Err(e) => return Err(e),
-        }
+        record(
+            &mut rows,
+            "newton_iters",
+            iters.to_string(),
+            ModelKind::Nvtmm,
+            ImplicitEulerParams { newton, ..base },
+        )?;
     }
+    let cg = |precond, tol| LinearSolverKind::Cg {
+        precond,
+        tol,
+        max_iter: 5000,
+        strict: false,
+    };
     for tol in [1e-2, 1e-4, 1e-6, 1e-8] {
         let p = ImplicitEulerParams {
-            linear: LinearSolverKind::Cg {
-                precond: Preconditioner::BlockJacobi,
-                tol,
-                max_iter: 5000,
-                strict: false,
-            },
+            linear: cg(Preconditioner::BlockJacobi, tol),
             ..base
         };
-        match run_one(&arch, ModelKind::Nvtmm, p) {
-            Ok(o) => push(
-                "cg_tol",
-                format!("{tol:e}"),
-                ModelKind::Nvtmm,
-                p,
-                &arch,
-                &o,
-                &reference.u,
-            ),
-            Err(ExperimentError::Step { reason, .. }) => push_failed(
-                &mut failed,
-                "cg_tol",
-                format!("{tol:e}"),
-                ModelKind::Nvtmm,
-                &arch,
-                reason,
-            ),
-            Err(e) => return Err(e),
-        }
+        record(&mut rows, "cg_tol", format!("{tol:e}"), ModelKind::Nvtmm, p)?;
     }
-    for (name, lin) in [
-        (
-            "jacobi",
-            LinearSolverKind::Cg {
-                precond: Preconditioner::Jacobi,
-                tol: 1e-6,
-                max_iter: 5000,
-                strict: false,
-            },
-        ),
-        (
-            "block_jacobi",
-            LinearSolverKind::Cg {
-                precond: Preconditioner::BlockJacobi,
-                tol: 1e-6,
-                max_iter: 5000,
-                strict: false,
-            },
-        ),
-        (
-            "block_ssor",
-            LinearSolverKind::Cg {
-                precond: Preconditioner::BlockSsor,
-                tol: 1e-6,
-                max_iter: 5000,
-                strict: false,
-            },
-        ),
-        (
-            "block_ic0",
-            LinearSolverKind::Cg {
-                precond: Preconditioner::BlockIc0,
-                tol: 1e-6,
-                max_iter: 5000,
-                strict: false,
-            },
-        ),
+    for (name, linear) in [
+        ("jacobi", cg(Preconditioner::Jacobi, 1e-6)),
+        ("block_jacobi", cg(Preconditioner::BlockJacobi, 1e-6)),
+        ("block_ssor", cg(Preconditioner::BlockSsor, 1e-6)),
+        ("block_ic0", cg(Preconditioner::BlockIc0, 1e-6)),
         ("cholesky", LinearSolverKind::Cholesky),
     ] {
-        let p = ImplicitEulerParams { linear: lin, ..base };
-        match run_one(&arch, ModelKind::Nvtmm, p) {
-            Ok(o) => push(
-                "linear_solver",
-                name.into(),
-                ModelKind::Nvtmm,
-                p,
-                &arch,
-                &o,
-                &reference.u,
-            ),
-            Err(ExperimentError::Step { reason, .. }) => push_failed(
-                &mut failed,
-                "linear_solver",
-                name.into(),
-                ModelKind::Nvtmm,
-                &arch,
-                reason,
-            ),
-            Err(e) => return Err(e),
-        }
+        record(
+            &mut rows,
+            "linear_solver",
+            name.into(),
+            ModelKind::Nvtmm,
+            ImplicitEulerParams { linear, ..base },
+        )?;
     }
-    rows.extend(failed);
     // Mesh resolution: loaded-node displacement against the finest mesh.
     let sizes: &[usize] = if quick {
         &[150, 300, 700]
