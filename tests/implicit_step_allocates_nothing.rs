@@ -5,53 +5,19 @@
 
 mod common;
 
+use common::counting::count_allocations;
 use common::{block, Springs};
 use nvtmm::mesh::Vec3;
 use nvtmm::solver::loads::{Loads, NodalLoad, TimeProfile};
 use nvtmm::solver::{ImplicitEuler, ImplicitEulerParams, LinearSolverKind, NewtonParams, Preconditioner, TissueState};
-use std::alloc::{GlobalAlloc, Layout, System};
-use std::cell::Cell;
-use std::sync::atomic::{AtomicUsize, Ordering};
-
-struct Counting;
-static COUNT: AtomicUsize = AtomicUsize::new(0);
-thread_local! {
-    // Per thread: only the test thread's allocations count (the test harness
-    // itself may allocate on its own threads meanwhile).
-    static ON: Cell<bool> = const { Cell::new(false) };
-}
-
-fn counting() -> bool {
-    ON.try_with(|c| c.get()).unwrap_or(false)
-}
-
-// SAFETY: forwards to the system allocator unchanged; only counts.
-unsafe impl GlobalAlloc for Counting {
-    unsafe fn alloc(&self, l: Layout) -> *mut u8 {
-        if counting() {
-            COUNT.fetch_add(1, Ordering::Relaxed);
-        }
-        // SAFETY: same contract as the caller's.
-        unsafe { System.alloc(l) }
-    }
-    unsafe fn dealloc(&self, p: *mut u8, l: Layout) {
-        // SAFETY: same contract as the caller's.
-        unsafe { System.dealloc(p, l) }
-    }
-    unsafe fn realloc(&self, p: *mut u8, l: Layout, n: usize) -> *mut u8 {
-        if counting() {
-            COUNT.fetch_add(1, Ordering::Relaxed);
-        }
-        // SAFETY: same contract as the caller's.
-        unsafe { System.realloc(p, l, n) }
-    }
-}
 
 #[global_allocator]
-static GLOBAL: Counting = Counting;
+static GLOBAL: common::counting::Counting = common::counting::Counting;
 
 #[test]
 fn implicit_step_allocates_nothing() {
+    // The counter itself works: one box is one allocation.
+    assert_eq!(count_allocations(|| drop(std::hint::black_box(Box::new(1u8)))).1, 1);
     let mesh = block(4, 3, 3, 0.01);
     let fixed = mesh.node_set("x_min").unwrap().to_vec();
     let loads = Loads {
@@ -103,17 +69,16 @@ fn implicit_step_allocates_nothing() {
         };
         let mut euler = ImplicitEuler::new(&mesh, mesh.lumped_mass(1100.0), params).unwrap();
         let mut state = TissueState::at_rest(mesh.num_nodes());
-        COUNT.store(0, Ordering::SeqCst);
-        ON.with(|c| c.set(true));
-        let mut ok = true;
-        for _ in 0..5 {
-            ok &= euler.step(&mut state, &mut model, &loads, &fixed).ok();
-        }
-        ON.with(|c| c.set(false));
+        let (ok, count) = count_allocations(|| {
+            let mut ok = true;
+            for _ in 0..5 {
+                ok &= euler.step(&mut state, &mut model, &loads, &fixed).ok();
+            }
+            ok
+        });
         assert!(ok, "{linear:?}, stiffness_every {stiffness_every}: a step failed");
         assert_eq!(
-            COUNT.load(Ordering::SeqCst),
-            0,
+            count, 0,
             "{linear:?}, stiffness_every {stiffness_every}: step allocated"
         );
     }

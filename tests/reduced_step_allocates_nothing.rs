@@ -2,58 +2,17 @@
 //! around it, `project_nodal` and `displacement_at` — allocate nothing over
 //! 1000 steps: the haptic loop can run it without touching the allocator.
 
+mod common;
+
+use common::counting::count_allocations;
 use nvtmm::material::Material;
 use nvtmm::mesh::arch::{generate, ArchParams};
 use nvtmm::mesh::Vec3;
 use nvtmm::model::tmm::Tmm;
 use nvtmm::reduced::{DynamicsParams, ModalBasis, ReducedDynamics};
-use std::alloc::{GlobalAlloc, Layout, System};
-use std::cell::Cell;
-use std::sync::atomic::{AtomicUsize, Ordering};
-
-struct Counting;
-static COUNT: AtomicUsize = AtomicUsize::new(0);
-thread_local! {
-    // Per thread: only the test thread's allocations count (the test harness
-    // itself may allocate on its own threads meanwhile).
-    static ON: Cell<bool> = const { Cell::new(false) };
-}
-
-fn counting() -> bool {
-    ON.try_with(|c| c.get()).unwrap_or(false)
-}
-
-// SAFETY: forwards to the system allocator unchanged; only counts.
-unsafe impl GlobalAlloc for Counting {
-    unsafe fn alloc(&self, l: Layout) -> *mut u8 {
-        if counting() {
-            COUNT.fetch_add(1, Ordering::Relaxed);
-        }
-        // SAFETY: same contract as the caller's.
-        unsafe { System.alloc(l) }
-    }
-    unsafe fn dealloc(&self, p: *mut u8, l: Layout) {
-        // SAFETY: same contract as the caller's.
-        unsafe { System.dealloc(p, l) }
-    }
-    unsafe fn alloc_zeroed(&self, l: Layout) -> *mut u8 {
-        if counting() {
-            COUNT.fetch_add(1, Ordering::Relaxed);
-        }
-        // SAFETY: same contract as the caller's.
-        unsafe { System.alloc_zeroed(l) }
-    }
-    unsafe fn realloc(&self, p: *mut u8, l: Layout, n: usize) -> *mut u8 {
-        if counting() {
-            COUNT.fetch_add(1, Ordering::Relaxed);
-        }
-        // SAFETY: same contract as the caller's.
-        unsafe { System.realloc(p, l, n) }
-    }
-}
 
 #[global_allocator]
-static GLOBAL: Counting = Counting;
+static GLOBAL: common::counting::Counting = common::counting::Counting;
 
 #[test]
 fn reduced_step_allocates_nothing() {
@@ -77,26 +36,21 @@ fn reduced_step_allocates_nothing() {
     let mut moved = 0.0;
 
     // The counter itself works: one box is one allocation.
-    COUNT.store(0, Ordering::Relaxed);
-    ON.with(|c| c.set(true));
-    drop(std::hint::black_box(Box::new(1u8)));
-    ON.with(|c| c.set(false));
-    assert_eq!(COUNT.load(Ordering::Relaxed), 1);
+    let ((), one) = count_allocations(|| drop(std::hint::black_box(Box::new(1u8))));
+    assert_eq!(one, 1);
 
-    COUNT.store(0, Ordering::Relaxed);
-    ON.with(|c| c.set(true));
-    for i in 0..1000 {
-        let t = i as f64 * 1e-3;
-        let force = Vec3::new(0.0, 0.02 * (40.0 * t).sin(), -0.05);
-        let f = match d.project_nodal(&[(node, force)]) {
-            Ok(f) => f,
-            Err(_) => break,
-        };
-        d.step(&f);
-        moved += d.displacement_at(node).map_or(0.0, |x| x.norm());
-    }
-    ON.with(|c| c.set(false));
-    let count = COUNT.load(Ordering::Relaxed);
+    let ((), count) = count_allocations(|| {
+        for i in 0..1000 {
+            let t = i as f64 * 1e-3;
+            let force = Vec3::new(0.0, 0.02 * (40.0 * t).sin(), -0.05);
+            let f = match d.project_nodal(&[(node, force)]) {
+                Ok(f) => f,
+                Err(_) => break,
+            };
+            d.step(&f);
+            moved += d.displacement_at(node).map_or(0.0, |x| x.norm());
+        }
+    });
 
     assert!(moved > 0.0, "the loaded node did not move");
     assert_eq!(count, 0, "{count} allocations in 1000 reduced steps");

@@ -3,6 +3,8 @@
 //! models the solver tests use (simple enough to trust by inspection).
 #![allow(dead_code)]
 
+pub mod counting;
+
 use nvtmm::material::{Law, Material};
 use nvtmm::mesh::{TetMesh, Vec3};
 use nvtmm::model::{fem::Fem, msm::Msm, tmm::Tmm, BlockTangent, ForceModel, Mat3};
