@@ -9,9 +9,12 @@
 //! - `err_load_disp`: |u_load(T) − u_ref(T)| / |u_ref(T)| at the loaded node;
 //! - `err_rms_surface`: RMS over surface nodes of |u(T) − u_ref(T)|, divided
 //!   by the RMS of |u_ref(T)| (same mesh only);
-//! - for mesh resolution, the loaded-node displacement against the finest
-//!   mesh (the load sits at the same physical point on every mesh; RMS is
-//!   not compared across meshes).
+//! - `err_reaction`: |R(T) − R_ref(T)| / |R_ref(T)| for the support reaction
+//!   R, the internal force summed over the fixed nodes (what the vessel's
+//!   ends feel);
+//! - for mesh resolution, the loaded-node displacement and the reaction
+//!   against the finest mesh (the load sits at the same physical place on
+//!   every mesh; RMS is not compared across meshes).
 //!
 //! Knobs: model (msm, tmm, nvtmm, fem), dt, Newton iterations, CG tolerance,
 //! preconditioner, and mesh resolution. Each row reports the median wall
@@ -54,10 +57,14 @@ pub struct TradeRow {
     pub err_load_disp: f64,
     /// Relative RMS error of surface displacement (NaN across meshes).
     pub err_rms_surface: f64,
+    /// Relative error of the support reaction (force on the fixed ends).
+    pub err_reaction: f64,
 }
 
 struct Outcome {
     u: Vec<Vec3>,
+    /// Support reaction at T: the internal force summed over the fixed nodes.
+    reaction: Vec3,
     ms: f64,
 }
 
@@ -84,8 +91,12 @@ fn run_one(arch: &Arch, kind: ModelKind, params: ImplicitEulerParams) -> Result<
         }
     }
     times.sort_by(f64::total_cmp);
+    let mut f = vec![Vec3::zeros(); mesh.num_nodes()];
+    model.add_forces(&state.u, &mut f);
+    let reaction = load.fixed.iter().map(|&i| f[i as usize]).sum();
     Ok(Outcome {
         u: state.u,
+        reaction,
         ms: times[times.len() / 2],
     })
 }
@@ -100,6 +111,7 @@ fn push_failed(rows: &mut Vec<TradeRow>, knob: &str, value: String, kind: ModelK
         wall_per_sim_s: f64::NAN,
         err_load_disp: f64::NAN,
         err_rms_surface: f64::NAN,
+        err_reaction: f64::NAN,
     });
 }
 
@@ -145,6 +157,7 @@ pub fn run(out: &Path, quick: bool) -> Result<(Vec<TradeRow>, usize), Experiment
         ) {
             Ok(o) => {
                 let (el, er) = errors(&arch, &o.u, &reference.u);
+                let ereac = (o.reaction - reference.reaction).norm() / reference.reaction.norm().max(1e-300);
                 rows.push(TradeRow {
                     knob: knob.into(),
                     value,
@@ -154,6 +167,7 @@ pub fn run(out: &Path, quick: bool) -> Result<(Vec<TradeRow>, usize), Experiment
                     wall_per_sim_s: o.ms * 1e-3 / p.dt,
                     err_load_disp: el,
                     err_rms_surface: er,
+                    err_reaction: ereac,
                 });
                 Ok(())
             }
@@ -238,7 +252,7 @@ pub fn run(out: &Path, quick: bool) -> Result<(Vec<TradeRow>, usize), Experiment
         match run_one(&a, ModelKind::Nvtmm, base) {
             Ok(o) => {
                 let node = standard_load(&a, STANDARD_FORCE_N).node as usize;
-                runs.push((a.mesh.num_nodes(), o.ms, o.u[node]));
+                runs.push((a.mesh.num_nodes(), o.ms, o.u[node], o.reaction));
             }
             Err(ExperimentError::Step { reason, .. }) => push_failed(
                 &mut rows,
@@ -251,8 +265,8 @@ pub fn run(out: &Path, quick: bool) -> Result<(Vec<TradeRow>, usize), Experiment
             Err(e) => return Err(e),
         }
     }
-    if let Some(&(_, _, fine_disp)) = runs.last() {
-        for &(n, ms, disp) in &runs[..runs.len() - 1] {
+    if let Some(&(_, _, fine_disp, fine_reaction)) = runs.last() {
+        for &(n, ms, disp, reaction) in &runs[..runs.len() - 1] {
             rows.push(TradeRow {
                 knob: "mesh_nodes".into(),
                 value: n.to_string(),
@@ -262,6 +276,7 @@ pub fn run(out: &Path, quick: bool) -> Result<(Vec<TradeRow>, usize), Experiment
                 wall_per_sim_s: ms * 1e-3 / base.dt,
                 err_load_disp: (disp - fine_disp).norm() / fine_disp.norm().max(1e-300),
                 err_rms_surface: f64::NAN,
+                err_reaction: (reaction - fine_reaction).norm() / fine_reaction.norm().max(1e-300),
             });
         }
     }
@@ -271,14 +286,22 @@ pub fn run(out: &Path, quick: bool) -> Result<(Vec<TradeRow>, usize), Experiment
     let mut w = std::fs::File::create(&csv).map_err(|e| ExperimentError::io(&csv, e))?;
     writeln!(
         w,
-        "knob,value,model,nodes,ms_per_step,wall_per_sim_s,err_load_disp,err_rms_surface"
+        "knob,value,model,nodes,ms_per_step,wall_per_sim_s,err_load_disp,err_rms_surface,err_reaction"
     )
     .map_err(|e| ExperimentError::io(&csv, e))?;
     for r in &rows {
         writeln!(
             w,
-            "{},{},{},{},{:.4},{:.4},{:.3e},{:.3e}",
-            r.knob, r.value, r.model, r.nodes, r.ms_per_step, r.wall_per_sim_s, r.err_load_disp, r.err_rms_surface
+            "{},{},{},{},{:.4},{:.4},{:.3e},{:.3e},{:.3e}",
+            r.knob,
+            r.value,
+            r.model,
+            r.nodes,
+            r.ms_per_step,
+            r.wall_per_sim_s,
+            r.err_load_disp,
+            r.err_rms_surface,
+            r.err_reaction
         )
         .map_err(|e| ExperimentError::io(&csv, e))?;
     }
@@ -348,10 +371,17 @@ pub fn run(out: &Path, quick: bool) -> Result<(Vec<TradeRow>, usize), Experiment
 /// The rows as Markdown, with the recommended settings for the 30 Hz visual
 /// budget (33 ms per step) and the 1 kHz haptic budget (1 ms per step).
 pub fn markdown(rows: &[TradeRow], finest: usize) -> String {
-    let mut s = format!("Machine: {}.\n\n| knob | value | model | nodes | ms/step | wall s per sim s | err (loaded node) | err (RMS surface) |\n|---|---|---|---|---|---|---|---|\n", super::table::machine());
+    let dash = |v: f64| {
+        if v.is_nan() {
+            "–".to_string()
+        } else {
+            format!("{v:.2e}")
+        }
+    };
+    let mut s = format!("Machine: {}.\n\n| knob | value | model | nodes | ms/step | wall s per sim s | err (loaded node) | err (RMS surface) | err (reaction) |\n|---|---|---|---|---|---|---|---|---|\n", super::table::machine());
     for r in rows {
         s.push_str(&format!(
-            "| {} | {} | {} | {} | {:.2} | {:.2} | {:.2e} | {} |\n",
+            "| {} | {} | {} | {} | {:.2} | {:.2} | {:.2e} | {} | {} |\n",
             r.knob,
             r.value,
             r.model,
@@ -359,11 +389,8 @@ pub fn markdown(rows: &[TradeRow], finest: usize) -> String {
             r.ms_per_step,
             r.wall_per_sim_s,
             r.err_load_disp,
-            if r.err_rms_surface.is_nan() {
-                "–".into()
-            } else {
-                format!("{:.2e}", r.err_rms_surface)
-            }
+            dash(r.err_rms_surface),
+            dash(r.err_reaction)
         ));
     }
     for (name, budget) in [
