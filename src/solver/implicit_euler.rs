@@ -458,6 +458,21 @@ impl ImplicitEuler {
         &self.a
     }
 
+    /// v₁ += Δv on the free nodes; when `last` (the final iteration and no
+    /// final residual check), also forms the committed iterate and returns
+    /// true so the Newton loop stops.
+    fn apply_update(&mut self, last: bool, h: f64) -> bool {
+        for ((v1, dv), &fx) in self.v1.iter_mut().zip(&self.dv).zip(&self.fixed_mask) {
+            if !fx {
+                *v1 += dv;
+            }
+        }
+        if last {
+            self.set_iterate(h);
+        }
+        last
+    }
+
     /// ut = u₀ + h v₁ (the iterate the step commits).
     fn set_iterate(&mut self, h: f64) {
         for ((ut, u0), v1) in self.ut.iter_mut().zip(&self.u0).zip(&self.v1) {
@@ -604,15 +619,9 @@ impl ImplicitEuler {
                         return rep;
                     }
                 }
-                for ((v1, dv), &fx) in self.v1.iter_mut().zip(&self.dv).zip(&self.fixed_mask) {
-                    if !fx {
-                        *v1 += dv;
-                    }
-                }
                 k += 1;
                 rep.newton_iters = k;
-                if k == np.max_iters && !np.check_final_residual {
-                    self.set_iterate(h);
+                if self.apply_update(k == np.max_iters && !np.check_final_residual, h) {
                     break;
                 }
                 continue;
@@ -679,15 +688,9 @@ impl ImplicitEuler {
                     return rep;
                 }
             }
-            for ((v1, dv), &fx) in self.v1.iter_mut().zip(&self.dv).zip(&self.fixed_mask) {
-                if !fx {
-                    *v1 += dv;
-                }
-            }
             k += 1;
             rep.newton_iters = k;
-            if k == np.max_iters && !np.check_final_residual {
-                self.set_iterate(h);
+            if self.apply_update(k == np.max_iters && !np.check_final_residual, h) {
                 break;
             }
         }

@@ -522,18 +522,10 @@ impl Cg {
         b: &[Vec3],
         x: &mut [Vec3],
     ) -> Result<SolveStats, LinearFailure> {
-        let bnorm = norm(b);
-        if !bnorm.is_finite() {
-            return Err(LinearFailure::NonFinite);
-        }
-        if bnorm == 0.0 {
-            x.iter_mut().for_each(|v| *v = Vec3::zeros());
-            return Ok(SolveStats {
-                iters: 0,
-                rel_residual: 0.0,
-                converged: true,
-            });
-        }
+        let bnorm = match rhs_norm(b, x) {
+            Ok(n) => n,
+            Err(done) => return done,
+        };
         let Cg {
             precond,
             tol,
@@ -866,18 +858,10 @@ impl CholeskyPcg {
     }
 
     fn pcg(&mut self, a: &BlockTangent, b: &[Vec3], x: &mut [Vec3]) -> Result<SolveStats, LinearFailure> {
-        let bnorm = norm(b);
-        if !bnorm.is_finite() {
-            return Err(LinearFailure::NonFinite);
-        }
-        if bnorm == 0.0 {
-            x.iter_mut().for_each(|v| *v = Vec3::zeros());
-            return Ok(SolveStats {
-                iters: 0,
-                rel_residual: 0.0,
-                converged: true,
-            });
-        }
+        let bnorm = match rhs_norm(b, x) {
+            Ok(n) => n,
+            Err(done) => return done,
+        };
         let CholeskyPcg {
             chol,
             tol,
@@ -1007,6 +991,24 @@ impl LinearSolver {
             LinearSolver::CholeskyPcg(cp) => cp.solve(a, b, x),
         }
     }
+}
+
+/// ‖b‖ for a CG solve, or the finished answer when there is nothing to solve:
+/// a non-finite b fails, a zero b gives x = 0 at once.
+fn rhs_norm(b: &[Vec3], x: &mut [Vec3]) -> Result<f64, Result<SolveStats, LinearFailure>> {
+    let bnorm = norm(b);
+    if !bnorm.is_finite() {
+        return Err(Err(LinearFailure::NonFinite));
+    }
+    if bnorm == 0.0 {
+        x.iter_mut().for_each(|v| *v = Vec3::zeros());
+        return Err(Ok(SolveStats {
+            iters: 0,
+            rel_residual: 0.0,
+            converged: true,
+        }));
+    }
+    Ok(bnorm)
 }
 
 #[cfg(test)]
