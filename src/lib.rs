@@ -30,10 +30,12 @@
 
 pub mod bench;
 pub mod experiment;
+pub mod haptics;
 pub mod material;
 pub mod mesh;
 pub mod model;
 pub mod reduced;
+pub mod rt;
 pub mod scene;
 pub mod simulate;
 pub mod solver;
