@@ -16,6 +16,30 @@
 use super::basis::{ModalBasis, ReducedError};
 use crate::mesh::Vec3;
 use nalgebra::{Cholesky, Const, DMatrix, SMatrix, SVector};
+use std::sync::Arc;
+
+/// The three rows of Φ of every mesh node, at capacity `R` (columns beyond
+/// the active size are zero). Shared between reduced models built on the
+/// same basis, so a linearization refresh copies no per-node data.
+pub type BasisRows<const R: usize> = Arc<Vec<SMatrix<f64, 3, R>>>;
+
+/// The per-node rows of Φ of `basis` at capacity `R`.
+pub fn basis_rows<const R: usize>(basis: &ModalBasis) -> Result<BasisRows<R>, ReducedError> {
+    let r = basis.len();
+    if r > R {
+        return Err(ReducedError::Capacity { size: r, capacity: R });
+    }
+    let n = basis.num_nodes();
+    let mut rows = vec![SMatrix::<f64, 3, R>::zeros(); n];
+    for (i, row) in rows.iter_mut().enumerate() {
+        for c in 0..3 {
+            for j in 0..r {
+                row[(c, j)] = basis.phi[(3 * i + c, j)];
+            }
+        }
+    }
+    Ok(Arc::new(rows))
+}
 
 /// Time step and Rayleigh damping of the reduced model.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -40,8 +64,9 @@ pub struct ReducedDynamics<const R: usize> {
     r: usize,
     dt: f64,
     k: SMatrix<f64, R, R>,
+    a: SMatrix<f64, R, R>,
     system: Cholesky<f64, Const<R>>,
-    rows: Vec<SMatrix<f64, 3, R>>,
+    rows: BasisRows<R>,
     q: SVector<f64, R>,
     qd: SVector<f64, R>,
 }
@@ -62,7 +87,19 @@ impl<const R: usize> ReducedDynamics<R> {
         k_r: &DMatrix<f64>,
         params: &DynamicsParams,
     ) -> Result<ReducedDynamics<R>, ReducedError> {
-        let r = basis.len();
+        let rows = basis_rows::<R>(basis)?;
+        ReducedDynamics::with_rows(rows, basis.len(), k_r, params)
+    }
+
+    /// A reduced model on shared basis rows (`r` active columns) with the
+    /// symmetric reduced stiffness `k_r` (r × r), at rest. This is what a
+    /// linearization refresh builds: new K_r, same rows.
+    pub fn with_rows(
+        rows: BasisRows<R>,
+        r: usize,
+        k_r: &DMatrix<f64>,
+        params: &DynamicsParams,
+    ) -> Result<ReducedDynamics<R>, ReducedError> {
         if r > R {
             return Err(ReducedError::Capacity { size: r, capacity: R });
         }
@@ -97,19 +134,11 @@ impl<const R: usize> ReducedDynamics<R> {
         // (1 + hα) on their diagonal; step() also zeroes their forcing.
         let a = SMatrix::<f64, R, R>::identity() * (1.0 + h * params.alpha) + k * (h * params.beta + h * h);
         let system = Cholesky::new(a).ok_or(ReducedError::NotPositiveDefinite)?;
-        let n = basis.num_nodes();
-        let mut rows = vec![SMatrix::<f64, 3, R>::zeros(); n];
-        for (i, row) in rows.iter_mut().enumerate() {
-            for c in 0..3 {
-                for j in 0..r {
-                    row[(c, j)] = basis.phi[(3 * i + c, j)];
-                }
-            }
-        }
         Ok(ReducedDynamics {
             r,
             dt: h,
             k,
+            a,
             system,
             rows,
             q: SVector::zeros(),
@@ -128,6 +157,57 @@ impl<const R: usize> ReducedDynamics<R> {
         self.system.solve_mut(&mut rhs);
         self.qd = rhs;
         self.q += self.qd * self.dt;
+    }
+
+    /// One implicit Euler step under the reduced force `f` = Φᵀ f_c(qₙ) of a
+    /// stiff contact whose reduced stiffness −∂(Φᵀf_c)/∂q is `k_c` (symmetric
+    /// positive semi-definite, e.g. Σ k Φᵢᵀ n nᵀ Φᵢ over the touched nodes).
+    /// The contact is linearized about qₙ, f_c(qₙ₊₁) ≈ f_c(qₙ) − k_c h q̇ₙ₊₁,
+    /// so a penalty far stiffer than the explicit limit 4/h² stays stable.
+    /// Factors the R × R system on the stack (no allocation); if it is not
+    /// positive definite (k_c not PSD) the contact stiffness is dropped for
+    /// this step and `false` is returned.
+    pub fn step_with_contact(&mut self, f: &SVector<f64, R>, k_c: &SMatrix<f64, R, R>) -> bool {
+        let h = self.dt;
+        let mut a = self.a;
+        for i in 0..self.r {
+            for j in 0..self.r {
+                a[(i, j)] += h * h * k_c[(i, j)];
+            }
+        }
+        let mut rhs = self.qd + (f - self.k * self.q) * h;
+        for v in rhs.iter_mut().skip(self.r) {
+            *v = 0.0;
+        }
+        let ok = match Cholesky::new(a) {
+            Some(chol) => {
+                chol.solve_mut(&mut rhs);
+                true
+            }
+            None => {
+                self.system.solve_mut(&mut rhs);
+                false
+            }
+        };
+        self.qd = rhs;
+        self.q += self.qd * h;
+        ok
+    }
+
+    /// The three rows of Φ at `node` (None if the node is not in the mesh).
+    pub fn rows_at(&self, node: u32) -> Option<&SMatrix<f64, 3, R>> {
+        self.rows.get(node as usize)
+    }
+
+    /// The shared basis rows.
+    pub fn rows(&self) -> &BasisRows<R> {
+        &self.rows
+    }
+
+    /// Zeroes the state (q = q̇ = 0).
+    pub fn reset(&mut self) {
+        self.q = SVector::zeros();
+        self.qd = SVector::zeros();
     }
 
     /// Φᵀ f for forces on a few nodes, from those nodes' rows of Φ only.
@@ -240,6 +320,36 @@ mod tests {
         assert!((d.displacement_at(0).unwrap() - Vec3::new(q, 0.0, 0.0)).norm() <= 1e-12 * q.abs());
         assert!(d.q().iter().skip(1).all(|&v| v == 0.0));
         assert_eq!(d.static_solve(&f).unwrap()[0], 0.5);
+    }
+
+    #[test]
+    fn stiff_contact_is_stable_and_reaches_the_penalty_equilibrium() {
+        // A contact 1e4 times stiffer than the explicit limit 4/h²: the
+        // linearized implicit step stays bounded and settles where
+        // K q + k_c (q − g) = 0 for a constant gap g.
+        let p = DynamicsParams {
+            dt: 1e-3,
+            alpha: 5.0,
+            beta: 0.0,
+        };
+        let mut d = ReducedDynamics::<4>::new(&one_mode(), &p).unwrap();
+        let kc_s = 4e10;
+        let mut kc = SMatrix::<f64, 4, 4>::zeros();
+        kc[(0, 0)] = kc_s;
+        let g = 1e-3;
+        for _ in 0..2000 {
+            let mut f = SVector::<f64, 4>::zeros();
+            f[0] = kc_s * (g - d.q()[0]);
+            assert!(d.step_with_contact(&f, &kc));
+            assert!(d.q()[0].abs() <= 2.0 * g);
+        }
+        let q_eq = kc_s * g / (kc_s + 4.0);
+        assert!((d.q()[0] - q_eq).abs() <= 1e-9, "{} vs {q_eq}", d.q()[0]);
+        d.reset();
+        assert_eq!(d.q()[0], 0.0);
+        // A non-PSD "contact" is refused for that step.
+        kc[(0, 0)] = -1e12;
+        assert!(!d.step_with_contact(&SVector::zeros(), &kc));
     }
 
     #[test]

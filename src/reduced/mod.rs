@@ -18,4 +18,4 @@ pub mod basis;
 pub mod dynamics;
 
 pub use basis::{BasisParams, ModalBasis, ReducedError};
-pub use dynamics::{DynamicsParams, NodeOutOfRange, ReducedDynamics};
+pub use dynamics::{basis_rows, BasisRows, DynamicsParams, NodeOutOfRange, ReducedDynamics};
