@@ -6,6 +6,7 @@
 //! service that starts the threads (`service`), the physics itself
 //! ([`crate::reduced`], [`crate::model`]).
 
+pub mod contact;
 pub mod device;
 
 pub use device::{DeviceError, DeviceSample, HapticDevice};
