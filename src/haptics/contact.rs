@@ -262,7 +262,7 @@ pub fn evaluate<const R: usize>(
         let d = x - center;
         let dist = d.norm();
         let depth = rho - dist;
-        if !(depth > 0.0) {
+        if depth.is_nan() || depth <= 0.0 {
             continue;
         }
         let n = if dist > 1e-9 * rho { d / dist } else { index.normal(i) };
