@@ -8,5 +8,6 @@
 
 pub mod contact;
 pub mod device;
+pub mod servo;
 
 pub use device::{DeviceError, DeviceSample, HapticDevice};
