@@ -7,5 +7,6 @@
 //! ([`crate::reduced`], [`crate::model`]).
 
 pub mod device;
+pub mod passivity;
 
 pub use device::{DeviceError, DeviceSample, HapticDevice};

@@ -6,4 +6,5 @@
 //! Not here: what the loop computes ([`crate::haptics`]) or which threads the
 //! service starts (`service`).
 
+pub mod alloc;
 pub mod clock;
