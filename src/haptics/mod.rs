@@ -8,6 +8,10 @@
 
 pub mod contact;
 pub mod device;
+<<<<<<< HEAD
 pub mod servo;
+=======
+pub mod passivity;
+>>>>>>> qp
 
 pub use device::{DeviceError, DeviceSample, HapticDevice};
