@@ -15,7 +15,8 @@
 //! terms, cubic reduced-force polynomials and a region of interest.
 
 pub mod basis;
+pub mod cache;
 pub mod dynamics;
 
-pub use basis::{BasisParams, ModalBasis, ReducedError};
+pub use basis::{static_split, BasisParams, ModalBasis, ReducedError};
 pub use dynamics::{basis_rows, BasisRows, DynamicsParams, NodeOutOfRange, ReducedDynamics};
