@@ -17,6 +17,7 @@ pub mod block;
 pub mod io;
 pub mod quality;
 pub mod render;
+pub mod roi;
 
 use nalgebra::{Matrix3, Vector3};
 use std::collections::{BTreeMap, HashMap};

@@ -222,67 +222,47 @@ impl ModalBasis {
         warm: Option<&ModalBasis>,
         params: &BasisParams,
     ) -> Result<ModalBasis, ReducedError> {
-        if !(params.tol > 0.0 && params.tol < 1.0) {
-            return Err(ReducedError::BadParameter {
-                name: "tol",
-                value: params.tol,
-                allowed: "in (0, 1)",
-            });
-        }
-        let n = mesh.num_nodes();
-        if u.len() != n {
-            return Err(ReducedError::SizeMismatch {
-                what: "the displacement",
-                got: u.len(),
-                expected: n,
-            });
-        }
-        if let Some(w) = warm {
-            if w.phi.nrows() != 3 * n {
-                return Err(ReducedError::WarmStartMismatch {
-                    got: w.phi.nrows(),
-                    expected: 3 * n,
-                });
+        compute_inner(mesh, model, u, mass, fixed, r, contact, None, warm, params)
+    }
+
+    /// A basis of exactly `r_total` columns for a contact region: the static
+    /// (attachment) responses K⁻¹ e_d of the free `contact` nodes are
+    /// M-orthogonalized against the vibration modes and compressed to their
+    /// `k` = min(3 · free contact nodes, `max_static`) dominant directions
+    /// (the leading eigenvectors of their Gram matrix in the M inner
+    /// product: the best rank-k approximation of the compliance seen from the
+    /// region), and `r_total − k` vibration modes fill the rest. With
+    /// `max_static = 0` or no contact nodes this is [`ModalBasis::compute_with`]
+    /// with `r_total` modes. See [`static_split`] for the split.
+    #[allow(clippy::too_many_arguments)]
+    pub fn compute_contact(
+        mesh: &TetMesh,
+        model: &dyn ForceModel,
+        u: &[Vec3],
+        mass: &[f64],
+        fixed: &[u32],
+        r_total: usize,
+        contact: &[u32],
+        max_static: usize,
+        warm: Option<&ModalBasis>,
+        params: &BasisParams,
+    ) -> Result<ModalBasis, ReducedError> {
+        let mut is_fixed = vec![false; mesh.num_nodes()];
+        for &f in fixed {
+            if let Some(x) = is_fixed.get_mut(f as usize) {
+                *x = true;
             }
         }
-        let mut k = BlockTangent::zeros(mesh);
-        model.add_stiffness(u, &mut k);
-        let problem = FreeProblem::new(&k, mass, fixed)?;
-        let nf = problem.dofs();
-        if r == 0 || r > nf {
-            return Err(ReducedError::BadModeCount {
-                asked: r,
-                free_dofs: nf,
-            });
-        }
-        for &c in contact {
-            if c as usize >= n {
-                return Err(ReducedError::NodeOutOfRange {
-                    what: "contact",
-                    node: c,
-                    nodes: n,
-                });
-            }
-        }
-        let warm_y = warm.map(|w| problem.to_y(&w.phi));
-        let (mut y, mut lambda, iterations) = subspace_iteration(&problem, r, warm_y.as_ref(), params)?;
-        let mut num_static = 0;
-        if !contact.is_empty() {
-            let (ya, la, ns) = augment(&problem, &y, contact);
-            y = ya;
-            lambda = la;
-            num_static = ns;
-        }
-        let mut fixed: Vec<u32> = fixed.to_vec();
-        fixed.sort_unstable();
-        fixed.dedup();
-        Ok(ModalBasis {
-            phi: problem.to_phi(&y),
-            omega2: lambda,
-            num_static,
-            fixed,
-            iterations,
-        })
+        let mut free_contact: Vec<u32> = contact
+            .iter()
+            .copied()
+            .filter(|&c| !is_fixed.get(c as usize).copied().unwrap_or(false))
+            .collect();
+        free_contact.sort_unstable();
+        free_contact.dedup();
+        let (modes, k) = static_split(r_total, free_contact.len(), max_static);
+        let contact_used: &[u32] = if k == 0 { &[] } else { contact };
+        compute_inner(mesh, model, u, mass, fixed, modes, contact_used, Some(k), warm, params)
     }
 
     /// Number of basis vectors (columns).
@@ -332,6 +312,94 @@ impl ModalBasis {
         let row = |c: usize| self.phi.row(3 * node + c).transpose().dot(q);
         Some(Vec3::new(row(0), row(1), row(2)))
     }
+}
+
+/// How a basis of `r_total` columns for a contact region of
+/// `free_contact_nodes` free nodes splits into (vibration modes, static
+/// directions): k = min(3 · nodes, `max_static`, r_total − 1) static
+/// directions, at least one vibration mode.
+pub fn static_split(r_total: usize, free_contact_nodes: usize, max_static: usize) -> (usize, usize) {
+    let k = (3 * free_contact_nodes).min(max_static).min(r_total.saturating_sub(1));
+    (r_total - k, k)
+}
+
+/// The body of [`ModalBasis::compute_with`] and
+/// [`ModalBasis::compute_contact`]: `max_static` None keeps every attachment
+/// direction.
+#[allow(clippy::too_many_arguments)]
+fn compute_inner(
+    mesh: &TetMesh,
+    model: &dyn ForceModel,
+    u: &[Vec3],
+    mass: &[f64],
+    fixed: &[u32],
+    r: usize,
+    contact: &[u32],
+    max_static: Option<usize>,
+    warm: Option<&ModalBasis>,
+    params: &BasisParams,
+) -> Result<ModalBasis, ReducedError> {
+    if !(params.tol > 0.0 && params.tol < 1.0) {
+        return Err(ReducedError::BadParameter {
+            name: "tol",
+            value: params.tol,
+            allowed: "in (0, 1)",
+        });
+    }
+    let n = mesh.num_nodes();
+    if u.len() != n {
+        return Err(ReducedError::SizeMismatch {
+            what: "the displacement",
+            got: u.len(),
+            expected: n,
+        });
+    }
+    if let Some(w) = warm {
+        if w.phi.nrows() != 3 * n {
+            return Err(ReducedError::WarmStartMismatch {
+                got: w.phi.nrows(),
+                expected: 3 * n,
+            });
+        }
+    }
+    let mut k = BlockTangent::zeros(mesh);
+    model.add_stiffness(u, &mut k);
+    let problem = FreeProblem::new(&k, mass, fixed)?;
+    let nf = problem.dofs();
+    if r == 0 || r > nf {
+        return Err(ReducedError::BadModeCount {
+            asked: r,
+            free_dofs: nf,
+        });
+    }
+    for &c in contact {
+        if c as usize >= n {
+            return Err(ReducedError::NodeOutOfRange {
+                what: "contact",
+                node: c,
+                nodes: n,
+            });
+        }
+    }
+    let warm_y = warm.map(|w| problem.to_y(&w.phi));
+    let (mut y, mut lambda, iterations) = subspace_iteration(&problem, r, warm_y.as_ref(), params)?;
+    let mut num_static = 0;
+    if !contact.is_empty() {
+        let (ya, la, ns) = augment(&problem, &y, contact, max_static);
+        y = ya;
+        lambda = la;
+        num_static = ns;
+    }
+    let mut fixed: Vec<u32> = fixed.to_vec();
+    fixed.sort_unstable();
+    fixed.dedup();
+    Ok(ModalBasis {
+        phi: problem.to_phi(&y),
+        omega2: lambda,
+        num_static,
+        fixed,
+        iterations,
+    })
 }
 
 /// K restricted to the free DOFs, its Cholesky factor and M^½ there.
@@ -590,10 +658,33 @@ fn subspace_iteration(
     })
 }
 
+/// The `k` dominant directions of the columns of `att` after removing their
+/// components along the orthonormal columns of `y` (twice, for round-off):
+/// the leading eigenvectors of the Gram matrix AᵀA give A V, the best
+/// rank-k approximation of A's range.
+fn compress(y: &DMatrix<f64>, mut att: DMatrix<f64>, k: usize) -> DMatrix<f64> {
+    for _ in 0..2 {
+        let c = y.transpose() * &att;
+        att -= y * c;
+    }
+    let g = att.transpose() * &att;
+    let g = (&g + g.transpose()) * 0.5;
+    let eig = SymmetricEigen::new(g);
+    let mut order: Vec<usize> = (0..eig.eigenvalues.len()).collect();
+    order.sort_by(|&a, &b| eig.eigenvalues[b].total_cmp(&eig.eigenvalues[a]));
+    let v = DMatrix::from_fn(att.ncols(), k, |i, j| eig.eigenvectors[(i, order[j])]);
+    att * v
+}
+
 /// Adds the attachment directions of the free `contact` nodes to the modes
 /// `y` and rotates to Ritz vectors. Returns the basis, its Ritz values and
 /// how many attachment directions were kept.
-fn augment(problem: &FreeProblem, y: &DMatrix<f64>, contact: &[u32]) -> (DMatrix<f64>, Vec<f64>, usize) {
+fn augment(
+    problem: &FreeProblem,
+    y: &DMatrix<f64>,
+    contact: &[u32],
+    max_static: Option<usize>,
+) -> (DMatrix<f64>, Vec<f64>, usize) {
     let mut dofs: Vec<usize> = contact
         .iter()
         .filter_map(|&c| problem.dof_of_node.get(c as usize).copied().flatten())
@@ -608,6 +699,11 @@ fn augment(problem: &FreeProblem, y: &DMatrix<f64>, contact: &[u32]) -> (DMatrix
         }
     }
     problem.apply_inverse(&mut att);
+    if let Some(k) = max_static {
+        if k < att.ncols() {
+            att = compress(y, att, k);
+        }
+    }
     let mut cols: Vec<DVector<f64>> = y.column_iter().map(|c| c.into_owned()).collect();
     let r = cols.len();
     for a in att.column_iter() {

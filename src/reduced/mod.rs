@@ -17,9 +17,10 @@
 //! The background thread and the swap through rings live in the service.
 
 pub mod basis;
+pub mod cache;
 pub mod dynamics;
 pub mod refresh;
 
-pub use basis::{BasisParams, ModalBasis, ReducedError};
+pub use basis::{static_split, BasisParams, ModalBasis, ReducedError};
 pub use dynamics::{basis_rows, BasisRows, DynamicsParams, NodeOutOfRange, ReducedDynamics};
 pub use refresh::Refresher;
