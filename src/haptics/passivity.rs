@@ -113,7 +113,7 @@ pub enum NormBound {
 /// Limits and tuning of the passivity filter (`[passivity]` in the service
 /// configuration). SI units.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
+#[serde(deny_unknown_fields, default)]
 pub struct PassivityParams {
     /// Tick period T (s).
     pub dt_s: f64,

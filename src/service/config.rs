@@ -103,6 +103,8 @@ pub struct DeviceConfig {
     pub backend: Backend,
     /// The Touch X parameter file, relative to this file.
     pub touchx: PathBuf,
+    /// The UDP bridge parameter file, relative to this file.
+    pub udp: PathBuf,
     /// Device I/O rate (Hz).
     pub rate_hz: f64,
     /// SCHED_FIFO priority of the I/O thread (0 = normal).
@@ -119,6 +121,7 @@ impl Default for DeviceConfig {
         DeviceConfig {
             backend: Backend::TouchxSim,
             touchx: PathBuf::from("touchx.toml"),
+            udp: PathBuf::from("udp_device.toml"),
             rate_hz: 1000.0,
             priority: 70,
             cpu: 1,
@@ -311,6 +314,9 @@ impl ServiceConfig {
         c.int_in("rings.model", r.model, 1, 64)?;
         c.int_in("rings.returned", r.returned, 1, 64)?;
         c.int_in("rings.state", r.state, 2, 65_536)?;
+        let mut qp = self.passivity.clone();
+        qp.dt_s = 1.0 / l.rate_hz;
+        qp.validate(&c, "passivity")?;
         Ok(())
     }
 }

@@ -5,5 +5,7 @@
 
 pub mod background;
 pub mod config;
+pub mod report;
+pub mod run;
 
 pub use config::ServiceConfig;
