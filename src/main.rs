@@ -5,6 +5,7 @@ use std::path::PathBuf;
 use std::process::ExitCode;
 
 mod cli_mesh;
+mod cli_run;
 mod cli_sim;
 
 #[derive(Parser)]
@@ -20,6 +21,32 @@ struct Cli {
 
 #[derive(Subcommand)]
 enum Command {
+    /// Run the haptic service: the 1 kHz loop on the reduced NVTMM model, the
+    /// background full solve, the device; ends with a report.
+    Run {
+        /// Service configuration.
+        #[arg(default_value = "rt-config/nvtmm.toml")]
+        config: PathBuf,
+        /// Run length (s); default: the configuration's `seconds`.
+        #[arg(long)]
+        seconds: Option<f64>,
+        /// Also write the report as JSON here.
+        #[arg(long)]
+        report_json: Option<PathBuf>,
+        /// No progress bar.
+        #[arg(long)]
+        quiet: bool,
+    },
+    /// Audit this box for the real-time loop (PREEMPT_RT, limits, governor,
+    /// isolated CPUs, C-states).
+    CheckRt {
+        /// Service configuration (for the loop's CPU).
+        #[arg(long)]
+        config: Option<PathBuf>,
+        /// JSON output.
+        #[arg(long)]
+        json: bool,
+    },
     /// Generate, inspect, convert and render tetrahedral meshes.
     #[command(subcommand)]
     Mesh(MeshCmd),
@@ -182,6 +209,13 @@ fn main() -> ExitCode {
     }
     let cli = Cli::parse();
     let result = match cli.command {
+        Command::Run {
+            config,
+            seconds,
+            report_json,
+            quiet,
+        } => cli_run::run(&config, seconds, report_json.as_deref(), quiet),
+        Command::CheckRt { config, json } => cli_run::check_rt(config.as_ref(), json),
         Command::Mesh(cmd) => match cmd {
             MeshCmd::Arch { nodes, out } => cli_mesh::arch(nodes, &out),
             MeshCmd::Info { file, json, scale } => cli_mesh::info(&file, json, scale),

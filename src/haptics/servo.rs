@@ -127,7 +127,14 @@ pub struct Servo<const R: usize> {
     last_fresh_s: f64,
     counters: ServoCounters,
     tool: Vec3,
+    now_s: f64,
+    fault_until_s: f64,
 }
+
+/// How long a fault keeps the force down after its last tick, beyond the
+/// ramp-down time (s): a single bad sample still takes the force to zero
+/// before it ramps back in.
+pub const FAULT_HOLD_S: f64 = 0.1;
 
 impl<const R: usize> Servo<R> {
     /// A loop on `model` with the surface `index`. Allocates here only.
@@ -143,6 +150,8 @@ impl<const R: usize> Servo<R> {
             last_fresh_s: now_s,
             counters: ServoCounters::default(),
             tool: Vec3::zeros(),
+            now_s,
+            fault_until_s: f64::NEG_INFINITY,
         }
     }
 
@@ -199,6 +208,7 @@ impl<const R: usize> Servo<R> {
     /// applies [`Servo::apply_gain`]. Allocates nothing.
     pub fn tick(&mut self, sample: Option<&DeviceSample>, now_s: f64, overrun_streak: u32) -> TickOutput {
         self.counters.ticks += 1;
+        self.now_s = now_s;
         let mut fl = 0u32;
         let p = self.params;
         if let Some(s) = sample {
@@ -279,12 +289,16 @@ impl<const R: usize> Servo<R> {
     }
 
     /// Applies the watchdog to the (filtered) force of this tick: a fault in
-    /// `tick_flags` ramps the gain to zero within the ramp-down time, no
-    /// fault ramps it back in. A non-finite `force` counts as zero. Returns
-    /// the force to command.
+    /// `tick_flags` ramps the gain to zero within the ramp-down time and
+    /// holds it there for the ramp-down time plus [`FAULT_HOLD_S`] after the
+    /// fault's last tick; then the gain ramps back in. A non-finite `force`
+    /// counts as zero. Returns the force to command.
     pub fn apply_gain(&mut self, force: Vec3, tick_flags: &mut u32) -> Vec3 {
         let p = self.params;
-        let fault = *tick_flags & (flags::DEVICE_SILENT | flags::NONFINITE | flags::OVERRUN) != 0;
+        if *tick_flags & (flags::DEVICE_SILENT | flags::NONFINITE | flags::OVERRUN) != 0 {
+            self.fault_until_s = self.now_s + p.ramp_down_s + FAULT_HOLD_S;
+        }
+        let fault = self.now_s < self.fault_until_s;
         if fault {
             self.gain = if p.ramp_down_s > 0.0 {
                 (self.gain - p.dt / p.ramp_down_s).max(0.0)
