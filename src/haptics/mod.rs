@@ -7,5 +7,9 @@
 //! ([`crate::reduced`], [`crate::model`]).
 
 pub mod device;
+#[cfg(feature = "openhaptics")]
+pub mod openhaptics;
+pub mod touchx;
+pub mod udp;
 
-pub use device::{DeviceError, DeviceSample, HapticDevice};
+pub use device::{DeviceError, DeviceSample, HapticDevice, PortEnergy};
