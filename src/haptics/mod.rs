@@ -8,10 +8,11 @@
 
 pub mod contact;
 pub mod device;
-<<<<<<< HEAD
-pub mod servo;
-=======
+#[cfg(feature = "openhaptics")]
+pub mod openhaptics;
 pub mod passivity;
->>>>>>> qp
+pub mod servo;
+pub mod touchx;
+pub mod udp;
 
-pub use device::{DeviceError, DeviceSample, HapticDevice};
+pub use device::{DeviceError, DeviceSample, HapticDevice, PortEnergy};

@@ -20,7 +20,7 @@ pub struct Histogram {
 }
 
 /// Percentiles of a histogram (µs), the report's shape.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, serde::Deserialize)]
+#[derive(Debug, Clone, Copy, Default, PartialEq, Serialize, serde::Deserialize)]
 pub struct Percentiles {
     /// Median.
     pub p50: f64,

@@ -42,6 +42,9 @@ pub struct ServiceConfig {
     /// The report.
     #[serde(default)]
     pub report: ReportConfig,
+    /// The passivity QP (its `dt_s` is set from `loop.rate_hz`).
+    #[serde(default)]
+    pub passivity: crate::haptics::passivity::PassivityParams,
     /// The file this was read from (for messages and relative paths).
     #[serde(skip)]
     pub path: PathBuf,

@@ -529,7 +529,7 @@ pub fn prepare(opts: &RunOptions) -> Result<Prepared, ServiceError> {
         mesh: &built.mesh,
         model: built.model.as_ref(),
         material: built.material,
-        law: built.material.law,
+        law: scene.material.law,
         mass: &mass,
         fixed: &built.fixed,
         r: red.r,
