@@ -4,6 +4,12 @@ use clap::{Parser, Subcommand};
 use std::path::PathBuf;
 use std::process::ExitCode;
 
+/// System allocator for ordinary threads; a fixed, prefaulted pool for the
+/// RT threads (the haptic loop and the device I/O), which also counts any
+/// system-allocator call they make after start (docs/PASSIVITY.md).
+#[global_allocator]
+static ALLOCATOR: nvtmm::rt::alloc::RtAllocator = nvtmm::rt::alloc::RtAllocator;
+
 mod cli_mesh;
 mod cli_run;
 mod cli_sim;

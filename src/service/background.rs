@@ -99,8 +99,20 @@ impl<const R: usize> Background<R> {
     /// Builds the model for displacement `u` under the contact force `fbar`
     /// (per node), with the transfer from the last model sent.
     pub fn build_model(&mut self, u: &[Vec3], fbar: &[Vec3], epoch: u64) -> Option<Box<LoopModel<R>>> {
-        let r = self.refresher.len();
         let kr = self.refresher.reduced_stiffness(self.model.as_ref(), u);
+        self.model_from(kr, u, fbar, epoch)
+    }
+
+    /// As [`Background::build_model`] with the tangent the last full step
+    /// assembled (at its start state, one background step behind `u`),
+    /// which saves the assembly.
+    pub fn build_model_from_step(&mut self, u: &[Vec3], fbar: &[Vec3], epoch: u64) -> Option<Box<LoopModel<R>>> {
+        let kr = self.refresher.project_tangent(self.solver.last_stiffness());
+        self.model_from(kr, u, fbar, epoch)
+    }
+
+    fn model_from(&mut self, kr: DMatrix<f64>, u: &[Vec3], fbar: &[Vec3], epoch: u64) -> Option<Box<LoopModel<R>>> {
+        let r = self.refresher.len();
         let dynamics = ReducedDynamics::with_rows(self.rows.clone(), r, &kr, &self.dynamics).ok()?;
         let qbar = to_s::<R>(&self.refresher.project_mass(u).as_slice()[..r]);
         let fb = to_s::<R>(&self.refresher.project_force(fbar).as_slice()[..r]);
@@ -206,7 +218,12 @@ pub fn run<const R: usize>(mut bg: Background<R>, mut io: BackgroundIo<R>) -> Ba
 
         // Re-linearize and send (keep-latest if the ring is full).
         epoch += 1;
-        match bg.build_model(&state.u, &fbar, epoch) {
+        let built = if rep.ok() {
+            bg.build_model_from_step(&state.u, &fbar, epoch)
+        } else {
+            bg.build_model(&state.u, &fbar, epoch)
+        };
+        match built {
             Some(m) => pending = Some(m),
             None => stats.refresh_failures += 1,
         }

@@ -239,7 +239,7 @@ impl Default for RingConfig {
         RingConfig {
             pose: 64,
             force: 64,
-            contact: 512,
+            contact: 2048,
             model: 2,
             returned: 4,
             state: 64,

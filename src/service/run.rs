@@ -178,6 +178,9 @@ pub fn press_target(mesh: &TetMesh, scene: &Scene) -> (u32, Vec3, Vec3, Vec3) {
     (node, rest[node as usize], n, t.normalize())
 }
 
+/// The loop ticks this long after the device thread reads a sample (ns).
+const LOOP_PHASE: Nanos = 200_000;
+
 /// Everything gathered from the loop thread at the end.
 struct LoopResult {
     jitter: Histogram,
@@ -227,6 +230,7 @@ struct LoopPlan {
     request: RtRequest,
     period: Nanos,
     start: Nanos,
+    loop_start: Nanos,
     baseline_s: f64,
     pool_bytes: usize,
     state_every: u64,
@@ -273,6 +277,7 @@ fn loop_thread<const R: usize>(
         res.baseline.record((clock::now_ns() - next) as f64 * 1e-3);
         next += period;
     }
+    next = next.max(plan.loop_start);
     let sys0 = crate::rt::alloc::thread_system_calls();
     let t_begin = clock::now_ns();
     let mut streak = 0u32;
@@ -414,6 +419,7 @@ fn device_thread(
     request: RtRequest,
     start: Nanos,
     period: Nanos,
+    write_offset: Nanos,
     pool_bytes: usize,
 ) -> (DeviceResult, Box<dyn HapticDevice>) {
     let _grant = setup_current(&request);
@@ -429,11 +435,20 @@ fn device_thread(
     };
     let mut next = start;
     while !io.stop.load(Ordering::Relaxed) {
+        // Phase 0: the sample for the loop (which ticks 200 µs later).
         clock::sleep_until(next);
-        next += period;
         res.ticks += 1;
-        // The newest force first (it answers the previous sample), then the
-        // new sample for the loop's next tick.
+        match dev.read(clock::now_s()) {
+            Ok(s) => {
+                if io.pose.push(s).is_err() {
+                    res.pose_ring_full += 1;
+                }
+            }
+            Err(_) => res.errors += 1,
+        }
+        // Phase `write_offset`: the newest force, normally the answer to
+        // the sample just read.
+        clock::sleep_until(next + write_offset);
         let mut cmd = None;
         while let Ok(c) = io.force.pop() {
             cmd = Some(c);
@@ -446,14 +461,7 @@ fn device_thread(
                 res.latency.record((clock::now_ns() - c.pose_time) as f64 * 1e-3);
             }
         }
-        match dev.read(clock::now_s()) {
-            Ok(s) => {
-                if io.pose.push(s).is_err() {
-                    res.pose_ring_full += 1;
-                }
-            }
-            Err(_) => res.errors += 1,
-        }
+        next += period;
         let now = clock::now_ns();
         if now > next {
             next += ((now - next) / period + 1) * period;
@@ -707,7 +715,10 @@ fn run_with<const R: usize>(p: Prepared, progress: bool) -> Result<Report, Servi
     let device_name = device.name().to_string();
 
     clock::epoch();
+    // The baseline runs first on the loop's thread; the device and the
+    // background start with the loop.
     let start = clock::now_ns() + 50_000_000;
+    let loop_start = start + (cfg.servo.baseline_s * 1e9) as Nanos + LOOP_PHASE;
     let pool_bytes = 8 << 20;
 
     // Background.
@@ -737,6 +748,7 @@ fn run_with<const R: usize>(p: Prepared, progress: bool) -> Result<Report, Servi
             std::thread::Builder::new()
                 .name("nvtmm-background".into())
                 .spawn(move || {
+                    clock::sleep_until(loop_start);
                     if bg_cpu.is_some() {
                         setup_current(&RtRequest {
                             fifo_priority: None,
@@ -768,7 +780,17 @@ fn run_with<const R: usize>(p: Prepared, progress: bool) -> Result<Report, Servi
     let dev_handle = std::thread::Builder::new()
         .name("nvtmm-device".into())
         .stack_size(1 << 20)
-        .spawn(move || device_thread(device, dio, dev_req, start, dev_period, pool_bytes))
+        .spawn(move || {
+            device_thread(
+                device,
+                dio,
+                dev_req,
+                loop_start - LOOP_PHASE,
+                dev_period,
+                dev_period / 2,
+                pool_bytes,
+            )
+        })
         .map_err(|e| ServiceError::Thread("device", e.to_string()))?;
 
     // The haptic loop, phased 200 µs after the device read.
@@ -790,7 +812,8 @@ fn run_with<const R: usize>(p: Prepared, progress: bool) -> Result<Report, Servi
             prefault_stack_bytes: cfg.servo.stack_kib * 1024 / 2,
         },
         period,
-        start: start + 200_000,
+        start,
+        loop_start,
         baseline_s: cfg.servo.baseline_s,
         pool_bytes,
         state_every: 1000 / 60,
