@@ -40,3 +40,4 @@ pub mod rt;
 pub mod scene;
 pub mod simulate;
 pub mod solver;
+pub mod stream;
