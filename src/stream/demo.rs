@@ -1,5 +1,5 @@
 //! A synthetic stream source: a probe pressing a smooth dent into the top of
-//! the vessel surface and releasing it (period 3 s, 6 mm deep), with a
+//! the vessel surface and releasing it (period 3 s, 8 mm deep, 20 mm wide), with a
 //! spring-like force. It is not physics; it exercises the stream, the viewer
 //! and the tools without the haptic service (`nvtmm stream-demo`, tests).
 
@@ -50,10 +50,10 @@ impl Dent {
             positions: topology.rest_positions.clone(),
             rest,
             normal,
-            radius_m: 0.015,
-            depth_m: 0.006,
+            radius_m: 0.02,
+            depth_m: 0.008,
             period_s: 3.0,
-            tool_radius_m: 0.002,
+            tool_radius_m: 0.004,
             stiffness_n_per_m: 300.0,
         }
     }
@@ -89,4 +89,23 @@ impl Dent {
             tick_p99_us: 40.0 + 5.0 * (t * 0.7).sin() as f32,
         }
     }
+}
+
+/// Publishes `frames` dent frames, `1 / cfg.rate_hz` apart in simulation time
+/// but as fast as possible in wall time, through a [`Publisher`] with
+/// `record` (for tests and examples: a recording without waiting).
+pub fn publish_frames(
+    mesh: &TetMesh,
+    topology: Topology,
+    cfg: super::StreamConfig,
+    record: Option<&std::path::Path>,
+    frames: usize,
+) -> Result<super::PublisherStats, super::StreamError> {
+    let mut dent = Dent::new(mesh, &topology);
+    let mut p = super::Publisher::new(cfg, topology, record)?;
+    for k in 0..frames {
+        let t = k as f64 * p.period_s();
+        p.publish(&dent.frame(t))?;
+    }
+    p.finish()
 }

@@ -7,6 +7,9 @@
 //! thread that waits for new frames and forwards them. A slow client only
 //! delays itself (writes time out and drop it).
 //!
+//! `GET /snapshot` returns the latest topology and state messages (each
+//! behind its u32 length) so the page draws at once on load.
+//!
 //! WebSocket messages (binary): a 12-byte header — kind u8 (1 topology, 2
 //! state), 3 zero bytes, epoch u32, seq u32, little-endian — followed by the
 //! message payload exactly as in `docs/STREAM.md`. After each state, a text
@@ -273,6 +276,10 @@ fn serve(mut s: TcpStream, sh: &Shared) {
             };
             let _ = respond(s, "200 OK", "application/json", body.as_bytes());
         }
+        "/snapshot" => {
+            let body = snapshot(sh);
+            let _ = respond(s, "200 OK", "application/octet-stream", &body);
+        }
         "/ws" => match header("Sec-WebSocket-Key") {
             Some(key) if header("Upgrade").is_some_and(|u| u.eq_ignore_ascii_case("websocket")) => {
                 let accept = tungstenite::handshake::derive_accept_key(key.as_bytes());
@@ -295,6 +302,25 @@ fn serve(mut s: TcpStream, sh: &Shared) {
             let _ = respond(s, "404 Not Found", "text/plain", b"not found\n");
         }
     }
+}
+
+/// The latest topology and state messages, each behind its u32 length
+/// (waits up to 5 s for both to exist; empty if they do not), so a page
+/// draws at once on load, before its WebSocket delivers anything.
+fn snapshot(sh: &Shared) -> Vec<u8> {
+    let l = sh.lock();
+    let (l, _) = sh
+        .changed
+        .wait_timeout_while(l, Duration::from_secs(5), |l| l.topology.is_none() || l.state.is_none())
+        .unwrap_or_else(|e| e.into_inner());
+    let mut out = Vec::new();
+    if let (Some(t), Some(s)) = (&l.topology, &l.state) {
+        for m in [t, s] {
+            out.extend_from_slice(&(m.len() as u32).to_le_bytes());
+            out.extend_from_slice(m);
+        }
+    }
+    out
 }
 
 /// Sends the latest topology and state to one client until it goes away.
