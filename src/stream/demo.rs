@@ -92,7 +92,7 @@ impl Dent {
 }
 
 /// Publishes `frames` dent frames, `1 / cfg.rate_hz` apart in simulation time
-/// but as fast as possible in wall time, through a [`Publisher`] with
+/// but as fast as possible in wall time, through a [`super::Publisher`] with
 /// `record` (for tests and examples: a recording without waiting).
 pub fn publish_frames(
     mesh: &TetMesh,

@@ -5,7 +5,7 @@
 //!
 //! - [`decimate`] builds the stream's [`Topology`] from a [`TetMesh`]'s
 //!   surface (vertex clustering).
-//! - [`format`] encodes messages into datagrams and [`format::Decoder`]
+//! - [`format`](mod@format) encodes messages into datagrams and [`format::Decoder`]
 //!   reassembles and validates them (never panics, counts every rejection).
 //! - [`publisher::Publisher`] sends frames from a non-RT thread (non-blocking
 //!   UDP, optional recording); [`record`] reads recordings, replays them and
