@@ -41,3 +41,4 @@ pub mod scene;
 pub mod service;
 pub mod simulate;
 pub mod solver;
+pub mod stream;

@@ -13,6 +13,7 @@ static ALLOCATOR: nvtmm::rt::alloc::RtAllocator = nvtmm::rt::alloc::RtAllocator;
 mod cli_mesh;
 mod cli_run;
 mod cli_sim;
+mod cli_stream;
 
 #[derive(Parser)]
 #[command(
@@ -73,6 +74,12 @@ enum Command {
     /// Reproduce the paper's experiments.
     #[command(subcommand)]
     Experiment(ExperimentCmd),
+    /// Replay a stream recording to UDP, or export it for ParaView (--vtu DIR).
+    Replay(cli_stream::ReplayArgs),
+    /// Serve the stream viewer (a web page on localhost) fed by the UDP stream.
+    View(cli_stream::ViewArgs),
+    /// Publish a synthetic stream (a dent pressed into the arch) for trying the viewer.
+    StreamDemo(cli_stream::DemoArgs),
 }
 
 #[derive(Subcommand)]
@@ -265,6 +272,9 @@ fn main() -> ExitCode {
             ExperimentCmd::Table { out, quick } => cli_sim::experiment_table(&out, quick),
             ExperimentCmd::Trade { out, quick } => cli_sim::experiment_trade(&out, quick),
         },
+        Command::Replay(a) => cli_stream::replay(a),
+        Command::View(a) => cli_stream::view(a),
+        Command::StreamDemo(a) => cli_stream::demo(a),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,
