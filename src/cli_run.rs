@@ -7,11 +7,18 @@ use std::path::{Path, PathBuf};
 
 type Result<T> = std::result::Result<T, Box<dyn std::error::Error>>;
 
-pub fn run(config: &Path, seconds: Option<f64>, report_json: Option<&Path>, quiet: bool) -> Result<()> {
+pub fn run(
+    config: &Path,
+    seconds: Option<f64>,
+    report_json: Option<&Path>,
+    record: Option<PathBuf>,
+    quiet: bool,
+) -> Result<()> {
     let opts = RunOptions {
         config: config.to_path_buf(),
         seconds,
         progress: !quiet,
+        record,
     };
     let report = run_service(&opts)?;
     print!("{}", report.render());

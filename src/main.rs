@@ -40,6 +40,9 @@ enum Command {
         /// Also write the report as JSON here.
         #[arg(long)]
         report_json: Option<PathBuf>,
+        /// Record the state stream to this file (replay with `nvtmm replay`).
+        #[arg(long)]
+        record: Option<PathBuf>,
         /// No progress bar.
         #[arg(long)]
         quiet: bool,
@@ -226,8 +229,9 @@ fn main() -> ExitCode {
             config,
             seconds,
             report_json,
+            record,
             quiet,
-        } => cli_run::run(&config, seconds, report_json.as_deref(), quiet),
+        } => cli_run::run(&config, seconds, report_json.as_deref(), record, quiet),
         Command::CheckRt { config, json } => cli_run::check_rt(config.as_ref(), json),
         Command::Mesh(cmd) => match cmd {
             MeshCmd::Arch { nodes, out } => cli_mesh::arch(nodes, &out),

@@ -45,6 +45,9 @@ pub struct ServiceConfig {
     /// The passivity QP (its `dt_s` is set from `loop.rate_hz`).
     #[serde(default)]
     pub passivity: crate::haptics::passivity::PassivityParams,
+    /// The coarse state stream (docs/STREAM.md).
+    #[serde(default)]
+    pub stream: crate::stream::StreamConfig,
     /// The file this was read from (for messages and relative paths).
     #[serde(skip)]
     pub path: PathBuf,
@@ -320,6 +323,7 @@ impl ServiceConfig {
         let mut qp = self.passivity.clone();
         qp.dt_s = 1.0 / l.rate_hz;
         qp.validate(&c, "passivity")?;
+        self.stream.validate(&c, "stream")?;
         Ok(())
     }
 }

@@ -69,6 +69,8 @@ pub struct RunOptions {
     pub seconds: Option<f64>,
     /// Print progress to stderr.
     pub progress: bool,
+    /// Record the state stream to this file (also when `[stream]` is off).
+    pub record: Option<PathBuf>,
 }
 
 /// A force command (loop → device I/O).
@@ -95,9 +97,8 @@ pub struct StateSnapshot<const R: usize> {
     pub force: Vec3,
     /// Status bits.
     pub flags: u32,
-    /// p99 of the tick compute so far is not known on the loop without
-    /// sorting; this is the last tick's compute time (µs).
-    pub tick_us: f32,
+    /// Largest tick compute time since the previous snapshot (µs).
+    pub tick_max_us: f32,
 }
 
 /// The scripted press for the simulated device: approach a wall point along
@@ -285,6 +286,7 @@ fn loop_thread<const R: usize>(
     let mut last_pose_time: Nanos = 0;
     let dt = period as f64 * 1e-9;
     let mut tick: u64 = 0;
+    let mut window_max_us = 0.0f64;
     let mut contact_msg = ContactMsg {
         tick: 0,
         nodes: heapless::Vec::new(),
@@ -368,6 +370,7 @@ fn loop_thread<const R: usize>(
         let end = clock::now_ns();
         let compute = end - wake;
         res.compute.record(compute as f64 * 1e-3);
+        window_max_us = window_max_us.max(compute as f64 * 1e-3);
         if let Some(tx) = io.state.as_mut() {
             if tick % plan.state_every == 0 {
                 let snap = StateSnapshot {
@@ -377,8 +380,9 @@ fn loop_thread<const R: usize>(
                     tool: out.tool,
                     force,
                     flags: fl,
-                    tick_us: (compute as f64 * 1e-3) as f32,
+                    tick_max_us: window_max_us as f32,
                 };
+                window_max_us = 0.0;
                 if tx.push(snap).is_err() {
                     res.state_ring_full += 1;
                 }
@@ -474,6 +478,122 @@ fn device_thread(
     (res, dev)
 }
 
+/// What the publisher thread needs.
+struct PublisherPlan<const R: usize> {
+    publisher: crate::stream::Publisher,
+    rows: crate::reduced::BasisRows<R>,
+    state: rtrb::Consumer<StateSnapshot<R>>,
+    offsets: rtrb::Consumer<(u64, Arc<Vec<Vec3>>)>,
+    first_offset: Arc<Vec<Vec3>>,
+    tool_radius: f64,
+    simulated: bool,
+    stop: Arc<AtomicBool>,
+}
+
+/// The stream publisher (normal priority): turns loop snapshots into stream
+/// frames, x = X + ū + Φ δq at the stream's vertices, and publishes them.
+/// Never blocks the loop (it only pops rings).
+fn publisher_thread<const R: usize>(mut p: PublisherPlan<R>) -> (u64, u64, Option<String>) {
+    use crate::stream::{flags as sf, StateFrame};
+    let topo = p.publisher.topology().clone();
+    let mut positions = vec![[0f32; 3]; topo.node_ids.len()];
+    let mut offsets: std::collections::VecDeque<(u64, Arc<Vec<Vec3>>)> = std::collections::VecDeque::new();
+    offsets.push_back((0, p.first_offset.clone()));
+    let mut last_epoch = 0;
+    let mut refreshed_at = f64::NEG_INFINITY;
+    let mut times: std::collections::VecDeque<f64> = std::collections::VecDeque::new();
+    let mut maxes: std::collections::VecDeque<f32> = std::collections::VecDeque::new();
+    let mut errors = 0u64;
+    let mut first_error = None;
+    while !p.stop.load(Ordering::Relaxed) {
+        while let Ok(o) = p.offsets.pop() {
+            offsets.push_back(o);
+            while offsets.len() > 8 {
+                offsets.pop_front();
+            }
+        }
+        let mut snap = None;
+        while let Ok(s) = p.state.pop() {
+            times.push_back(s.time_s);
+            maxes.push_back(s.tick_max_us);
+            snap = Some(s);
+        }
+        let Some(s) = snap else {
+            std::thread::sleep(std::time::Duration::from_millis(2));
+            continue;
+        };
+        while times.len() > 61 {
+            times.pop_front();
+            maxes.pop_front();
+        }
+        let offset = offsets
+            .iter()
+            .rev()
+            .find(|(e, _)| *e == s.epoch)
+            .or_else(|| offsets.back())
+            .map(|(_, o)| o.clone());
+        for (k, &node) in topo.node_ids.iter().enumerate() {
+            let i = node as usize;
+            let rest = Vec3::from(topo.rest_positions[k].map(f64::from));
+            let ubar = offset.as_ref().and_then(|o| o.get(i).copied()).unwrap_or_else(Vec3::zeros);
+            let d = p.rows.get(i).map(|row| row * s.q).unwrap_or_else(Vec3::zeros);
+            let x = rest + ubar + d;
+            positions[k] = [x.x as f32, x.y as f32, x.z as f32];
+        }
+        if s.epoch != last_epoch {
+            last_epoch = s.epoch;
+            refreshed_at = s.time_s;
+        }
+        let mut fl = 0;
+        for (a, b) in [
+            (flags::WATCHDOG, sf::WATCHDOG_ACTIVE),
+            (flags::CONTACT, sf::IN_CONTACT),
+            (flags::LIMITED, sf::FORCE_LIMITED),
+            (flags::RT_GRANTED, sf::RT_GRANTED),
+        ] {
+            if s.flags & a != 0 {
+                fl |= b;
+            }
+        }
+        if s.time_s - refreshed_at < 0.5 {
+            fl |= sf::MODEL_REFRESHED;
+        }
+        if p.simulated {
+            fl |= sf::DEVICE_SIMULATED;
+        }
+        let rate = match (times.front(), times.back()) {
+            (Some(a), Some(b)) if b > a => {
+                // Snapshots come every `state_every` ticks.
+                (times.len() - 1) as f64 / (b - a) * (1e3 / 60.0f64).floor()
+            }
+            _ => 0.0,
+        };
+        let p99 = maxes.iter().copied().fold(0.0f32, f32::max);
+        let frame = StateFrame {
+            time_s: s.time_s,
+            positions: &positions,
+            tool_position: [s.tool.x as f32, s.tool.y as f32, s.tool.z as f32],
+            tool_radius: p.tool_radius as f32,
+            force: [s.force.x as f32, s.force.y as f32, s.force.z as f32],
+            flags: fl,
+            loop_rate_hz: rate as f32,
+            tick_p99_us: p99,
+        };
+        if let Err(e) = p.publisher.publish(&frame) {
+            errors += 1;
+            first_error.get_or_insert_with(|| e.to_string());
+        }
+    }
+    let frames = p.publisher.stats().frames;
+    match p.publisher.finish() {
+        Ok(_) => {}
+        Err(e) => {
+            first_error.get_or_insert_with(|| e.to_string());
+        }
+    }
+    (frames, errors, first_error)
+}
+
 /// Everything built before the threads start (shared by all capacities).
 pub struct Prepared {
     /// The configuration.
@@ -502,6 +622,8 @@ pub struct Prepared {
     pub passivity: PassivityParams,
     /// The loop runs this long (s).
     pub seconds: f64,
+    /// Record the stream here.
+    pub record: Option<PathBuf>,
 }
 
 /// Loads the configuration and the scene, computes (or loads) the basis and
@@ -573,6 +695,7 @@ pub fn prepare(opts: &RunOptions) -> Result<Prepared, ServiceError> {
         device,
         passivity,
         seconds,
+        record: opts.record.clone(),
         scene,
         cfg,
     })
@@ -670,6 +793,7 @@ fn run_with<const R: usize>(p: Prepared, progress: bool) -> Result<Report, Servi
         passivity,
         seconds,
         scene,
+        record,
         ..
     } = p;
     let n = mesh.num_nodes();
@@ -704,6 +828,10 @@ fn run_with<const R: usize>(p: Prepared, progress: bool) -> Result<Report, Servi
     let (ret_tx, ret_rx) = rtrb::RingBuffer::<Box<LoopModel<R>>>::new(rings.returned);
     let stop = Arc::new(AtomicBool::new(false));
     let ticks = Arc::new(AtomicU64::new(0));
+    let stream_on = cfg.stream.enabled || record.is_some();
+    let (state_tx, state_rx) = rtrb::RingBuffer::<StateSnapshot<R>>::new(rings.state);
+    let (offset_tx, offset_rx) = rtrb::RingBuffer::<(u64, Arc<Vec<Vec3>>)>::new(16);
+    let state_every = ((cfg.servo.rate_hz / cfg.stream.rate_hz).round() as u64).max(1);
 
     let memory_locked = cfg.servo.lock_memory && lock_memory().is_ok();
     let mut refusals = Vec::new();
@@ -739,7 +867,7 @@ fn run_with<const R: usize>(p: Prepared, progress: bool) -> Result<Report, Servi
             contact: contact_rx,
             models: model_tx,
             returned: ret_rx,
-            offsets: None,
+            offsets: stream_on.then_some(offset_tx),
             stop: stop.clone(),
             loop_ticks: ticks.clone(),
         };
@@ -761,7 +889,36 @@ fn run_with<const R: usize>(p: Prepared, progress: bool) -> Result<Report, Servi
                 .map_err(|e| ServiceError::Thread("background", e.to_string()))?,
         )
     } else {
-        drop((contact_rx, model_tx, ret_rx, model, refresher));
+        drop((contact_rx, model_tx, ret_rx, model, refresher, offset_tx));
+        None
+    };
+
+    // Stream publisher.
+    let pub_handle = if stream_on {
+        let topology = crate::stream::decimate::surface(&mesh, cfg.stream.decimate_vertices);
+        let mut scfg = cfg.stream.clone();
+        // Recording without a live stream: send nowhere but the file.
+        scfg.enabled = cfg.stream.enabled;
+        let publisher = crate::stream::Publisher::new(scfg, topology, record.as_deref())
+            .map_err(|e| ServiceError::Device(format!("stream: {e}")))?;
+        let plan = PublisherPlan::<R> {
+            publisher,
+            rows: rows.clone(),
+            state: state_rx,
+            offsets: offset_rx,
+            first_offset: first.offset.clone(),
+            tool_radius: cfg.contact.tool_radius_m,
+            simulated: cfg.device.backend == Backend::TouchxSim,
+            stop: stop.clone(),
+        };
+        Some(
+            std::thread::Builder::new()
+                .name("nvtmm-stream".into())
+                .spawn(move || publisher_thread::<R>(plan))
+                .map_err(|e| ServiceError::Thread("stream", e.to_string()))?,
+        )
+    } else {
+        drop(state_rx);
         None
     };
 
@@ -801,7 +958,7 @@ fn run_with<const R: usize>(p: Prepared, progress: bool) -> Result<Report, Servi
         contact: contact_tx,
         models: model_rx,
         returned: ret_tx,
-        state: None,
+        state: stream_on.then_some(state_tx),
         stop: stop.clone(),
         ticks: ticks.clone(),
     };
@@ -816,7 +973,7 @@ fn run_with<const R: usize>(p: Prepared, progress: bool) -> Result<Report, Servi
         loop_start,
         baseline_s: cfg.servo.baseline_s,
         pool_bytes,
-        state_every: 1000 / 60,
+        state_every,
     };
     let loop_handle = std::thread::Builder::new()
         .name("nvtmm-haptic".into())
@@ -860,6 +1017,13 @@ fn run_with<const R: usize>(p: Prepared, progress: bool) -> Result<Report, Servi
         Some(h) => Some(h.join().map_err(|_| ServiceError::Thread("background", "panicked".into()))?),
         None => None,
     };
+    let (stream_frames, stream_errors, stream_error) = match pub_handle {
+        Some(h) => h.join().map_err(|_| ServiceError::Thread("stream", "panicked".into()))?,
+        None => (0, 0, None),
+    };
+    if let Some(e) = &stream_error {
+        refusals.push(format!("stream: {stream_errors} publish errors, first: {e}"));
+    }
     if memory_locked {
         crate::rt::thread::unlock_memory();
     }
@@ -944,7 +1108,7 @@ fn run_with<const R: usize>(p: Prepared, progress: bool) -> Result<Report, Servi
         device_ticks: dr.ticks,
         device_errors: dr.errors,
         max_depth_m: lr.max_depth,
-        stream_frames: 0,
+        stream_frames,
     })
 }
 
