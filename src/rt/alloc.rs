@@ -683,7 +683,7 @@ mod tests {
         assert!(again.iter().all(|&p| pool.contains(p as *mut u8)));
         let s = pool.stats();
         assert_eq!(s.exhausted_fallbacks, 1, "{s:?}");
-        assert_eq!(s.pool_frees, ptrs.len() as u64 + 0, "{s:?}");
+        assert_eq!(s.pool_frees, ptrs.len() as u64, "{s:?}");
         assert_eq!(s.pool_high_water_bytes, ptrs.len() * 1000);
         for p in again {
             // SAFETY: pool blocks allocated with `l`.
