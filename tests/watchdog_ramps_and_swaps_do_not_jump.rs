@@ -105,6 +105,7 @@ fn servo(p: &Plate) -> Servo<R> {
         overrun_streak: 5,
         ramp_down_s: 10e-3,
         ramp_in_s: 0.05,
+        swap_blend_s: 0.02,
     };
     Servo::new(m, index, params, 0.0)
 }
@@ -256,24 +257,39 @@ fn a_refreshed_model_swaps_in_mid_contact_without_a_force_jump() {
         rows,
         dynamics: dynamics(),
         last_sent: (s.model().offset.clone(), nalgebra::SVector::zeros(), 0),
+        dt_max: 0.05,
     };
     let m: Box<LoopModel<R>> = bg.build_model(&state.u, &fbar, 1).unwrap();
     let ubar_max = state.u.iter().map(|u| u.norm()).fold(0.0, f64::max);
     assert!(ubar_max > 2e-4, "the full solve moved: {ubar_max}");
-    let old = s.swap(m);
-    assert_eq!(old.epoch, 0);
+    let old = s.swap(m).map(|o| o.epoch);
+    assert_eq!(old, None, "the old model fades out first");
+    assert!(s.is_blending());
     assert_eq!(s.model().epoch, 1);
-    seq += 1;
-    t += DT;
-    let f_after = tick(&mut s, Some(&sample(pos, seq, t)), t).0;
-    let jump = (f_after - f_before).norm();
+    // Over the cross-fade and after it, no tick changes the force by more
+    // than 5 % of the contact force.
+    let mut prev = f_before;
+    let mut worst: f64 = 0.0;
+    let mut retired = None;
+    for _ in 0..60 {
+        seq += 1;
+        t += DT;
+        let f = tick(&mut s, Some(&sample(pos, seq, t)), t).0;
+        worst = worst.max((f - prev).norm());
+        prev = f;
+        if let Some(r) = s.take_retired() {
+            retired = Some(r.epoch);
+        }
+    }
     eprintln!(
-        "force before {:.5} N, after {:.5} N, jump {:.2e} N ({:.2} %)",
+        "force before {:.5} N, after the blend {:.5} N, largest change per tick {:.2e} N ({:.2} %)",
         f_before.norm(),
-        f_after.norm(),
-        jump,
-        100.0 * jump / f_before.norm()
+        prev.norm(),
+        worst,
+        100.0 * worst / f_before.norm()
     );
+    assert_eq!(retired, Some(0), "the old model is handed back after the blend");
+    assert!(!s.is_blending());
     assert!(f_before.norm() > 1e-3);
-    assert!(jump <= 0.05 * f_before.norm(), "jump {jump} vs {}", f_before.norm());
+    assert!(worst <= 0.05 * f_before.norm(), "step {worst} vs {}", f_before.norm());
 }

@@ -55,6 +55,9 @@ pub struct ServoParams {
     pub ramp_down_s: f64,
     /// Zero-to-full ramp time at start and after a fault (s).
     pub ramp_in_s: f64,
+    /// Cross-fade time of a model swap (s): both models run and the output
+    /// force blends from the old to the new one over this time (0: switch).
+    pub swap_blend_s: f64,
 }
 
 /// Status bits of a tick (also the stream's flags).
@@ -115,6 +118,44 @@ pub struct TickOutput {
     pub depth: f64,
 }
 
+/// Contact of the tool against `m`'s deformed surface.
+fn eval_contact<const R: usize>(
+    m: &LoopModel<R>,
+    index: &SurfaceIndex,
+    params: &ContactParams,
+    tool: &Vec3,
+    scratch: &mut Candidates,
+    out: &mut ContactOutput<R>,
+) {
+    let dynamics = &m.dynamics;
+    let offset = &m.offset;
+    contact::evaluate(
+        index,
+        params,
+        tool,
+        |i| {
+            let base = index.rest(i) + offset.get(i as usize).copied().unwrap_or_else(Vec3::zeros);
+            base + dynamics.displacement_at(i).unwrap_or_else(Vec3::zeros)
+        },
+        |i| dynamics.rows_at(i).copied(),
+        scratch,
+        out,
+    );
+}
+
+/// Steps `m` under its contact; returns the tool force and whether all was
+/// finite.
+fn step_model<const R: usize>(m: &mut LoopModel<R>, c: &ContactOutput<R>, counters: &mut ServoCounters) -> (Vec3, bool) {
+    let f = c.reduced_force - m.f_bar;
+    let desired = c.tool_force;
+    let finite = desired.iter().all(|v| v.is_finite()) && f.iter().all(|v| v.is_finite());
+    if finite && !m.dynamics.step_with_contact(&f, &c.reduced_stiffness) {
+        counters.contact_stiffness_dropped += 1;
+    }
+    let state_ok = m.dynamics.q().iter().all(|v| v.is_finite()) && m.dynamics.qd().iter().all(|v| v.is_finite());
+    (if finite { desired } else { Vec3::zeros() }, finite && state_ok)
+}
+
 /// The loop state.
 pub struct Servo<const R: usize> {
     model: Box<LoopModel<R>>,
@@ -129,7 +170,14 @@ pub struct Servo<const R: usize> {
     tool: Vec3,
     now_s: f64,
     fault_until_s: f64,
+    fading: Option<Box<LoopModel<R>>>,
+    fade_contact: ContactOutput<R>,
+    blend: f64,
+    retired: Option<Box<LoopModel<R>>>,
 }
+
+/// Most loaded touched nodes whose displacement a model swap keeps exactly.
+pub const SWAP_MATCH_NODES: usize = 8;
 
 /// How long a fault keeps the force down after its last tick, beyond the
 /// ramp-down time (s): a single bad sample still takes the force to zero
@@ -152,24 +200,133 @@ impl<const R: usize> Servo<R> {
             tool: Vec3::zeros(),
             now_s,
             fault_until_s: f64::NEG_INFINITY,
+            fading: None,
+            fade_contact: ContactOutput::default(),
+            blend: 1.0,
+            retired: None,
         }
     }
 
     /// Swaps in a new model, carrying the state over by its transfer
-    /// (δq ← T δq + s, δq̇ ← T δq̇), and returns the old one (to be sent
+    /// (δq ← T δq + s, δq̇ ← T δq̇: the M-orthogonal projection of the
+    /// displacement), then corrects δq by the smallest change that makes the
+    /// displacement of the (up to [`SWAP_MATCH_NODES`], at most r/3) most
+    /// loaded touched nodes exactly what it was, so the contact force does not jump where
+    /// ū has a part outside the basis. Returns the old model (to be sent
     /// back for freeing off this thread). A transferred state that is not
-    /// finite resets the reduced state.
-    pub fn swap(&mut self, mut new: Box<LoopModel<R>>) -> Box<LoopModel<R>> {
+    /// finite resets the reduced state. Allocates nothing.
+    ///
+    /// With a cross-fade time the old model keeps running and the output
+    /// blends to the new one; it is then handed out by
+    /// [`Servo::take_retired`]. The returned model is the one that was
+    /// still fading from a previous swap (None if there was none), or,
+    /// without a cross-fade, the model just replaced.
+    pub fn swap(&mut self, new: Box<LoopModel<R>>) -> Option<Box<LoopModel<R>>> {
+        let old = self.swap_in(new);
+        if self.params.swap_blend_s > 0.0 {
+            let previous = self.fading.replace(old);
+            self.blend = 0.0;
+            previous
+        } else {
+            Some(old)
+        }
+    }
+
+    /// A model whose cross-fade has finished, to be sent back for freeing.
+    pub fn take_retired(&mut self) -> Option<Box<LoopModel<R>>> {
+        self.retired.take()
+    }
+
+    /// Gives back a model [`Servo::take_retired`] handed out that could not
+    /// be sent yet (it is handed out again next time).
+    pub fn keep_retired(&mut self, m: Box<LoopModel<R>>) {
+        self.retired = Some(m);
+    }
+
+    /// Whether a cross-fade is running.
+    pub fn is_blending(&self) -> bool {
+        self.fading.is_some()
+    }
+
+    fn swap_in(&mut self, mut new: Box<LoopModel<R>>) -> Box<LoopModel<R>> {
         let q = new.transfer * self.model.dynamics.q() + new.shift;
         let qd = new.transfer * self.model.dynamics.qd();
         if q.iter().chain(qd.iter()).all(|v| v.is_finite()) {
-            new.dynamics.set_state(&q, &qd);
+            let dq = self.contact_match(&new, &q);
+            new.dynamics.set_state(&(q + dq), &qd);
         } else {
             new.dynamics.reset();
             self.counters.nonfinite += 1;
         }
         self.counters.model_swaps += 1;
         std::mem::replace(&mut self.model, new)
+    }
+
+    /// The minimum-norm Δ with Φᵢ(q + Δ) + ū_new,i = u_old,i at the most
+    /// loaded touched nodes (regularized, so nodes the basis cannot move
+    /// are matched as well as it can).
+    fn contact_match(&self, new: &LoopModel<R>, q: &SVector<f64, R>) -> SVector<f64, R> {
+        const M: usize = SWAP_MATCH_NODES;
+        // The most loaded touched nodes, no more than the basis can match.
+        let slots = M.min(R / 3);
+        let mut pick: [(f64, u32); M] = [(f64::NEG_INFINITY, 0); M];
+        for c in self.contact.nodes.iter() {
+            let node = c.node;
+            let f = c.force.norm();
+            let (k, min) = pick[..slots]
+                .iter()
+                .enumerate()
+                .min_by(|a, b| a.1 .0.total_cmp(&b.1 .0))
+                .map(|(k, v)| (k, v.0))
+                .unwrap_or((0, 0.0));
+            if f > min {
+                pick[k] = (f, node);
+            }
+        }
+        let mut a = SMatrix::<f64, { 3 * SWAP_MATCH_NODES }, R>::zeros();
+        let mut e = SVector::<f64, { 3 * SWAP_MATCH_NODES }>::zeros();
+        let mut any = false;
+        for (k, &(f, node)) in pick.iter().enumerate() {
+            if f == f64::NEG_INFINITY {
+                continue;
+            }
+            let i = node as usize;
+            let (Some(rows_new), Some(rows_old)) = (new.dynamics.rows_at(node), self.model.dynamics.rows_at(node))
+            else {
+                continue;
+            };
+            let old = self.model.offset.get(i).copied().unwrap_or_else(Vec3::zeros) + rows_old * self.model.dynamics.q();
+            let now = new.offset.get(i).copied().unwrap_or_else(Vec3::zeros) + rows_new * q;
+            let d = old - now;
+            for c in 0..3 {
+                e[3 * k + c] = d[c];
+                for j in 0..R {
+                    a[(3 * k + c, j)] = rows_new[(c, j)];
+                }
+            }
+            any = true;
+        }
+        if !any {
+            return SVector::zeros();
+        }
+        let mut g = a * a.transpose();
+        let scale = g.trace() / (3 * M) as f64;
+        let eps = 1e-8 * scale.max(f64::MIN_POSITIVE);
+        for k in 0..3 * M {
+            g[(k, k)] += eps;
+        }
+        match g.cholesky() {
+            Some(ch) => {
+                let y = ch.solve(&e);
+                let dq = a.transpose() * y;
+                if dq.iter().all(|v| v.is_finite()) {
+                    dq
+                } else {
+                    SVector::zeros()
+                }
+            }
+            None => SVector::zeros(),
+        }
     }
 
     /// The model in use.
@@ -236,24 +393,7 @@ impl<const R: usize> Servo<R> {
 
         // Contact against the surface as the current state deforms it.
         let tool = self.tool;
-        {
-            let m = &self.model;
-            let index = &self.index;
-            let dynamics = &m.dynamics;
-            let offset = &m.offset;
-            contact::evaluate(
-                index,
-                &p.contact,
-                &tool,
-                |i| {
-                    let base = index.rest(i) + offset.get(i as usize).copied().unwrap_or_else(Vec3::zeros);
-                    base + dynamics.displacement_at(i).unwrap_or_else(Vec3::zeros)
-                },
-                |i| dynamics.rows_at(i).copied(),
-                &mut self.scratch,
-                &mut self.contact,
-            );
-        }
+        eval_contact(&self.model, &self.index, &p.contact, &tool, &mut self.scratch, &mut self.contact);
         if !self.contact.nodes.is_empty() {
             fl |= flags::CONTACT;
             self.counters.contact_ticks += 1;
@@ -262,22 +402,27 @@ impl<const R: usize> Servo<R> {
             fl |= flags::TRUNCATED;
             self.counters.truncated_ticks += 1;
         }
-        let f = self.contact.reduced_force - self.model.f_bar;
-        let desired = self.contact.tool_force;
-        let finite = desired.iter().all(|v| v.is_finite()) && f.iter().all(|v| v.is_finite());
-        if finite {
-            let kc = &self.contact.reduced_stiffness;
-            if !self.model.dynamics.step_with_contact(&f, kc) {
-                self.counters.contact_stiffness_dropped += 1;
+        let (mut desired, mut finite) = step_model(&mut self.model, &self.contact, &mut self.counters);
+        // A cross-fade: the old model runs on and the force blends over.
+        if let Some(old) = self.fading.as_mut() {
+            let mut scratch = Candidates::new();
+            eval_contact(old, &self.index, &p.contact, &tool, &mut scratch, &mut self.fade_contact);
+            let (f_old, ok_old) = step_model(old, &self.fade_contact, &mut self.counters);
+            self.blend = (self.blend + p.dt / p.swap_blend_s.max(p.dt)).min(1.0);
+            desired = f_old * (1.0 - self.blend) + desired * self.blend;
+            finite &= ok_old;
+            if self.blend >= 1.0 {
+                self.retired = self.fading.take();
             }
         }
-        let state_ok = self.model.dynamics.q().iter().all(|v| v.is_finite())
-            && self.model.dynamics.qd().iter().all(|v| v.is_finite());
-        if !finite || !state_ok {
+        if !finite {
             fl |= flags::NONFINITE;
         }
         if fl & flags::NONFINITE != 0 {
             self.model.dynamics.reset();
+            if let Some(old) = self.fading.as_mut() {
+                old.dynamics.reset();
+            }
             self.counters.nonfinite += 1;
         }
         TickOutput {

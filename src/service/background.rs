@@ -46,6 +46,8 @@ pub struct Background<const R: usize> {
     pub dynamics: DynamicsParams,
     /// ū, Φᵀ M ū and the epoch of the last model sent.
     pub last_sent: (Arc<Vec<Vec3>>, SVector<f64, R>, u64),
+    /// Largest background step (s) when following real time.
+    pub dt_max: f64,
 }
 
 /// Statistics of the background thread.
@@ -169,10 +171,17 @@ pub fn run<const R: usize>(mut bg: Background<R>, mut io: BackgroundIo<R>) -> Ba
     let mut last_tick = io.loop_ticks.load(Ordering::Relaxed);
     let mut epoch = bg.last_sent.2;
     let mut pending: Option<Box<LoopModel<R>>> = None;
-    let dt = bg.solver.params().dt;
+    let dt_min = bg.solver.params().dt;
     let t_start = clock::now_ns();
+    let mut last_t0 = t_start;
+    let mut sim = 0.0;
     while !io.stop.load(Ordering::Relaxed) {
         let t0 = clock::now_ns();
+        // Follow real time: the step covers the wall time since the last
+        // one, between dt_min and dt_max (implicit Euler is stable for any).
+        let dt = ((t0 - last_t0) as f64 * 1e-9).clamp(dt_min, bg.dt_max.max(dt_min));
+        last_t0 = t0;
+        bg.solver.set_dt(dt);
         // Average the loop's contact forces since the last step.
         while let Ok(msg) = io.contact.pop() {
             stats.contact_msgs += 1;
@@ -210,6 +219,9 @@ pub fn run<const R: usize>(mut bg: Background<R>, mut io: BackgroundIo<R>) -> Ba
         };
         let rep = bg.solver.step(&mut state, bg.model.as_mut(), &loads, &bg.fixed);
         stats.steps += 1;
+        if rep.ok() {
+            sim += dt;
+        }
         if !rep.ok() {
             stats.failed_steps += 1;
         }
@@ -253,12 +265,11 @@ pub fn run<const R: usize>(mut bg: Background<R>, mut io: BackgroundIo<R>) -> Ba
         }
         // Never run ahead of real time.
         let wall = (clock::now_ns() - t_start) as f64 * 1e-9;
-        let sim = stats.steps as f64 * dt;
         if sim > wall {
             clock::sleep_until(t_start + (sim * 1e9) as i64);
         }
     }
-    stats.sim_time_s = stats.steps as f64 * dt;
+    stats.sim_time_s = sim;
     stats.wall_s = (clock::now_ns() - t_start) as f64 * 1e-9;
     stats.max_displacement_m = state.u.iter().map(|u| u.norm()).fold(0.0, f64::max);
     stats

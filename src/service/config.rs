@@ -74,6 +74,9 @@ pub struct LoopConfig {
     /// Seconds of a bare absolute-deadline sleep loop, on the loop's thread
     /// and CPU, before the loop starts (the jitter baseline).
     pub baseline_s: f64,
+    /// Cross-fade of a model swap (ms): the old and the new model both run
+    /// and the force blends over; 0 switches at once.
+    pub swap_blend_ms: f64,
 }
 
 impl Default for LoopConfig {
@@ -85,6 +88,7 @@ impl Default for LoopConfig {
             stack_kib: 1024,
             lock_memory: true,
             baseline_s: 2.0,
+            swap_blend_ms: 20.0,
         }
     }
 }
@@ -198,9 +202,12 @@ impl Default for WatchdogConfig {
 #[derive(Debug, Clone, Copy, PartialEq, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct BackgroundConfig {
-    /// Time step of the full solve (s); the solve never runs ahead of real
-    /// time (it sleeps when faster).
+    /// Smallest time step of the full solve (s). Each step covers the wall
+    /// time since the previous one, clamped to [dt, dt_max], so the full
+    /// solve follows real time; it never runs ahead (it sleeps).
     pub dt: f64,
+    /// Largest time step of the full solve (s).
+    pub dt_max: f64,
     /// Run the full solve and refresh the reduced model (false: the loop
     /// keeps the model linearized at rest, a linear reduced model).
     pub enabled: bool,
@@ -212,6 +219,7 @@ impl Default for BackgroundConfig {
     fn default() -> Self {
         BackgroundConfig {
             dt: 0.01,
+            dt_max: 0.05,
             enabled: true,
             cpu: -1,
         }
@@ -286,6 +294,7 @@ impl ServiceConfig {
         c.int_in("loop.cpu", l.cpu, -1, 1023)?;
         c.int_in("loop.stack_kib", l.stack_kib, 256, 65_536)?;
         c.f64_in("loop.baseline_s", l.baseline_s, 0.0, 60.0, "s")?;
+        c.f64_in("loop.swap_blend_ms", l.swap_blend_ms, 0.0, 1000.0, "ms")?;
         let d = &self.device;
         c.f64_in("device.rate_hz", d.rate_hz, 100.0, 10_000.0, "Hz")?;
         c.int_in("device.priority", d.priority, 0, 99)?;
@@ -312,6 +321,7 @@ impl ServiceConfig {
         c.f64_in("watchdog.ramp_in_s", w.ramp_in_s, 0.0, 10.0, "s")?;
         let b = &self.background;
         c.f64_in("background.dt", b.dt, 1e-4, 0.1, "s")?;
+        c.f64_in("background.dt_max", b.dt_max, b.dt, 1.0, "s (at least background.dt)")?;
         c.int_in("background.cpu", b.cpu, -1, 1023)?;
         let r = &self.rings;
         c.int_in("rings.pose", r.pose, 2, 65_536)?;

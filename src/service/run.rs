@@ -246,6 +246,8 @@ fn loop_thread<const R: usize>(
     let grant = setup_current(&plan.request);
     let pool = crate::rt::alloc::enter_rt(plan.pool_bytes);
     let allocator_installed = pool.map(|p| p.installed).unwrap_or(false);
+    // Whatever clarabel sizes or frees on its first solve happens now.
+    filter.prime();
     let mut res = LoopResult {
         jitter: Histogram::new(),
         compute: Histogram::new(),
@@ -287,6 +289,8 @@ fn loop_thread<const R: usize>(
     let dt = period as f64 * 1e-9;
     let mut tick: u64 = 0;
     let mut window_max_us = 0.0f64;
+    // A retired model the return ring had no room for (kept, never freed here).
+    let mut pending_return: Option<Box<LoopModel<R>>> = None;
     let mut contact_msg = ContactMsg {
         tick: 0,
         nodes: heapless::Vec::new(),
@@ -302,15 +306,15 @@ fn loop_thread<const R: usize>(
             last_pose_time = (s.time_s * 1e9) as Nanos + clock::epoch();
             last = Some(s);
         }
-        // A new model between ticks; only if the old one can be returned.
+        // A new model between ticks; only if the models it retires can be
+        // returned (never freed here).
         if !io.models.is_empty() {
-            if io.returned.slots() > 0 {
+            if pending_return.is_none() && io.returned.slots() >= 2 {
                 if let Ok(m) = io.models.pop() {
-                    let old = servo.swap(m);
-                    // Room was checked; a failure would hand the box back,
-                    // and it is then kept rather than freed here.
-                    if let Err(rtrb::PushError::Full(old)) = io.returned.push(old) {
-                        std::mem::forget(old);
+                    if let Some(old) = servo.swap(m) {
+                        if let Err(rtrb::PushError::Full(old)) = io.returned.push(old) {
+                            pending_return = Some(old);
+                        }
                     }
                 }
             } else {
@@ -366,6 +370,14 @@ fn loop_thread<const R: usize>(
                 res.contact_ring_full += 1;
             }
         }
+        if pending_return.is_none() {
+            pending_return = servo.take_retired();
+        }
+        if let Some(old) = pending_return.take() {
+            if let Err(rtrb::PushError::Full(old)) = io.returned.push(old) {
+                pending_return = Some(old);
+            }
+        }
         io.ticks.store(tick, Ordering::Relaxed);
         let end = clock::now_ns();
         let compute = end - wake;
@@ -404,6 +416,8 @@ fn loop_thread<const R: usize>(
         }
     }
     res.allocations = crate::rt::alloc::thread_system_calls() - sys0;
+    // Off the clock: whatever was not returned is freed with the thread.
+    drop(pending_return);
     res.seconds = (clock::now_ns() - t_begin) as f64 * 1e-9;
     res.counters = *servo.counters();
     res.qp = *filter.stats();
@@ -818,6 +832,7 @@ fn run_with<const R: usize>(p: Prepared, progress: bool) -> Result<Report, Servi
         overrun_streak: w.overrun_streak,
         ramp_down_s: w.ramp_down_ms * 1e-3,
         ramp_in_s: w.ramp_in_s,
+        swap_blend_s: cfg.servo.swap_blend_ms * 1e-3,
     };
     let filter = PassivityFilter::new(&passivity)?;
     let rings = cfg.rings;
@@ -862,6 +877,7 @@ fn run_with<const R: usize>(p: Prepared, progress: bool) -> Result<Report, Servi
             rows: rows.clone(),
             dynamics,
             last_sent: (first.offset.clone(), SVector::zeros(), 0),
+            dt_max: cfg.background.dt_max,
         };
         let bio = BackgroundIo {
             contact: contact_rx,

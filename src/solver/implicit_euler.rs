@@ -458,6 +458,16 @@ impl ImplicitEuler {
         &self.a
     }
 
+    /// Changes the time step for the following steps (the haptic service's
+    /// background solve follows real time). A non-positive or non-finite
+    /// `dt` is ignored. Forces a fresh tangent on the next step.
+    pub fn set_dt(&mut self, dt: f64) {
+        if dt.is_finite() && dt > 0.0 && dt != self.params.dt {
+            self.params.dt = dt;
+            self.tangent_age = None;
+        }
+    }
+
     /// The stiffness K(u) assembled at the last Newton iterate of the last
     /// step (for the linearized step: at the step's start), before the
     /// fixed rows were projected. The background solve of the haptic service
