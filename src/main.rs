@@ -5,6 +5,7 @@ use std::path::PathBuf;
 use std::process::ExitCode;
 
 mod cli_mesh;
+mod cli_reduced;
 mod cli_sim;
 
 #[derive(Parser)]
@@ -40,6 +41,17 @@ enum Command {
     /// Reproduce the paper's experiments.
     #[command(subcommand)]
     Experiment(ExperimentCmd),
+    /// Compute (or load from the cache) a scene's reduced basis (docs/REDUCED.md).
+    Basis {
+        /// Scene file (TOML) with a [reduced] table.
+        scene: PathBuf,
+        /// Basis size (overrides [reduced].r).
+        #[arg(long)]
+        r: Option<usize>,
+        /// Recompute and overwrite the cache file.
+        #[arg(long)]
+        force: bool,
+    },
 }
 
 #[derive(Subcommand)]
@@ -75,6 +87,21 @@ enum ExperimentCmd {
 
 #[derive(Subcommand)]
 enum BenchCmd {
+    /// Time the reduced model: step_with_contact, one refresh, the basis (docs/BENCHMARKS.md).
+    Reduced {
+        /// Basis size (1..=64).
+        #[arg(long)]
+        r: usize,
+        /// Arch size (nodes).
+        #[arg(long, default_value_t = 5832)]
+        nodes: usize,
+        /// Steps to time (after 100 warm-up steps).
+        #[arg(long, default_value_t = 20000)]
+        steps: usize,
+        /// Print JSON.
+        #[arg(long)]
+        json: bool,
+    },
     /// Time full implicit steps on the built-in arch under the standard load.
     Step {
         /// Model: msm, tmm, nvtmm, fem.
@@ -196,7 +223,9 @@ fn main() -> ExitCode {
             } => cli_mesh::render(&input, &out, width, height, azimuth, elevation),
         },
         Command::Simulate { scene, out, quiet } => cli_sim::simulate(&scene, out.as_deref(), quiet),
+        Command::Basis { scene, r, force } => cli_reduced::basis(&scene, r, force),
         Command::Bench(b) => match b {
+            BenchCmd::Reduced { r, nodes, steps, json } => cli_reduced::bench_reduced_cmd(r, nodes, steps, json),
             BenchCmd::Step {
                 model,
                 law,

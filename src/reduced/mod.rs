@@ -10,13 +10,17 @@
 //!   matrices (const-generic capacity), factored once, with a `step` that
 //!   never allocates, for the 1 kHz loop.
 //!
-//! Not here yet: the nonlinear refresh (re-linearizing the full NVTMM and
-//! swapping models between ticks), the background thread, the reduced Prony
-//! terms, cubic reduced-force polynomials and a region of interest.
+//! - [`refresh`]: re-linearizing the full model at the background solve's
+//!   displacement in a fixed basis (K_r = ΦᵀK(ū)Φ) and the state transfer
+//!   the loop applies when it swaps models.
+//!
+//! The background thread and the swap through rings live in the service.
 
 pub mod basis;
 pub mod cache;
 pub mod dynamics;
+pub mod refresh;
 
 pub use basis::{static_split, BasisParams, ModalBasis, ReducedError};
 pub use dynamics::{basis_rows, BasisRows, DynamicsParams, NodeOutOfRange, ReducedDynamics};
+pub use refresh::Refresher;

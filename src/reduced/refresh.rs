@@ -1,0 +1,178 @@
+//! The nonlinear refresh of the reduced model: the background thread's full
+//! NVTMM solve sits at a displacement ū; the haptic loop's linear reduced
+//! model is re-linearized there,
+//!
+//! ```text
+//! u ≈ ū + Φ δq,     δq̈ + D_r δq̇ + K_r(ū) δq = Φᵀ (f_c − f̄_c),     K_r(ū) = Φᵀ K(ū) Φ,
+//! ```
+//!
+//! where f̄_c are the contact forces the full solve was given (its ū already
+//! answers them; the reduced model answers the difference). One refresh costs
+//! one tangent assembly, r block-sparse mat-vecs and a 3n × r × r product.
+//!
+//! When the loop swaps from the previous model (ū₀, Φ₀) to a new one
+//! (ū₁, Φ₁) it carries its state over by the M-orthogonal projection of the
+//! displacement it had, u = ū₀ + Φ₀ δq₀:
+//!
+//! ```text
+//! δq₁ = Φ₁ᵀ M (ū₀ + Φ₀ δq₀ − ū₁) = T δq₀ + s,    T = Φ₁ᵀ M Φ₀,   s = Φ₁ᵀ M (ū₀ − ū₁)
+//! ```
+//!
+//! (T = I for the same basis), so the loop does an r × r mat-vec at the
+//! swap and no per-node work.
+
+use super::basis::ModalBasis;
+use crate::mesh::{TetMesh, Vec3};
+use crate::model::{BlockTangent, ForceModel};
+use nalgebra::{DMatrix, DVector};
+
+/// Re-linearizes a full model in a fixed basis. Holds the scratch so that
+/// repeated refreshes reuse their memory.
+#[derive(Debug, Clone)]
+pub struct Refresher {
+    phi: DMatrix<f64>,
+    mass3: DVector<f64>,
+    tangent: BlockTangent,
+    col: Vec<Vec3>,
+    kcol: Vec<Vec3>,
+    kphi: DMatrix<f64>,
+}
+
+impl Refresher {
+    /// A refresher for `basis` on `mesh` with the lumped `mass` (kg per node;
+    /// missing entries count as zero).
+    pub fn new(mesh: &TetMesh, basis: &ModalBasis, mass: &[f64]) -> Refresher {
+        let n = mesh.num_nodes();
+        let mut mass3 = DVector::zeros(3 * n);
+        for (i, &m) in mass.iter().enumerate().take(n) {
+            for c in 0..3 {
+                mass3[3 * i + c] = m;
+            }
+        }
+        Refresher {
+            phi: basis.phi.clone(),
+            mass3,
+            tangent: BlockTangent::zeros(mesh),
+            col: vec![Vec3::zeros(); n],
+            kcol: vec![Vec3::zeros(); n],
+            kphi: DMatrix::zeros(3 * n, basis.len()),
+        }
+    }
+
+    /// Basis size r.
+    pub fn len(&self) -> usize {
+        self.phi.ncols()
+    }
+
+    /// Whether the basis is empty.
+    pub fn is_empty(&self) -> bool {
+        self.phi.ncols() == 0
+    }
+
+    /// The basis.
+    pub fn phi(&self) -> &DMatrix<f64> {
+        &self.phi
+    }
+
+    /// K_r(u) = Φᵀ K(u) Φ (r × r, symmetrized) of `model` at displacement `u`.
+    pub fn reduced_stiffness(&mut self, model: &dyn ForceModel, u: &[Vec3]) -> DMatrix<f64> {
+        self.tangent.clear();
+        model.add_stiffness(u, &mut self.tangent);
+        let n = self.col.len();
+        for j in 0..self.phi.ncols() {
+            let c = self.phi.column(j);
+            for i in 0..n {
+                self.col[i] = Vec3::new(c[3 * i], c[3 * i + 1], c[3 * i + 2]);
+            }
+            self.tangent.mul(&self.col, &mut self.kcol);
+            let mut out = self.kphi.column_mut(j);
+            for i in 0..n {
+                for k in 0..3 {
+                    out[3 * i + k] = self.kcol[i][k];
+                }
+            }
+        }
+        let kr = self.phi.tr_mul(&self.kphi);
+        (&kr + kr.transpose()) * 0.5
+    }
+
+    /// Φᵀ M u: the reduced coordinates of a displacement field `u`.
+    pub fn project_mass(&self, u: &[Vec3]) -> DVector<f64> {
+        let mut mu = DVector::zeros(self.mass3.len());
+        for (i, ui) in u.iter().enumerate().take(self.mass3.len() / 3) {
+            for c in 0..3 {
+                mu[3 * i + c] = self.mass3[3 * i + c] * ui[c];
+            }
+        }
+        self.phi.tr_mul(&mu)
+    }
+
+    /// Φᵀ f: the generalized force of nodal forces `f`.
+    pub fn project_force(&self, f: &[Vec3]) -> DVector<f64> {
+        let mut v = DVector::zeros(self.mass3.len());
+        for (i, fi) in f.iter().enumerate().take(self.mass3.len() / 3) {
+            for c in 0..3 {
+                v[3 * i + c] = fi[c];
+            }
+        }
+        self.phi.tr_mul(&v)
+    }
+
+    /// T = Φᵀ M Φ_prev, the state transfer from a previous basis (r × r_prev).
+    pub fn transfer_from(&self, prev: &DMatrix<f64>) -> DMatrix<f64> {
+        let mut mp = prev.clone();
+        for mut col in mp.column_iter_mut() {
+            col.component_mul_assign(&self.mass3);
+        }
+        self.phi.tr_mul(&mp)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::material::Material;
+    use crate::mesh::block::block;
+    use crate::model::nvtmm::Nvtmm;
+
+    #[test]
+    fn reduced_stiffness_matches_the_dense_projection_and_the_transfer_is_identity_on_one_basis() {
+        let mesh = block([3, 2, 2], [0.03, 0.02, 0.02]).unwrap();
+        let mat = Material::aorta();
+        let model = Nvtmm::new(&mesh, &mat);
+        let mass = mesh.lumped_mass(mat.density);
+        let fixed = mesh.node_set("x_min").unwrap().to_vec();
+        let u0 = vec![Vec3::zeros(); mesh.num_nodes()];
+        let basis = ModalBasis::compute(&mesh, &model, &u0, &mass, &fixed, 6, None).unwrap();
+        let mut r = Refresher::new(&mesh, &basis, &mass);
+        // At rest K_r = diag(ω²).
+        let k0 = r.reduced_stiffness(&model, &u0);
+        for i in 0..6 {
+            for j in 0..6 {
+                let want = if i == j { basis.omega2[i] } else { 0.0 };
+                assert!((k0[(i, j)] - want).abs() <= 1e-6 * basis.omega2[5], "{i} {j}");
+            }
+        }
+        // At a deformed state it equals Φᵀ K Φ with the dense K.
+        let u: Vec<Vec3> = mesh
+            .rest()
+            .iter()
+            .map(|x| Vec3::new(0.0, 0.0, 0.2 * x.x * x.x / 0.03))
+            .collect();
+        let mut kt = BlockTangent::zeros(&mesh);
+        model.add_stiffness(&u, &mut kt);
+        let dense = basis.phi.transpose() * kt.to_dense() * &basis.phi;
+        let k1 = r.reduced_stiffness(&model, &u);
+        assert!((&k1 - &dense).norm() <= 1e-9 * dense.norm());
+        assert!(
+            (&k1 - &k0).norm() > 1e-3 * k0.norm(),
+            "the linearization must change with u"
+        );
+        let t = r.transfer_from(&basis.phi);
+        assert!((t - DMatrix::<f64>::identity(6, 6)).norm() <= 1e-9);
+        // Projections: Φᵀ M Φ q = q.
+        let q = DVector::from_fn(6, |i, _| (i as f64 + 1.0) * 1e-4);
+        let uq = basis.expand(&q);
+        assert!((r.project_mass(&uq) - &q).norm() <= 1e-12);
+    }
+}
