@@ -64,3 +64,20 @@ pub fn bench_reduced_cmd(r: usize, nodes: usize, steps: usize, json: bool) -> Re
     }
     Ok(())
 }
+
+/// `nvtmm experiment reduced [--out DIR] [--quick]`.
+pub fn experiment_reduced(out: &Path, quick: bool) -> Result<()> {
+    nvtmm::experiment::reduced::run(out, quick)?;
+    let md = out.join("reduced.md");
+    print!(
+        "{}",
+        std::fs::read_to_string(&md).map_err(|e| format!("{}: {e}", md.display()))?
+    );
+    println!(
+        "wrote {}, {}, {}",
+        out.join("reduced.csv").display(),
+        out.join("roi.csv").display(),
+        md.display()
+    );
+    Ok(())
+}

@@ -56,6 +56,15 @@ enum Command {
 
 #[derive(Subcommand)]
 enum ExperimentCmd {
+    /// Reduced vs full contact force and displacement over r, and the region-of-interest trade (docs/RESULTS.md).
+    Reduced {
+        /// Output directory.
+        #[arg(long, default_value = "out/reduced")]
+        out: PathBuf,
+        /// 1458 nodes, r = 8 and 16 only.
+        #[arg(long)]
+        quick: bool,
+    },
     /// Fig. 5: constant force from t = 3 s, TMM vs NVTMM (Prony), 10 s.
     Fig5 {
         /// Output directory.
@@ -250,6 +259,7 @@ fn main() -> ExitCode {
             BenchCmd::Extremes { quick, json } => cli_sim::bench_extremes(quick, json),
         },
         Command::Experiment(e) => match e {
+            ExperimentCmd::Reduced { out, quick } => cli_reduced::experiment_reduced(&out, quick),
             ExperimentCmd::Fig5 { out, quick } => cli_sim::experiment_fig5(&out, quick),
             ExperimentCmd::Table { out, quick } => cli_sim::experiment_table(&out, quick),
             ExperimentCmd::Trade { out, quick } => cli_sim::experiment_trade(&out, quick),
