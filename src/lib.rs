@@ -39,5 +39,7 @@ pub mod model;
 pub mod reduced;
 pub mod rt;
 pub mod scene;
+pub mod service;
 pub mod simulate;
 pub mod solver;
+pub mod stream;

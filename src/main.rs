@@ -4,9 +4,17 @@ use clap::{Parser, Subcommand};
 use std::path::PathBuf;
 use std::process::ExitCode;
 
+/// System allocator for ordinary threads; a fixed, prefaulted pool for the
+/// RT threads (the haptic loop and the device I/O), which also counts any
+/// system-allocator call they make after start (docs/PASSIVITY.md).
+#[global_allocator]
+static ALLOCATOR: nvtmm::rt::alloc::RtAllocator = nvtmm::rt::alloc::RtAllocator;
+
 mod cli_mesh;
 mod cli_reduced;
+mod cli_run;
 mod cli_sim;
+mod cli_stream;
 
 #[derive(Parser)]
 #[command(
@@ -21,6 +29,32 @@ struct Cli {
 
 #[derive(Subcommand)]
 enum Command {
+    /// Run the haptic service: the 1 kHz loop on the reduced NVTMM model, the
+    /// background full solve, the device; ends with a report.
+    Run {
+        /// Service configuration.
+        #[arg(default_value = "rt-config/nvtmm.toml")]
+        config: PathBuf,
+        /// Run length (s); default: the configuration's `seconds`.
+        #[arg(long)]
+        seconds: Option<f64>,
+        /// Also write the report as JSON here.
+        #[arg(long)]
+        report_json: Option<PathBuf>,
+        /// No progress bar.
+        #[arg(long)]
+        quiet: bool,
+    },
+    /// Audit this box for the real-time loop (PREEMPT_RT, limits, governor,
+    /// isolated CPUs, C-states).
+    CheckRt {
+        /// Service configuration (for the loop's CPU).
+        #[arg(long)]
+        config: Option<PathBuf>,
+        /// JSON output.
+        #[arg(long)]
+        json: bool,
+    },
     /// Generate, inspect, convert and render tetrahedral meshes.
     #[command(subcommand)]
     Mesh(MeshCmd),
@@ -52,6 +86,12 @@ enum Command {
         #[arg(long)]
         force: bool,
     },
+    /// Replay a stream recording to UDP, or export it for ParaView (--vtu DIR).
+    Replay(cli_stream::ReplayArgs),
+    /// Serve the stream viewer (a web page on localhost) fed by the UDP stream.
+    View(cli_stream::ViewArgs),
+    /// Publish a synthetic stream (a dent pressed into the arch) for trying the viewer.
+    StreamDemo(cli_stream::DemoArgs),
 }
 
 #[derive(Subcommand)]
@@ -218,6 +258,13 @@ fn main() -> ExitCode {
     }
     let cli = Cli::parse();
     let result = match cli.command {
+        Command::Run {
+            config,
+            seconds,
+            report_json,
+            quiet,
+        } => cli_run::run(&config, seconds, report_json.as_deref(), quiet),
+        Command::CheckRt { config, json } => cli_run::check_rt(config.as_ref(), json),
         Command::Mesh(cmd) => match cmd {
             MeshCmd::Arch { nodes, out } => cli_mesh::arch(nodes, &out),
             MeshCmd::Info { file, json, scale } => cli_mesh::info(&file, json, scale),
@@ -264,6 +311,9 @@ fn main() -> ExitCode {
             ExperimentCmd::Table { out, quick } => cli_sim::experiment_table(&out, quick),
             ExperimentCmd::Trade { out, quick } => cli_sim::experiment_trade(&out, quick),
         },
+        Command::Replay(a) => cli_stream::replay(a),
+        Command::View(a) => cli_stream::view(a),
+        Command::StreamDemo(a) => cli_stream::demo(a),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

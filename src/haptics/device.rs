@@ -81,4 +81,31 @@ pub trait HapticDevice: Send {
     /// Sets the force to zero and stops the device. Called once at the end,
     /// and on any fatal error; must be safe to call twice.
     fn stop(&mut self);
+    /// Energy exchanged at the device port so far, where the backend knows
+    /// it (the simulated device integrates it with its true, sub-step
+    /// velocity). Real devices return `None`: they only know measured
+    /// velocity, which the passivity observer uses itself.
+    fn port_energy(&self) -> Option<PortEnergy> {
+        None
+    }
+}
+
+/// Energy bookkeeping at the device port (J), from the device force `F` on
+/// the stylus and the stylus velocity `v`: `delivered_j` = ∫ max(F·v, 0) dt is
+/// the work the device did on the hand, `absorbed_j` = ∫ max(−F·v, 0) dt the
+/// work the hand did against the device. A passive rendering keeps
+/// `delivered_j − absorbed_j` ≤ the initial energy tank.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct PortEnergy {
+    /// Work done by the device on the hand (J, ≥ 0).
+    pub delivered_j: f64,
+    /// Work done by the hand against the device (J, ≥ 0).
+    pub absorbed_j: f64,
+}
+
+impl PortEnergy {
+    /// Net energy delivered to the hand (J): `delivered_j − absorbed_j`.
+    pub fn net_delivered_j(&self) -> f64 {
+        self.delivered_j - self.absorbed_j
+    }
 }

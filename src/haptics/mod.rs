@@ -6,6 +6,13 @@
 //! service that starts the threads (`service`), the physics itself
 //! ([`crate::reduced`], [`crate::model`]).
 
+pub mod contact;
 pub mod device;
+#[cfg(feature = "openhaptics")]
+pub mod openhaptics;
+pub mod passivity;
+pub mod servo;
+pub mod touchx;
+pub mod udp;
 
-pub use device::{DeviceError, DeviceSample, HapticDevice};
+pub use device::{DeviceError, DeviceSample, HapticDevice, PortEnergy};

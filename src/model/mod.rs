@@ -106,7 +106,7 @@ pub trait ForceModel: Send + Sync {
 /// Symmetric block-sparse matrix with the mesh's vertex/edge pattern: block
 /// (i, i) is `diag[i]`, block (a, b) for edge e = (a, b), a < b, is `off[e]`,
 /// and block (b, a) is its transpose.
-#[derive(Debug, Clone, PartialEq)]
+#[derive(Debug, Clone, PartialEq, Default)]
 pub struct BlockTangent {
     /// Diagonal blocks, one per node.
     pub diag: Vec<Mat3>,

@@ -26,6 +26,20 @@ use crate::mesh::{TetMesh, Vec3};
 use crate::model::{BlockTangent, ForceModel};
 use nalgebra::{DMatrix, DVector};
 
+/// Columns per chunk of the blocked multi-vector product.
+const CHUNK: usize = 8;
+
+/// A block of at most [`CHUNK`] basis columns stored node-major,
+/// `x[(3 i + c) w + k]` = Φ(3i + c, first + k), so the product with a 3 × 3
+/// block streams `w` contiguous numbers.
+#[derive(Debug, Clone)]
+struct Chunk {
+    first: usize,
+    w: usize,
+    x: Vec<f64>,
+    y: Vec<f64>,
+}
+
 /// Re-linearizes a full model in a fixed basis. Holds the scratch so that
 /// repeated refreshes reuse their memory.
 #[derive(Debug, Clone)]
@@ -33,9 +47,38 @@ pub struct Refresher {
     phi: DMatrix<f64>,
     mass3: DVector<f64>,
     tangent: BlockTangent,
-    col: Vec<Vec3>,
-    kcol: Vec<Vec3>,
-    kphi: DMatrix<f64>,
+    chunks: Vec<Chunk>,
+}
+
+/// y += K x for the column chunk (x, y node-major with `w` columns).
+fn mul_chunk(k: &BlockTangent, w: usize, x: &[f64], y: &mut [f64]) {
+    y.iter_mut().for_each(|v| *v = 0.0);
+    let row = 3 * w;
+    for (i, d) in k.diag.iter().enumerate() {
+        let (xi, yi) = (&x[i * row..(i + 1) * row], &mut y[i * row..(i + 1) * row]);
+        for a in 0..3 {
+            let (d0, d1, d2) = (d[(a, 0)], d[(a, 1)], d[(a, 2)]);
+            for c in 0..w {
+                yi[a * w + c] += d0 * xi[c] + d1 * xi[w + c] + d2 * xi[2 * w + c];
+            }
+        }
+    }
+    for (b, &[i, j]) in k.off.iter().zip(&k.edges) {
+        let (i, j) = (i as usize, j as usize);
+        // y_i += B x_j, y_j += Bᵀ x_i.
+        for a in 0..3 {
+            let (b0, b1, b2) = (b[(a, 0)], b[(a, 1)], b[(a, 2)]);
+            let (xj, yi) = (j * row, i * row + a * w);
+            for c in 0..w {
+                y[yi + c] += b0 * x[xj + c] + b1 * x[xj + w + c] + b2 * x[xj + 2 * w + c];
+            }
+            let (bt0, bt1, bt2) = (b[(0, a)], b[(1, a)], b[(2, a)]);
+            let (xi, yj) = (i * row, j * row + a * w);
+            for c in 0..w {
+                y[yj + c] += bt0 * x[xi + c] + bt1 * x[xi + w + c] + bt2 * x[xi + 2 * w + c];
+            }
+        }
+    }
 }
 
 impl Refresher {
@@ -49,13 +92,31 @@ impl Refresher {
                 mass3[3 * i + c] = m;
             }
         }
+        let r = basis.len();
+        let rows = basis.phi.nrows().min(3 * n);
+        let mut chunks = Vec::new();
+        let mut first = 0;
+        while first < r {
+            let w = CHUNK.min(r - first);
+            let mut x = vec![0.0; 3 * n * w];
+            for row in 0..rows {
+                for c in 0..w {
+                    x[row * w + c] = basis.phi[(row, first + c)];
+                }
+            }
+            chunks.push(Chunk {
+                first,
+                w,
+                x,
+                y: vec![0.0; 3 * n * w],
+            });
+            first += w;
+        }
         Refresher {
             phi: basis.phi.clone(),
             mass3,
             tangent: BlockTangent::zeros(mesh),
-            col: vec![Vec3::zeros(); n],
-            kcol: vec![Vec3::zeros(); n],
-            kphi: DMatrix::zeros(3 * n, basis.len()),
+            chunks,
         }
     }
 
@@ -74,25 +135,40 @@ impl Refresher {
         &self.phi
     }
 
-    /// K_r(u) = Φᵀ K(u) Φ (r × r, symmetrized) of `model` at displacement `u`.
+    /// K_r(u) = Φᵀ K(u) Φ (r × r, symmetrized) of `model` at displacement `u`:
+    /// one tangent assembly, then [`Refresher::project_tangent`].
     pub fn reduced_stiffness(&mut self, model: &dyn ForceModel, u: &[Vec3]) -> DMatrix<f64> {
-        self.tangent.clear();
-        model.add_stiffness(u, &mut self.tangent);
-        let n = self.col.len();
-        for j in 0..self.phi.ncols() {
-            let c = self.phi.column(j);
-            for i in 0..n {
-                self.col[i] = Vec3::new(c[3 * i], c[3 * i + 1], c[3 * i + 2]);
-            }
-            self.tangent.mul(&self.col, &mut self.kcol);
-            let mut out = self.kphi.column_mut(j);
-            for i in 0..n {
-                for k in 0..3 {
-                    out[3 * i + k] = self.kcol[i][k];
-                }
+        let mut k = std::mem::take(&mut self.tangent);
+        k.clear();
+        model.add_stiffness(u, &mut k);
+        let kr = self.project_tangent(&k);
+        self.tangent = k;
+        kr
+    }
+
+    /// Φᵀ K Φ (r × r, symmetrized) of an assembled tangent `k` (e.g. the one
+    /// the implicit step just built, [`crate::solver::ImplicitEuler::last_stiffness`]):
+    /// a blocked multi-vector product, column chunks in parallel, then one
+    /// small dense product per pair of chunks.
+    pub fn project_tangent(&mut self, k: &BlockTangent) -> DMatrix<f64> {
+        use rayon::prelude::*;
+        let r = self.len();
+        let n3 = self.mass3.len();
+        if k.num_nodes() * 3 != n3 {
+            return DMatrix::zeros(r, r);
+        }
+        self.chunks
+            .par_iter_mut()
+            .for_each(|ch| mul_chunk(k, ch.w, &ch.x, &mut ch.y));
+        let mut kr = DMatrix::zeros(r, r);
+        for a in &self.chunks {
+            let xa = nalgebra::DMatrixView::from_slice(&a.x, a.w, n3);
+            for b in &self.chunks {
+                let yb = nalgebra::DMatrixView::from_slice(&b.y, b.w, n3);
+                let blk = xa * yb.transpose();
+                kr.view_mut((a.first, b.first), (a.w, b.w)).copy_from(&blk);
             }
         }
-        let kr = self.phi.tr_mul(&self.kphi);
         (&kr + kr.transpose()) * 0.5
     }
 

@@ -6,4 +6,8 @@
 //! Not here: what the loop computes ([`crate::haptics`]) or which threads the
 //! service starts (`service`).
 
+pub mod alloc;
+pub mod check;
 pub mod clock;
+pub mod stats;
+pub mod thread;

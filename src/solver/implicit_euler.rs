@@ -458,6 +458,14 @@ impl ImplicitEuler {
         &self.a
     }
 
+    /// The stiffness K(u) assembled at the last Newton iterate of the last
+    /// step (for the linearized step: at the step's start), before the
+    /// fixed rows were projected. The background solve of the haptic service
+    /// projects it into the reduced basis instead of assembling it again.
+    pub fn last_stiffness(&self) -> &BlockTangent {
+        &self.k
+    }
+
     /// v₁ += Δv on the free nodes; when `last` (the final iteration and no
     /// final residual check), also forms the committed iterate and returns
     /// true so the Newton loop stops.

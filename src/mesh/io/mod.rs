@@ -40,7 +40,7 @@ pub use gmsh::write_gmsh;
 pub use surface::{write_obj, write_ply, write_stl};
 pub use tetgen::{read_tetgen_bytes, write_tetgen};
 pub use vtk::write_vtk;
-pub use vtu::{write_vtu, write_vtu_with_data, PvdSeries};
+pub use vtu::{write_vtu, write_vtu_cells, write_vtu_with_data, PvdSeries};
 
 use super::{TetMesh, TopologyError, Vec3};
 use std::collections::BTreeMap;

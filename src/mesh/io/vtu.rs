@@ -646,6 +646,117 @@ pub fn write_vtu_with_data(
     })
 }
 
+/// Writes a `.vtu` of arbitrary cells of one VTK type (e.g. 5 = triangle,
+/// 1 = vertex), `nodes_per_cell` indices each in `cells`, for surfaces and
+/// points that are not a [`TetMesh`] (the state stream's decimated surface
+/// and its tool). Arrays as in [`write_vtu_with_data`]; every array must have
+/// one value per point, indices must be in range, positions finite.
+pub fn write_vtu_cells(
+    path: &Path,
+    points: &[Vec3],
+    cell_type: u8,
+    nodes_per_cell: usize,
+    cells: &[u32],
+    point_vectors: &[(&str, &[Vec3])],
+    point_scalars: &[(&str, &[f64])],
+) -> Result<(), MeshError> {
+    let n = points.len();
+    let bad = |what: String| MeshError::InvalidData {
+        path: path.to_path_buf(),
+        what,
+    };
+    if nodes_per_cell == 0 || cells.len() % nodes_per_cell != 0 {
+        return Err(bad(format!(
+            "{} cell indices for {nodes_per_cell} per cell",
+            cells.len()
+        )));
+    }
+    if let Some(i) = cells.iter().find(|&&i| i as usize >= n) {
+        return Err(bad(format!("cell index {i} out of range ({n} points)")));
+    }
+    if let Some(i) = points.iter().position(|p| !p.iter().all(|v| v.is_finite())) {
+        return Err(bad(format!("position of point {i} is not finite")));
+    }
+    let lens = point_vectors.iter().map(|(k, v)| (*k, v.len()));
+    if let Some((k, l)) = lens
+        .chain(point_scalars.iter().map(|(k, v)| (*k, v.len())))
+        .find(|&(_, l)| l != n)
+    {
+        return Err(bad(format!("point array '{k}' has {l} values for {n} points")));
+    }
+    let ncells = cells.len() / nodes_per_cell;
+    write_file(path, |w| {
+        writeln!(w, "<?xml version=\"1.0\"?>")?;
+        writeln!(
+            w,
+            "<VTKFile type=\"UnstructuredGrid\" version=\"1.0\" byte_order=\"LittleEndian\" header_type=\"UInt64\">"
+        )?;
+        writeln!(w, "  <UnstructuredGrid>")?;
+        writeln!(w, "    <Piece NumberOfPoints=\"{n}\" NumberOfCells=\"{ncells}\">")?;
+        writeln!(w, "      <PointData>")?;
+        for (name, v) in point_vectors {
+            let name = escape(name);
+            writeln!(
+                w,
+                "        <DataArray type=\"Float64\" Name=\"{name}\" NumberOfComponents=\"3\" format=\"ascii\">"
+            )?;
+            for x in *v {
+                writeln!(w, "{} {} {}", x.x, x.y, x.z)?;
+            }
+            writeln!(w, "        </DataArray>")?;
+        }
+        for (name, v) in point_scalars {
+            writeln!(
+                w,
+                "        <DataArray type=\"Float64\" Name=\"{}\" format=\"ascii\">",
+                escape(name)
+            )?;
+            for x in *v {
+                writeln!(w, "{x}")?;
+            }
+            writeln!(w, "        </DataArray>")?;
+        }
+        writeln!(w, "      </PointData>")?;
+        writeln!(w, "      <Points>")?;
+        writeln!(
+            w,
+            "        <DataArray type=\"Float64\" NumberOfComponents=\"3\" format=\"ascii\">"
+        )?;
+        for x in points {
+            writeln!(w, "{} {} {}", x.x, x.y, x.z)?;
+        }
+        writeln!(w, "        </DataArray>")?;
+        writeln!(w, "      </Points>")?;
+        writeln!(w, "      <Cells>")?;
+        writeln!(
+            w,
+            "        <DataArray type=\"Int64\" Name=\"connectivity\" format=\"ascii\">"
+        )?;
+        for c in cells.chunks(nodes_per_cell) {
+            let s: Vec<String> = c.iter().map(|i| i.to_string()).collect();
+            writeln!(w, "{}", s.join(" "))?;
+        }
+        writeln!(w, "        </DataArray>")?;
+        writeln!(
+            w,
+            "        <DataArray type=\"Int64\" Name=\"offsets\" format=\"ascii\">"
+        )?;
+        for k in 1..=ncells {
+            writeln!(w, "{}", nodes_per_cell * k)?;
+        }
+        writeln!(w, "        </DataArray>")?;
+        writeln!(w, "        <DataArray type=\"UInt8\" Name=\"types\" format=\"ascii\">")?;
+        for _ in 0..ncells {
+            writeln!(w, "{cell_type}")?;
+        }
+        writeln!(w, "        </DataArray>")?;
+        writeln!(w, "      </Cells>")?;
+        writeln!(w, "    </Piece>")?;
+        writeln!(w, "  </UnstructuredGrid>")?;
+        writeln!(w, "</VTKFile>")
+    })
+}
+
 /// A time series for ParaView: one `.vtu` per step in a directory and a
 /// `.pvd` collection that lists them with their times.
 ///
@@ -727,6 +838,28 @@ impl PvdSeries {
             });
         }
         write_vtu_with_data(&path, mesh, positions, point_vectors, point_scalars)?;
+        self.steps.push((time, file));
+        self.write_pvd()?;
+        Ok(path)
+    }
+
+    /// Writes step `len()` at `time` (seconds) as `<name>_NNNNNN.vtu` by
+    /// calling `write` with that path (e.g. with [`write_vtu_cells`]),
+    /// updates the `.pvd`, and returns the `.vtu` path.
+    pub fn add_file(
+        &mut self,
+        time: f64,
+        write: impl FnOnce(&Path) -> Result<(), MeshError>,
+    ) -> Result<PathBuf, MeshError> {
+        let file = format!("{}_{:06}.vtu", self.name, self.steps.len());
+        let path = self.dir.join(&file);
+        if !time.is_finite() {
+            return Err(MeshError::InvalidData {
+                path,
+                what: format!("step time {time} is not finite"),
+            });
+        }
+        write(&path)?;
         self.steps.push((time, file));
         self.write_pvd()?;
         Ok(path)

@@ -1,0 +1,155 @@
+//! `nvtmm replay`, `nvtmm view` and `nvtmm stream-demo`: the state stream's
+//! command-line side (format and code in `nvtmm::stream`, docs/STREAM.md).
+
+use clap::Args;
+use nvtmm::mesh::arch::{generate, ArchParams};
+use nvtmm::rt::clock;
+use nvtmm::stream::demo::Dent;
+use nvtmm::stream::{decimate, record, viewer, Publisher, StreamConfig};
+use std::net::SocketAddr;
+use std::path::PathBuf;
+
+type Result<T> = std::result::Result<T, Box<dyn std::error::Error>>;
+
+/// `nvtmm replay`.
+#[derive(Args)]
+pub struct ReplayArgs {
+    /// Recording (written by `--record` / `Publisher`).
+    file: PathBuf,
+    /// Send the datagrams to this UDP address at the recorded pace.
+    #[arg(long, default_value = "127.0.0.1:7878")]
+    to: SocketAddr,
+    /// Replay speed factor (2 = twice as fast).
+    #[arg(long, default_value_t = 1.0)]
+    speed: f64,
+    /// Instead of sending, export a ParaView series (surface.pvd, tool.pvd) into DIR.
+    #[arg(long, value_name = "DIR")]
+    vtu: Option<PathBuf>,
+}
+
+/// `nvtmm view`.
+#[derive(Args)]
+pub struct ViewArgs {
+    /// Where to serve the page (open http://ADDR/ in a browser).
+    #[arg(long, default_value = "127.0.0.1:8080")]
+    listen: SocketAddr,
+    /// UDP address to receive the stream on.
+    #[arg(long, default_value = "127.0.0.1:7878")]
+    stream: SocketAddr,
+}
+
+/// `nvtmm stream-demo`.
+#[derive(Args)]
+pub struct DemoArgs {
+    /// UDP target.
+    #[arg(long, default_value = "127.0.0.1:7878")]
+    to: SocketAddr,
+    /// Frames per second.
+    #[arg(long, default_value_t = 60.0)]
+    rate: f64,
+    /// Stop after this many seconds (0: run until killed).
+    #[arg(long, default_value_t = 0.0)]
+    seconds: f64,
+    /// Arch mesh size (nodes).
+    #[arg(long, default_value_t = 5832)]
+    nodes: usize,
+    /// Target stream vertices (0: full surface).
+    #[arg(long, default_value_t = 2000)]
+    decimate: usize,
+    /// Also record the datagrams to FILE.
+    #[arg(long, value_name = "FILE")]
+    record: Option<PathBuf>,
+}
+
+/// Replays a recording to UDP or exports it for ParaView.
+pub fn replay(a: ReplayArgs) -> Result<()> {
+    if let Some(dir) = a.vtu {
+        let s = record::export_vtu(&a.file, &dir)?;
+        println!(
+            "wrote {} frames ({:.2} s recorded) to {} and {}",
+            s.frames_written,
+            s.duration_s,
+            dir.join("surface.pvd").display(),
+            dir.join("tool.pvd").display()
+        );
+        if s.decoder.gaps > 0 || s.decoder.total_rejected() > 0 {
+            eprintln!(
+                "note: {} messages missing, {} datagrams rejected",
+                s.decoder.gaps,
+                s.decoder.total_rejected()
+            );
+        }
+        return Ok(());
+    }
+    println!("replaying {} to udp://{} at {}x", a.file.display(), a.to, a.speed);
+    let s = record::replay_udp(&a.file, a.to, a.speed)?;
+    println!(
+        "sent {} datagrams ({:.2} s recorded), {} send errors",
+        s.datagrams, s.duration_s, s.send_errors
+    );
+    Ok(())
+}
+
+/// Runs the viewer until killed.
+pub fn view(a: ViewArgs) -> Result<()> {
+    let v = viewer::start(a.listen, a.stream)?;
+    println!(
+        "nvtmm view: open http://{}/ (stream on udp://{})",
+        v.http_addr(),
+        v.stream_addr()
+    );
+    let mut last = None;
+    loop {
+        std::thread::sleep(std::time::Duration::from_secs(5));
+        let s = v.stats();
+        let now = (s.decoder.states, s.decoder.gaps, s.decoder.total_rejected(), s.clients);
+        if last != Some(now) {
+            println!(
+                "frames {}  gaps {}  rejected {}  clients {}",
+                now.0, now.1, now.2, now.3
+            );
+            last = Some(now);
+        }
+    }
+}
+
+/// Publishes the synthetic dent on the built-in arch.
+pub fn demo(a: DemoArgs) -> Result<()> {
+    let cfg = StreamConfig {
+        rate_hz: a.rate,
+        target: a.to.to_string(),
+        decimate_vertices: a.decimate,
+        ..StreamConfig::default()
+    };
+    let mesh = generate(&ArchParams::default(), a.nodes)?.mesh;
+    let topo = decimate::surface(&mesh, cfg.decimate_vertices);
+    println!(
+        "stream-demo: {} vertices, {} triangles to udp://{} at {} Hz",
+        topo.num_vertices(),
+        topo.triangles.len(),
+        a.to,
+        a.rate
+    );
+    let mut dent = Dent::new(&mesh, &topo);
+    let mut p = Publisher::new(cfg, topo, a.record.as_deref())?;
+    let period = (p.period_s() * 1e9) as clock::Nanos;
+    let start = clock::now_ns();
+    let mut k: i64 = 0;
+    loop {
+        let t = k as f64 * p.period_s();
+        if a.seconds > 0.0 && t > a.seconds {
+            break;
+        }
+        clock::sleep_until(start + k * period);
+        p.publish(&dent.frame(t))?;
+        k += 1;
+    }
+    let s = p.finish()?;
+    println!(
+        "published {} frames, {} datagrams, {} send errors",
+        s.frames,
+        s.datagrams,
+        s.send_errors + s.would_block
+    );
+    Ok(())
+}

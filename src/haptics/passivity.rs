@@ -1,0 +1,1198 @@
+//! The passivity filter: each tick a small second-order-cone QP (clarabel,
+//! built once, re-solved with new data) finds the force closest to the
+//! model's force that the device may output, and an energy observer/tank at
+//! the device port keeps the output passive.
+//!
+//! # The QP
+//!
+//! Variables `x = [F; s]`: the force on the hand `F` (N, 3) and a rate slack
+//! `s` (N).
+//!
+//! ```text
+//! minimize    ‖F − F_des‖² + w s
+//! subject to  ‖F‖ ≤ B                   norm bound (second-order cone, hard)
+//!             ‖F − F_prev‖ ≤ Δ + s      rate bound (second-order cone, soft)
+//!             s ≥ 0
+//!             T v·F ≤ E − E_min         energy bound (one linear row, hard)
+//! ```
+//!
+//! `v` is the measured stylus velocity, so `T v·F` is the energy the port is
+//! predicted to deliver during the coming tick (zero-order hold). The energy
+//! row is stored normalized, `g·F ≤ h` with `g = v/|v|` and
+//! `h = min((E − E_min)⁺ / (T|v|), 2B + 1)`: its coefficients stay O(1)
+//! whatever the speed, so the equilibration computed at set-up stays good;
+//! `h ≥ 2B + 1` is never binding because `g·F ≤ ‖F‖ ≤ B`.
+//!
+//! The rate bound is the Euclidean norm of the change (rotation invariant: the
+//! device frame has no meaning for the tissue). It is soft because together
+//! with the energy row it can be infeasible (the tank empties while the force
+//! pushes along the motion: the energy row then asks for a faster change than
+//! Δ). The penalty `w s` is linear, an exact penalty: whenever the hard rows
+//! leave room, and the rate row's multiplier (≈ 2‖F − F_des‖) is below `w`,
+//! the rate bound holds exactly; otherwise it is exceeded by the least amount.
+//!
+//! **Always feasible** (and strictly, so the interior-point method is on safe
+//! ground): `F = 0` satisfies the cone (`B > 0`) and the energy row
+//! (`h ≥ 0`); `s = ‖F_prev‖` satisfies the rate row; `F = −ε g`, `s` large is
+//! a strictly interior point.
+//!
+//! # The norm bound `B`
+//!
+//! [`NormBound::Peak`] and [`NormBound::Continuous`] are constants;
+//! [`NormBound::Thermal`] models the motors' heating: `θ`, a first-order
+//! filter (time constant `thermal_tau_s`) of `|F|²`, and
+//! `B² = peak² − (peak² − cont²)·min(θ/cont², 1)`. A cold device gets the
+//! peak force; the sustained force converges to exactly the continuous rating
+//! (the fixed point of `B² = θ` is `θ = cont²`). The bound moves smoothly (by
+//! at most `T/τ` of the span per tick) instead of jumping from peak to
+//! continuous, which the hard cone would pass straight to the hand.
+//!
+//! # The energy observer and tank
+//!
+//! At tick `k` the force `F_{k−1}` has been held during the last interval, so
+//! the energy the port delivered is exactly `F_{k−1}·(x_k − x_{k−1})` (the
+//! Hannaford–Ryu observer with the zero-order hold integrated exactly from the
+//! measured positions, rather than `T v·F`). The tank gains what the hand puts
+//! in (that quantity when negative), loses what the port delivers, and is
+//! credited `b_dev |Δx|²/T`, a lower bound of the energy the device's own
+//! damping `b_dev` dissipated in the interval (Cauchy–Schwarz:
+//! `∫|v|² ≥ |Δx|²/T`; Kim–Ryu energy bounding). The tank is clamped at
+//! `E_max` (energy above it is thrown away, which is conservative) but NOT at
+//! `E_min`: the QP predicts with `v_k`, the hold delivers along the real
+//! path, and clamping a small overshoot below `E_min` would forgive it. A
+//! tank below `E_min` is a debt; the energy row's right side is 0 until it is
+//! repaid. So, at every tick, exactly:
+//! `delivered − absorbed = E_0 − E + credit − (thrown away at E_max)`.
+//!
+//! # Fallback
+//!
+//! If the solver returns a status other than solved / almost solved or a
+//! non-finite answer, the output is `α F_prev` with the largest
+//! `α ≤ max(0, 1 − Δ/‖F_prev‖)` that keeps the norm and energy rows: the force
+//! ramps to zero at the rate bound and never breaks a hard row. A non-finite
+//! input (`F_des`, `x` or `v`) gives zero force (the service zeroes on NaN);
+//! a non-finite `x` or `v` also restarts the observer (the interval it spans
+//! is not accounted). Both are counted.
+//!
+//! Even a solved answer is scaled down (by at most the solver tolerance) so
+//! the norm and energy rows hold exactly, not to the solver's tolerance.
+//!
+//! Nothing in [`PassivityFilter::filter`] allocates except clarabel's
+//! `solve()`, which makes one small allocation per call (its timers): run the
+//! loop's thread under [`crate::rt::alloc`] so that block comes from the RT
+//! pool.
+
+use crate::config::{Checker, ConfigError};
+use crate::mesh::Vec3;
+use clarabel::algebra::CscMatrix;
+use clarabel::solver::{
+    DefaultSettings, DefaultSettingsBuilder, DefaultSolver, IPSolver, SolverStatus, SupportedConeT,
+};
+use serde::{Deserialize, Serialize};
+use std::path::Path;
+
+/// Largest `max_iter` accepted; the iteration histogram has one bin per count.
+pub const MAX_ITER_CAP: u32 = 100;
+/// Bins of [`PassivityStats::iter_hist`] (iteration counts 0..=`MAX_ITER_CAP`).
+pub const ITER_HIST_LEN: usize = MAX_ITER_CAP as usize + 1;
+
+/// Where the norm bound comes from.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum NormBound {
+    /// Always the peak force.
+    Peak,
+    /// Always the continuous force.
+    Continuous,
+    /// Peak when cold, sliding smoothly to continuous as a filtered mean of
+    /// `|F|²` (time constant `thermal_tau_s`) reaches continuous² (see the
+    /// module doc).
+    Thermal,
+}
+
+/// Limits and tuning of the passivity filter (`[passivity]` in the service
+/// configuration). SI units.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct PassivityParams {
+    /// Tick period T (s).
+    pub dt_s: f64,
+    /// Peak force (N); 7.9 for the Touch X.
+    pub peak_force_n: f64,
+    /// Continuous force (N); 1.75 for the Touch X.
+    pub continuous_force_n: f64,
+    /// Which norm bound to use.
+    pub norm_bound: NormBound,
+    /// Time constant of the thermal model (s); used by [`NormBound::Thermal`].
+    pub thermal_tau_s: f64,
+    /// Rate bound Δ: largest change of the force vector per tick (N).
+    pub rate_n_per_tick: f64,
+    /// Weight w of the rate slack (N): an exact penalty, keep it above twice
+    /// the largest `‖F_des − F‖` you expect.
+    pub rate_slack_weight_n: f64,
+    /// Energy in the tank at start and after [`PassivityFilter::reset`] (J).
+    pub tank_initial_j: f64,
+    /// Reserve the output never draws on (J); covers the one-tick prediction
+    /// error of the energy row.
+    pub tank_min_j: f64,
+    /// Tank capacity (J): the most energy the device can return in a burst.
+    pub tank_max_j: f64,
+    /// Physical damping of the device credited to the tank (N·s/m); 0 for no
+    /// credit. Must not exceed the device's real damping.
+    pub damping_credit_ns_per_m: f64,
+    /// Interior-point iteration limit (1..=100).
+    pub max_iter: u32,
+    /// Absolute duality-gap tolerance.
+    pub tol_gap_abs: f64,
+    /// Relative duality-gap tolerance.
+    pub tol_gap_rel: f64,
+    /// Feasibility tolerance.
+    pub tol_feas: f64,
+}
+
+impl Default for PassivityParams {
+    /// Touch X figures at 1 kHz.
+    fn default() -> Self {
+        PassivityParams {
+            dt_s: 1e-3,
+            peak_force_n: 7.9,
+            continuous_force_n: 1.75,
+            norm_bound: NormBound::Thermal,
+            thermal_tau_s: 10.0,
+            rate_n_per_tick: 1.0,
+            rate_slack_weight_n: 1e3,
+            tank_initial_j: 0.01,
+            tank_min_j: 1e-3,
+            tank_max_j: 0.05,
+            damping_credit_ns_per_m: 0.0,
+            max_iter: 30,
+            tol_gap_abs: 1e-8,
+            tol_gap_rel: 1e-8,
+            tol_feas: 1e-8,
+        }
+    }
+}
+
+impl PassivityParams {
+    /// Checks every field; errors name the file (from `checker`), the key
+    /// (`prefix.field`) and the allowed range.
+    pub fn validate(&self, checker: &Checker, prefix: &str) -> Result<(), ConfigError> {
+        let k = |f: &str| {
+            if prefix.is_empty() {
+                f.to_string()
+            } else {
+                format!("{prefix}.{f}")
+            }
+        };
+        checker.f64_in(&k("dt_s"), self.dt_s, 1e-5, 0.1, "s")?;
+        checker.f64_in(&k("peak_force_n"), self.peak_force_n, 1e-3, 1000.0, "N")?;
+        checker.f64_in(
+            &k("continuous_force_n"),
+            self.continuous_force_n,
+            1e-3,
+            self.peak_force_n,
+            "N (at most peak_force_n)",
+        )?;
+        checker.f64_in(&k("thermal_tau_s"), self.thermal_tau_s, 1e-2, 3600.0, "s")?;
+        checker.f64_in(&k("rate_n_per_tick"), self.rate_n_per_tick, 1e-6, 1000.0, "N")?;
+        checker.f64_in(&k("rate_slack_weight_n"), self.rate_slack_weight_n, 1e-3, 1e6, "N")?;
+        checker.f64_in(&k("tank_min_j"), self.tank_min_j, 0.0, 100.0, "J")?;
+        checker.f64_in(
+            &k("tank_max_j"),
+            self.tank_max_j,
+            self.tank_min_j,
+            1000.0,
+            "J (at least tank_min_j)",
+        )?;
+        checker.f64_in(
+            &k("tank_initial_j"),
+            self.tank_initial_j,
+            self.tank_min_j,
+            self.tank_max_j,
+            "J (between tank_min_j and tank_max_j)",
+        )?;
+        checker.f64_in(
+            &k("damping_credit_ns_per_m"),
+            self.damping_credit_ns_per_m,
+            0.0,
+            100.0,
+            "N·s/m",
+        )?;
+        checker.int_in(&k("max_iter"), self.max_iter, 1, MAX_ITER_CAP)?;
+        checker.f64_in(&k("tol_gap_abs"), self.tol_gap_abs, 1e-12, 1e-3, "")?;
+        checker.f64_in(&k("tol_gap_rel"), self.tol_gap_rel, 1e-12, 1e-3, "")?;
+        checker.f64_in(&k("tol_feas"), self.tol_feas, 1e-12, 1e-3, "")?;
+        Ok(())
+    }
+}
+
+/// Why a filter could not be built.
+#[derive(Debug, thiserror::Error)]
+pub enum PassivityError {
+    /// A parameter is out of range.
+    #[error(transparent)]
+    Config(#[from] ConfigError),
+    /// clarabel refused the problem or the settings.
+    #[error("passivity QP set-up failed: {0}")]
+    Solver(String),
+}
+
+/// The solver's verdict, without clarabel's types.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum QpStatus {
+    /// Solved to tolerance.
+    Solved,
+    /// Solved to the reduced tolerance.
+    AlmostSolved,
+    /// Stopped at `max_iter`.
+    MaxIterations,
+    /// Any other status (numerical error, infeasibility claim, ...).
+    Failed,
+    /// Not run this tick (non-finite input).
+    NotRun,
+}
+
+/// Which bounds the output sits on.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct Active {
+    /// `‖F‖ = B`.
+    pub norm: bool,
+    /// `‖F − F_prev‖ ≥ Δ` (at the rate bound or beyond it through the slack).
+    pub rate: bool,
+    /// The energy row is binding.
+    pub energy: bool,
+}
+
+/// Why the output did not come from the QP.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Fallback {
+    /// The solver failed: `α F_prev` (see the module doc).
+    Solver,
+    /// A non-finite input: zero force.
+    NonFinite,
+}
+
+/// The result of one tick.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct FilterOutput {
+    /// The force to command (N, on the hand).
+    pub force: Vec3,
+    /// Which bounds are active.
+    pub active: Active,
+    /// Interior-point iterations.
+    pub iterations: u32,
+    /// Solver status.
+    pub status: QpStatus,
+    /// Set when the output is a fallback.
+    pub fallback: Option<Fallback>,
+    /// How far the rate bound was exceeded (N): `max(0, ‖F − F_prev‖ − Δ)`.
+    pub rate_excess_n: f64,
+    /// The norm bound used this tick (N).
+    pub bound_n: f64,
+    /// Tank level after this tick's observer update (J).
+    pub tank_j: f64,
+}
+
+/// Counters for reports. Fixed size, `Copy`.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct PassivityStats {
+    /// Ticks that ran the QP.
+    pub solves: u64,
+    /// Ticks with the norm bound active.
+    pub active_norm: u64,
+    /// Ticks with the rate bound active.
+    pub active_rate: u64,
+    /// Ticks where the rate bound was exceeded through the slack.
+    pub rate_exceeded: u64,
+    /// Ticks with the energy row active.
+    pub active_energy: u64,
+    /// Solver fallbacks.
+    pub fallbacks_solver: u64,
+    /// Non-finite-input fallbacks.
+    pub fallbacks_nonfinite: u64,
+    /// Iteration histogram: `iter_hist[i]` = solves that took `i` iterations.
+    pub iter_hist: [u64; ITER_HIST_LEN],
+    /// Energy the port delivered to the hand (J, sum of positive parts).
+    pub delivered_j: f64,
+    /// Energy the hand put into the port (J, sum of positive parts).
+    pub absorbed_j: f64,
+    /// Damping credit given (J).
+    pub credit_j: f64,
+    /// Energy thrown away at the tank's top (J).
+    pub spilled_j: f64,
+    /// Lowest tank level seen (J).
+    pub tank_low_j: f64,
+}
+
+impl PassivityStats {
+    fn new(tank: f64) -> Self {
+        PassivityStats {
+            solves: 0,
+            active_norm: 0,
+            active_rate: 0,
+            rate_exceeded: 0,
+            active_energy: 0,
+            fallbacks_solver: 0,
+            fallbacks_nonfinite: 0,
+            iter_hist: [0; ITER_HIST_LEN],
+            delivered_j: 0.0,
+            absorbed_j: 0.0,
+            credit_j: 0.0,
+            spilled_j: 0.0,
+            tank_low_j: tank,
+        }
+    }
+
+    /// All fallbacks.
+    pub fn fallbacks(&self) -> u64 {
+        self.fallbacks_solver + self.fallbacks_nonfinite
+    }
+
+    /// The iteration count at quantile `q` in [0, 1] (0 if nothing solved).
+    pub fn iter_quantile(&self, q: f64) -> u32 {
+        let n: u64 = self.iter_hist.iter().sum();
+        if n == 0 {
+            return 0;
+        }
+        let rank = ((q.clamp(0.0, 1.0) * n as f64).ceil() as u64).max(1);
+        let mut acc = 0;
+        for (i, c) in self.iter_hist.iter().enumerate() {
+            acc += c;
+            if acc >= rank {
+                return i as u32;
+            }
+        }
+        MAX_ITER_CAP
+    }
+
+    /// 99th percentile of iterations.
+    pub fn iter_p99(&self) -> u32 {
+        self.iter_quantile(0.99)
+    }
+}
+
+// Row layout of A (clarabel: A x + z = b, z in the cones).
+const N_VARS: usize = 4; // F (3), s
+const N_ROWS: usize = 10;
+const ROW_ENERGY: usize = 1; // nonneg rows 0 (s ≥ 0), 1 (energy)
+const ROW_NORM: usize = 2; // SOC(4): (B, F)
+const ROW_RATE: usize = 6; // SOC(4): (Δ + s, F − F_prev)
+
+/// What one QP solve returns (before the post-processing of `filter`).
+#[derive(Debug, Clone, Copy)]
+struct QpAnswer {
+    f: Vec3,
+    status: QpStatus,
+    iterations: u32,
+}
+
+/// The passivity filter: one clarabel solver, the energy tank and the thermal
+/// state. Build once, call [`PassivityFilter::filter`] every tick.
+pub struct PassivityFilter {
+    params: PassivityParams,
+    solver: DefaultSolver<f64>,
+    // Preallocated problem data; the update calls take &Vec.
+    q: Vec<f64>,
+    b: Vec<f64>,
+    a_nz: Vec<f64>,
+    // State.
+    f_prev: Vec3,
+    x_prev: Vec3,
+    have_prev: bool,
+    tank: f64,
+    theta: f64,
+    g_prev: Vec3,
+    stats: PassivityStats,
+}
+
+impl std::fmt::Debug for PassivityFilter {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("PassivityFilter")
+            .field("params", &self.params)
+            .field("f_prev", &self.f_prev)
+            .field("tank", &self.tank)
+            .field("theta", &self.theta)
+            .finish_non_exhaustive()
+    }
+}
+
+/// The nonzeros of A in CSC order: column j of F holds (energy g_j, −1 in the
+/// norm cone, −1 in the rate cone) at indices 3j, 3j+1, 3j+2; the slack column
+/// holds −1 (s ≥ 0) and −1 (rate cone head). Only the energy entries change.
+fn a_matrix(g: Vec3) -> CscMatrix<f64> {
+    let mut rowval = Vec::with_capacity(11);
+    let mut nzval = Vec::with_capacity(11);
+    for j in 0..3 {
+        rowval.extend_from_slice(&[ROW_ENERGY, ROW_NORM + 1 + j, ROW_RATE + 1 + j]);
+        nzval.extend_from_slice(&[g[j], -1.0, -1.0]);
+    }
+    rowval.extend_from_slice(&[0, ROW_RATE]);
+    nzval.extend_from_slice(&[-1.0, -1.0]);
+    CscMatrix::new(N_ROWS, N_VARS, vec![0, 3, 6, 9, 11], rowval, nzval)
+}
+
+fn settings(p: &PassivityParams) -> Result<DefaultSettings<f64>, PassivityError> {
+    DefaultSettingsBuilder::default()
+        .verbose(false)
+        .presolve_enable(false)
+        .input_sparse_dropzeros(false)
+        .max_iter(p.max_iter)
+        .tol_gap_abs(p.tol_gap_abs)
+        .tol_gap_rel(p.tol_gap_rel)
+        .tol_feas(p.tol_feas)
+        .build()
+        .map_err(|e| PassivityError::Solver(e.to_string()))
+}
+
+impl PassivityFilter {
+    /// Validates `params` and builds the solver (allocates; call before the
+    /// loop).
+    pub fn new(params: &PassivityParams) -> Result<PassivityFilter, PassivityError> {
+        params.validate(&Checker::new(Path::new("<passivity params>")), "passivity")?;
+        let p = params.clone();
+        // P = 2 I on F (upper triangle), 0 on s.
+        let pm = CscMatrix::new(N_VARS, N_VARS, vec![0, 1, 2, 3, 3], vec![0, 1, 2], vec![2.0; 3]);
+        // Representative data for the equilibration computed here: a unit
+        // energy row (it stays unit-norm), a mid-size force.
+        let g0 = Vec3::new(1.0, 1.0, 1.0).normalize();
+        let a = a_matrix(g0);
+        let q = vec![-2.0, -2.0, -2.0, p.rate_slack_weight_n];
+        let b = vec![
+            0.0,
+            p.peak_force_n,
+            p.peak_force_n,
+            0.0,
+            0.0,
+            0.0,
+            p.rate_n_per_tick,
+            0.0,
+            0.0,
+            0.0,
+        ];
+        let cones = [
+            SupportedConeT::NonnegativeConeT(2),
+            SupportedConeT::SecondOrderConeT(4),
+            SupportedConeT::SecondOrderConeT(4),
+        ];
+        let mut solver = DefaultSolver::new(&pm, &q, &a, &b, &cones, settings(&p)?)
+            .map_err(|e| PassivityError::Solver(e.to_string()))?;
+        if !solver.is_data_update_allowed() {
+            return Err(PassivityError::Solver("clarabel does not allow data updates".into()));
+        }
+        // One solve at set-up: whatever clarabel sizes lazily is sized now.
+        solver.solve();
+        let a_nz = a.nzval.clone();
+        Ok(PassivityFilter {
+            tank: p.tank_initial_j,
+            stats: PassivityStats::new(p.tank_initial_j),
+            params: p,
+            solver,
+            q,
+            b,
+            a_nz,
+            f_prev: Vec3::zeros(),
+            x_prev: Vec3::zeros(),
+            have_prev: false,
+            theta: 0.0,
+            g_prev: g0,
+        })
+    }
+
+    /// The parameters.
+    pub fn params(&self) -> &PassivityParams {
+        &self.params
+    }
+
+    /// Counters since construction.
+    pub fn stats(&self) -> &PassivityStats {
+        &self.stats
+    }
+
+    /// Tank level (J).
+    pub fn tank_j(&self) -> f64 {
+        self.tank
+    }
+
+    /// The last force output (N).
+    pub fn last_force(&self) -> Vec3 {
+        self.f_prev
+    }
+
+    /// Forgets the force and tank history (watchdog): force 0, tank at its
+    /// initial level, thermal state cold, observer restarted. Counters stay.
+    pub fn reset(&mut self) {
+        self.f_prev = Vec3::zeros();
+        self.have_prev = false;
+        self.tank = self.params.tank_initial_j;
+        self.theta = 0.0;
+    }
+
+    /// The norm bound for the current thermal state (N).
+    pub fn bound_n(&self) -> f64 {
+        let p = &self.params;
+        match p.norm_bound {
+            NormBound::Peak => p.peak_force_n,
+            NormBound::Continuous => p.continuous_force_n,
+            NormBound::Thermal => {
+                let (pk2, c2) = (p.peak_force_n.powi(2), p.continuous_force_n.powi(2));
+                (pk2 - (pk2 - c2) * (self.theta / c2).min(1.0)).max(c2).sqrt()
+            }
+        }
+    }
+
+    /// One tick: `f_des` the model's force on the hand (N), `x` and `v` the
+    /// measured stylus position (m) and velocity (m/s). Returns the force to
+    /// command, held until the next call. Does not allocate (but see the
+    /// module doc on clarabel's timers).
+    pub fn filter(&mut self, f_des: Vec3, x: Vec3, v: Vec3) -> FilterOutput {
+        let p = &self.params;
+        let (dt, delta) = (p.dt_s, p.rate_n_per_tick);
+        let x_ok = x.iter().chain(v.iter()).all(|c| c.is_finite());
+        // Energy observer for the interval that just ended (F_prev was held).
+        if x_ok && self.have_prev {
+            let dx = x - self.x_prev;
+            let delivered = self.f_prev.dot(&dx);
+            let credit = p.damping_credit_ns_per_m * dx.norm_squared() / dt;
+            if delivered > 0.0 {
+                self.stats.delivered_j += delivered;
+            } else {
+                self.stats.absorbed_j -= delivered;
+            }
+            self.stats.credit_j += credit;
+            let e = self.tank - delivered + credit;
+            if e > p.tank_max_j {
+                self.stats.spilled_j += e - p.tank_max_j;
+            }
+            self.tank = e.min(p.tank_max_j);
+            self.stats.tank_low_j = self.stats.tank_low_j.min(self.tank);
+        }
+        self.have_prev = x_ok;
+        if x_ok {
+            self.x_prev = x;
+        }
+        // The thermal state sees the force held during the last interval.
+        self.theta += (dt / p.thermal_tau_s).min(1.0) * (self.f_prev.norm_squared() - self.theta);
+        let bound = self.bound_n();
+
+        if !x_ok || !f_des.iter().all(|c| c.is_finite()) {
+            self.stats.fallbacks_nonfinite += 1;
+            self.f_prev = Vec3::zeros();
+            return FilterOutput {
+                force: Vec3::zeros(),
+                active: Active::default(),
+                iterations: 0,
+                status: QpStatus::NotRun,
+                fallback: Some(Fallback::NonFinite),
+                rate_excess_n: 0.0,
+                bound_n: bound,
+                tank_j: self.tank,
+            };
+        }
+
+        // Energy row, normalized (module doc).
+        let h_cap = 2.0 * bound + 1.0;
+        let budget = (self.tank - p.tank_min_j).max(0.0);
+        let speed = v.norm();
+        let (g, h) = if speed * dt > 1e-15 {
+            (v / speed, (budget / (dt * speed)).min(h_cap))
+        } else {
+            (self.g_prev, h_cap)
+        };
+        self.g_prev = g;
+
+        let ans = self.solve(f_des, self.f_prev, bound, g, h);
+        let ok = matches!(ans.status, QpStatus::Solved | QpStatus::AlmostSolved) && ans.f.iter().all(|c| c.is_finite());
+        let (mut f, fallback) = if ok {
+            (ans.f, None)
+        } else {
+            self.stats.fallbacks_solver += 1;
+            let n = self.f_prev.norm();
+            let ramp = if n > 0.0 { (1.0 - delta / n).max(0.0) } else { 0.0 };
+            (self.f_prev * ramp, Some(Fallback::Solver))
+        };
+        // Hard rows exactly, not to the solver's tolerance.
+        let mut alpha: f64 = 1.0;
+        let n = f.norm();
+        if n > bound {
+            alpha = bound / n;
+        }
+        let gf = g.dot(&f) * alpha;
+        if gf > h {
+            alpha *= h / gf;
+        }
+        f *= alpha.clamp(0.0, 1.0);
+
+        let tol = 1e-6 * bound.max(1.0);
+        let change = (f - self.f_prev).norm();
+        let active = Active {
+            norm: f.norm() >= bound - tol,
+            rate: change >= delta - tol,
+            energy: h < h_cap && g.dot(&f) >= h - tol,
+        };
+        let excess = (change - delta).max(0.0);
+        self.stats.solves += 1;
+        self.stats.active_norm += active.norm as u64;
+        self.stats.active_rate += active.rate as u64;
+        self.stats.rate_exceeded += (excess > tol) as u64;
+        self.stats.active_energy += active.energy as u64;
+        self.stats.iter_hist[(ans.iterations as usize).min(ITER_HIST_LEN - 1)] += 1;
+        self.f_prev = f;
+        FilterOutput {
+            force: f,
+            active,
+            iterations: ans.iterations,
+            status: ans.status,
+            fallback,
+            rate_excess_n: excess,
+            bound_n: bound,
+            tank_j: self.tank,
+        }
+    }
+
+    /// Updates q, b and the energy row of A in place and solves
+    /// `min ‖F − f_des‖² + w s` s.t. `‖F‖ ≤ bound`, `‖F − f_prev‖ ≤ Δ + s`,
+    /// `s ≥ 0`, `g·F ≤ h`.
+    fn solve(&mut self, f_des: Vec3, f_prev: Vec3, bound: f64, g: Vec3, h: f64) -> QpAnswer {
+        for j in 0..3 {
+            self.q[j] = -2.0 * f_des[j];
+            self.a_nz[3 * j] = g[j];
+            self.b[ROW_NORM + 1 + j] = 0.0;
+            self.b[ROW_RATE + 1 + j] = -f_prev[j];
+        }
+        self.q[3] = self.params.rate_slack_weight_n;
+        self.b[0] = 0.0;
+        self.b[ROW_ENERGY] = h;
+        self.b[ROW_NORM] = bound;
+        self.b[ROW_RATE] = self.params.rate_n_per_tick;
+        // The updates only fail on a dimension mismatch or a presolved
+        // problem, both excluded at construction.
+        let upd = self
+            .solver
+            .update_q(&self.q)
+            .and_then(|_| self.solver.update_b(&self.b))
+            .and_then(|_| self.solver.update_A(&self.a_nz));
+        if upd.is_err() {
+            return QpAnswer {
+                f: Vec3::zeros(),
+                status: QpStatus::Failed,
+                iterations: 0,
+            };
+        }
+        self.solver.solve();
+        let sol = &self.solver.solution;
+        let status = match sol.status {
+            SolverStatus::Solved => QpStatus::Solved,
+            SolverStatus::AlmostSolved => QpStatus::AlmostSolved,
+            SolverStatus::MaxIterations => QpStatus::MaxIterations,
+            _ => QpStatus::Failed,
+        };
+        let mut f = Vec3::new(sol.x[0], sol.x[1], sol.x[2]);
+        if matches!(status, QpStatus::Solved | QpStatus::AlmostSolved) {
+            let z = &sol.z;
+            let scale = bound.max(1.0);
+            let act = |zi: f64| zi > 1e-7 * scale;
+            let delta = self.params.rate_n_per_tick;
+            let s_val = sol.x[3];
+            let dual_norm = z[ROW_NORM];
+            let dual_rate = z[ROW_RATE];
+            let set = PolishSet {
+                norm: act(dual_norm).then_some(dual_norm / bound),
+                rate: (s_val <= 1e-9 * scale && act(dual_rate)).then_some(dual_rate / delta),
+                energy: act(z[ROW_ENERGY]).then_some(z[ROW_ENERGY]),
+                slack: s_val > 1e-9 * scale,
+            };
+            if let Some(fp) = polish(
+                f,
+                f_des,
+                f_prev,
+                bound,
+                delta,
+                self.params.rate_slack_weight_n,
+                g,
+                h,
+                set,
+            ) {
+                f = fp;
+            }
+        }
+        QpAnswer {
+            f,
+            status,
+            iterations: sol.iterations,
+        }
+    }
+}
+
+/// The active set the interior-point answer shows, with initial multipliers.
+#[derive(Debug, Clone, Copy)]
+struct PolishSet {
+    norm: Option<f64>,
+    rate: Option<f64>,
+    energy: Option<f64>,
+    /// The rate slack is positive: the rate row's multiplier is then exactly
+    /// w and the rate term is the smooth penalty `w ‖F − F_prev‖`.
+    slack: bool,
+}
+
+/// Polishes an interior-point answer: Newton on the KKT equations of the
+/// active set the solver found (equality-constrained, ≤ 6 unknowns, fixed
+/// size, no allocation). An interior-point method stops with a duality gap
+/// of ~1e-9, which on a curved (cone) boundary leaves the force off by
+/// ~sqrt(gap) (1e-5 N); the polished answer is exact to round-off. It is
+/// accepted only if it is feasible, its multipliers have the right sign and
+/// it is no worse than the solver's; otherwise `None` (keep the solver's).
+#[allow(clippy::too_many_arguments)]
+fn polish(
+    f0: Vec3,
+    f_des: Vec3,
+    f_prev: Vec3,
+    bound: f64,
+    delta: f64,
+    w: f64,
+    g: Vec3,
+    h: f64,
+    set: PolishSet,
+) -> Option<Vec3> {
+    use nalgebra::{SMatrix, SVector};
+    let mut f = f0;
+    let mut lam = [
+        set.norm.unwrap_or(0.0),
+        set.rate.unwrap_or(0.0),
+        set.energy.unwrap_or(0.0),
+    ];
+    let on = [set.norm.is_some(), set.rate.is_some(), set.energy.is_some()];
+    let obj = |f: &Vec3| {
+        let r = (f - f_prev).norm();
+        (f - f_des).norm_squared() + if set.slack { w * (r - delta).max(0.0) } else { 0.0 }
+    };
+    for _ in 0..8 {
+        let mut kkt = SMatrix::<f64, 6, 6>::zeros();
+        let mut rhs = SVector::<f64, 6>::zeros();
+        let mut hess = nalgebra::Matrix3::<f64>::identity() * 2.0;
+        let mut grad = (f - f_des) * 2.0;
+        if set.slack {
+            let d = f - f_prev;
+            let r = d.norm();
+            if r < 1e-12 {
+                return None;
+            }
+            let u = d / r;
+            grad += u * w;
+            hess += (nalgebra::Matrix3::identity() - u * u.transpose()) * (w / r);
+        }
+        let jac = [f, f - f_prev, g];
+        let cons = [
+            0.5 * (f.norm_squared() - bound * bound),
+            0.5 * ((f - f_prev).norm_squared() - delta * delta),
+            g.dot(&f) - h,
+        ];
+        for i in 0..3 {
+            if on[i] {
+                grad += jac[i] * lam[i];
+                if i < 2 {
+                    hess += nalgebra::Matrix3::identity() * lam[i];
+                }
+                for r in 0..3 {
+                    kkt[(r, 3 + i)] = jac[i][r];
+                    kkt[(3 + i, r)] = jac[i][r];
+                }
+                rhs[3 + i] = -cons[i];
+            } else {
+                kkt[(3 + i, 3 + i)] = 1.0;
+            }
+        }
+        kkt.fixed_view_mut::<3, 3>(0, 0).copy_from(&hess);
+        rhs.fixed_rows_mut::<3>(0).copy_from(&(-grad));
+        let step = kkt.lu().solve(&rhs)?;
+        f += Vec3::new(step[0], step[1], step[2]);
+        for i in 0..3 {
+            if on[i] {
+                lam[i] += step[3 + i];
+            }
+        }
+        if step.norm() < 1e-14 * (1.0 + f.norm()) {
+            break;
+        }
+    }
+    let tol = 1e-10 * bound.max(1.0);
+    let r = (f - f_prev).norm();
+    let feasible = f.norm() <= bound + tol
+        && g.dot(&f) <= h + tol
+        && (set.slack || r <= delta + tol)
+        && (!set.slack || r >= delta - tol);
+    let signs = (0..3).all(|i| !on[i] || lam[i] >= -tol);
+    let finite = f.iter().all(|c| c.is_finite());
+    // A feasible KKT point with the right signs is the optimum (convex
+    // problem); the objective test is only a sanity check.
+    (finite && feasible && signs && obj(&f) <= obj(&f0) + 1e-6 * (1.0 + obj(&f0).abs())).then_some(f)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use proptest::prelude::*;
+
+    fn params() -> PassivityParams {
+        PassivityParams {
+            norm_bound: NormBound::Peak,
+            tol_gap_abs: 1e-10,
+            tol_gap_rel: 1e-10,
+            tol_feas: 1e-10,
+            max_iter: 50,
+            ..PassivityParams::default()
+        }
+    }
+
+    // ---- An independent solver: exact projection by enumerating the faces
+    // of {‖F‖ ≤ R} ∩ {‖F − P‖ ≤ r} ∩ {g·F ≤ h}, and a golden-section search
+    // over the slack s on the convex function φ(s) + w s. ----
+
+    struct Sets {
+        r1: f64,
+        p: Vec3,
+        r2: f64, // < 0: no rate ball
+        g: Vec3,
+        h: f64,
+    }
+
+    impl Sets {
+        fn feasible(&self, x: &Vec3) -> bool {
+            let t = 1e-9;
+            x.norm() <= self.r1 + t
+                && (self.r2 < 0.0 || (x - self.p).norm() <= self.r2 + t)
+                && self.g.dot(x) <= self.h + t
+        }
+    }
+
+    /// Critical points of the distance from y on the circle (c, n, rho).
+    fn circle_points(y: &Vec3, c: Vec3, n: Vec3, rho: f64, out: &mut Vec<Vec3>) {
+        let yp = y - n * (y - c).dot(&n);
+        let d = yp - c;
+        if d.norm() > 1e-14 {
+            let u = d.normalize();
+            out.push(c + u * rho);
+            out.push(c - u * rho);
+        }
+    }
+
+    fn basis(n: Vec3) -> (Vec3, Vec3) {
+        let a = if n.x.abs() < 0.9 { Vec3::x() } else { Vec3::y() };
+        let u = n.cross(&a).normalize();
+        (u, n.cross(&u))
+    }
+
+    /// Circle where two spheres meet.
+    fn sphere_sphere(c1: Vec3, r1: f64, c2: Vec3, r2: f64) -> Option<(Vec3, Vec3, f64)> {
+        let d = (c2 - c1).norm();
+        if d < 1e-14 || d > r1 + r2 || d < (r1 - r2).abs() {
+            return None;
+        }
+        let n = (c2 - c1) / d;
+        let a = (r1 * r1 - r2 * r2 + d * d) / (2.0 * d);
+        Some((c1 + n * a, n, (r1 * r1 - a * a).max(0.0).sqrt()))
+    }
+
+    fn sphere_plane(c: Vec3, r: f64, g: Vec3, h: f64) -> Option<(Vec3, Vec3, f64)> {
+        let delta = h - g.dot(&c);
+        if delta.abs() > r {
+            return None;
+        }
+        Some((c + g * delta, g, (r * r - delta * delta).sqrt()))
+    }
+
+    fn project(y: Vec3, s: &Sets) -> Option<Vec3> {
+        let mut cand = vec![y];
+        let has2 = s.r2 >= 0.0;
+        if y.norm() > 0.0 {
+            cand.push(y * (s.r1 / y.norm()));
+        }
+        if has2 && (y - s.p).norm() > 0.0 {
+            cand.push(s.p + (y - s.p) * (s.r2 / (y - s.p).norm()));
+        }
+        cand.push(y - s.g * (s.g.dot(&y) - s.h));
+        let mut circles = vec![];
+        if has2 {
+            circles.extend(sphere_sphere(Vec3::zeros(), s.r1, s.p, s.r2));
+            circles.extend(sphere_plane(s.p, s.r2, s.g, s.h));
+        }
+        circles.extend(sphere_plane(Vec3::zeros(), s.r1, s.g, s.h));
+        for &(c, n, rho) in &circles {
+            circle_points(&y, c, n, rho, &mut cand);
+        }
+        // Triple points: the spheres' circle cut by the plane.
+        if has2 {
+            if let Some((c, n, rho)) = sphere_sphere(Vec3::zeros(), s.r1, s.p, s.r2) {
+                let (u, w) = basis(n);
+                let (a, b) = (rho * s.g.dot(&u), rho * s.g.dot(&w));
+                let rhs = s.h - s.g.dot(&c);
+                let m = (a * a + b * b).sqrt();
+                if m > 1e-14 && rhs.abs() <= m {
+                    let phi = b.atan2(a);
+                    let dphi = (rhs / m).acos();
+                    for t in [phi + dphi, phi - dphi] {
+                        cand.push(c + (u * t.cos() + w * t.sin()) * rho);
+                    }
+                }
+            }
+        }
+        cand.into_iter()
+            .filter(|c| s.feasible(c))
+            .min_by(|a, b| (a - y).norm().total_cmp(&(b - y).norm()))
+    }
+
+    /// The reference answer of the QP.
+    fn reference(f_des: Vec3, f_prev: Vec3, bound: f64, delta: f64, w: f64, g: Vec3, h: f64) -> Vec3 {
+        let no_rate = Sets {
+            r1: bound,
+            p: f_prev,
+            r2: -1.0,
+            g,
+            h,
+        };
+        let pk_prev = project(f_prev, &no_rate).expect("K is never empty");
+        let pk_des = project(f_des, &no_rate).expect("K is never empty");
+        let s_lo = ((pk_prev - f_prev).norm() - delta).max(0.0);
+        let s_hi = ((pk_des - f_prev).norm() - delta).max(s_lo);
+        let at = |s: f64| {
+            let sets = Sets {
+                r1: bound,
+                p: f_prev,
+                r2: delta + s,
+                g,
+                h,
+            };
+            project(f_des, &sets).map(|f| (f, (f - f_des).norm_squared() + w * s))
+        };
+        if s_hi - s_lo < 1e-15 {
+            return at(s_hi).expect("feasible at s_hi").0;
+        }
+        let (mut a, mut b) = (s_lo, s_hi);
+        let r = (5f64.sqrt() - 1.0) / 2.0;
+        let val = |s: f64| at(s).map(|x| x.1).unwrap_or(f64::INFINITY);
+        for _ in 0..300 {
+            let (c, d) = (b - r * (b - a), a + r * (b - a));
+            if val(c) <= val(d) {
+                b = d;
+            } else {
+                a = c;
+            }
+        }
+        let s = 0.5 * (a + b);
+        // The ends are candidates too (the minimum may sit on one).
+        [s, s_lo, s_hi]
+            .iter()
+            .filter_map(|&s| at(s))
+            .min_by(|x, y| x.1.total_cmp(&y.1))
+            .expect("feasible")
+            .0
+    }
+
+    fn unit(a: f64, b: f64) -> Vec3 {
+        // a ∈ [-1, 1] (cos polar), b ∈ [0, 2π)
+        let sa = (1.0 - a * a).max(0.0).sqrt();
+        Vec3::new(sa * b.cos(), sa * b.sin(), a)
+    }
+
+    proptest! {
+        #![proptest_config(ProptestConfig::with_cases(300))]
+        #[test]
+        fn qp_matches_an_independent_solver(
+            fd in prop::array::uniform3(-15.0f64..15.0),
+            pa in -1.0f64..1.0, pb in 0.0f64..6.28, pr in 0.0f64..1.0,
+            ga in -1.0f64..1.0, gb in 0.0f64..6.28,
+            h in 0.0f64..6.0,
+            bound in 1.0f64..7.9,
+            delta in 0.05f64..2.0,
+            w in prop::sample::select(vec![50.0, 1e3]),
+        ) {
+            let mut flt = PassivityFilter::new(&PassivityParams { rate_n_per_tick: delta, rate_slack_weight_n: w, ..params() }).unwrap();
+            let f_des = Vec3::from(fd);
+            let f_prev = unit(pa, pb) * (pr * bound);
+            let g = unit(ga, gb);
+            let ans = flt.solve(f_des, f_prev, bound, g, h);
+            prop_assert!(matches!(ans.status, QpStatus::Solved | QpStatus::AlmostSolved), "{:?}", ans.status);
+            let r = reference(f_des, f_prev, bound, delta, w, g, h);
+            prop_assert!((ans.f - r).norm() < 1e-6, "qp {:?} ref {:?} diff {:e}", ans.f, r, (ans.f - r).norm());
+        }
+
+        #[test]
+        fn always_feasible_and_hard_rows_hold(
+            fd in prop::array::uniform3(-50.0f64..50.0),
+            xs in prop::collection::vec(prop::array::uniform3(-1.0f64..1.0), 1..40),
+            tank in 0.0f64..0.05,
+        ) {
+            let p = PassivityParams { tank_initial_j: tank.max(1e-3), ..PassivityParams::default() };
+            let mut flt = PassivityFilter::new(&p).unwrap();
+            let mut x = Vec3::zeros();
+            for (k, v) in xs.iter().enumerate() {
+                let v = Vec3::from(*v);
+                let f_des = Vec3::from(fd) * ((k % 3) as f64 - 1.0);
+                let tank_before_row = (flt.tank_j() - p.tank_min_j).max(0.0);
+                let _ = tank_before_row;
+                x += v * p.dt_s;
+                let out = flt.filter(f_des, x, v);
+                prop_assert!(out.fallback.is_none(), "{:?}", out);
+                prop_assert!(out.force.norm() <= out.bound_n * (1.0 + 1e-12));
+                let budget = (out.tank_j - p.tank_min_j).max(0.0);
+                prop_assert!(p.dt_s * v.dot(&out.force) <= budget + 1e-12, "{:?}", out);
+            }
+        }
+    }
+
+    #[test]
+    fn inside_all_bounds_returns_f_des() {
+        let mut flt = PassivityFilter::new(&params()).unwrap();
+        let f_des = Vec3::new(0.3, -0.2, 0.4);
+        let out = flt.filter(f_des, Vec3::zeros(), Vec3::zeros());
+        assert!((out.force - f_des).norm() < 1e-7, "{out:?}");
+        assert_eq!(out.active, Active::default());
+        assert_eq!(out.fallback, None);
+    }
+
+    #[test]
+    fn over_the_norm_scales_to_the_bound() {
+        let p = PassivityParams {
+            rate_n_per_tick: 100.0,
+            ..params()
+        };
+        let mut flt = PassivityFilter::new(&p).unwrap();
+        let f_des = Vec3::new(10.0, -20.0, 5.0);
+        let out = flt.filter(f_des, Vec3::zeros(), Vec3::zeros());
+        let want = f_des * (7.9 / f_des.norm());
+        assert!((out.force - want).norm() < 1e-6, "{out:?}");
+        assert!(out.active.norm && !out.active.energy && !out.active.rate);
+    }
+
+    #[test]
+    fn rate_bound_limits_a_step() {
+        let mut flt = PassivityFilter::new(&params()).unwrap();
+        let out = flt.filter(Vec3::new(0.0, 0.0, 5.0), Vec3::zeros(), Vec3::zeros());
+        assert!((out.force - Vec3::new(0.0, 0.0, 1.0)).norm() < 1e-6, "{out:?}");
+        assert!(out.active.rate && out.rate_excess_n < 1e-6);
+    }
+
+    #[test]
+    fn empty_tank_stops_output_along_the_motion() {
+        let p = PassivityParams {
+            tank_initial_j: 1e-3,
+            tank_min_j: 1e-3,
+            ..params()
+        };
+        let mut flt = PassivityFilter::new(&p).unwrap();
+        let v = Vec3::new(0.0, 0.0, 0.1);
+        // Pushing along the motion: nothing may be delivered.
+        let out = flt.filter(Vec3::new(0.0, 0.0, 0.5), Vec3::zeros(), v);
+        assert!(out.force.norm() < 1e-6, "{out:?}");
+        assert!(out.active.energy);
+        // The part across the motion is still passed.
+        let out = flt.filter(Vec3::new(0.5, 0.0, 0.5), v * p.dt_s, v);
+        assert!((out.force - Vec3::new(0.5, 0.0, 0.0)).norm() < 1e-6, "{out:?}");
+        // Opposing the motion (absorbing) is always allowed.
+        let mut flt = PassivityFilter::new(&p).unwrap();
+        let out = flt.filter(Vec3::new(0.0, 0.0, -0.5), Vec3::zeros(), v);
+        assert!((out.force - Vec3::new(0.0, 0.0, -0.5)).norm() < 1e-6, "{out:?}");
+    }
+
+    #[test]
+    fn tank_accounts_exactly() {
+        let p = PassivityParams {
+            damping_credit_ns_per_m: 0.5,
+            tank_max_j: 10.0,
+            ..params()
+        };
+        let mut flt = PassivityFilter::new(&p).unwrap();
+        let mut x = Vec3::zeros();
+        let mut rng = 1u64;
+        let mut next = || {
+            rng = rng.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+            (rng >> 11) as f64 / (1u64 << 53) as f64 - 0.5
+        };
+        for _ in 0..500 {
+            let v = Vec3::new(next(), next(), next()) * 0.2;
+            x += v * p.dt_s;
+            flt.filter(Vec3::new(next(), next(), next()) * 4.0, x, v);
+        }
+        let s = flt.stats();
+        let want = p.tank_initial_j - s.delivered_j + s.absorbed_j + s.credit_j - s.spilled_j;
+        assert!((flt.tank_j() - want).abs() < 1e-12, "{} vs {want}", flt.tank_j());
+        assert!(s.delivered_j > 0.0 && s.absorbed_j > 0.0 && s.credit_j > 0.0);
+        assert_eq!(s.fallbacks(), 0);
+        assert_eq!(s.iter_hist.iter().sum::<u64>(), s.solves);
+        assert!(s.iter_p99() >= s.iter_quantile(0.5) && s.iter_p99() > 0);
+    }
+
+    #[test]
+    fn non_finite_input_gives_zero_and_is_counted() {
+        let mut flt = PassivityFilter::new(&params()).unwrap();
+        flt.filter(Vec3::new(0.5, 0.0, 0.0), Vec3::zeros(), Vec3::zeros());
+        let out = flt.filter(Vec3::new(f64::NAN, 0.0, 0.0), Vec3::zeros(), Vec3::zeros());
+        assert_eq!(out.force, Vec3::zeros());
+        assert_eq!(out.fallback, Some(Fallback::NonFinite));
+        let out = flt.filter(
+            Vec3::new(0.5, 0.0, 0.0),
+            Vec3::new(f64::INFINITY, 0.0, 0.0),
+            Vec3::zeros(),
+        );
+        assert_eq!(out.force, Vec3::zeros());
+        assert_eq!(flt.stats().fallbacks_nonfinite, 2);
+        assert!(flt.tank_j().is_finite());
+        let out = flt.filter(Vec3::new(0.5, 0.0, 0.0), Vec3::zeros(), Vec3::zeros());
+        assert!(out.fallback.is_none() && (out.force.x - 0.5).abs() < 1e-6);
+    }
+
+    #[test]
+    fn solver_failure_ramps_down_within_the_hard_rows() {
+        // max_iter = 1 cannot converge: every tick falls back.
+        let p = PassivityParams {
+            max_iter: 1,
+            ..params()
+        };
+        let mut flt = PassivityFilter::new(&p).unwrap();
+        flt.f_prev = Vec3::new(3.0, 0.0, 0.0);
+        let out = flt.filter(Vec3::new(5.0, 0.0, 0.0), Vec3::zeros(), Vec3::zeros());
+        assert_eq!(out.fallback, Some(Fallback::Solver));
+        assert!((out.force - Vec3::new(2.0, 0.0, 0.0)).norm() < 1e-12, "{out:?}");
+        let out = flt.filter(Vec3::new(5.0, 0.0, 0.0), Vec3::zeros(), Vec3::zeros());
+        assert!((out.force - Vec3::new(1.0, 0.0, 0.0)).norm() < 1e-12, "{out:?}");
+        assert_eq!(flt.stats().fallbacks_solver, 2);
+    }
+
+    #[test]
+    fn thermal_bound_slides_to_continuous() {
+        let p = PassivityParams {
+            norm_bound: NormBound::Thermal,
+            thermal_tau_s: 0.05,
+            ..params()
+        };
+        let mut flt = PassivityFilter::new(&p).unwrap();
+        let mut last = f64::INFINITY;
+        let mut out = flt.filter(Vec3::new(20.0, 0.0, 0.0), Vec3::zeros(), Vec3::zeros());
+        assert!((out.bound_n - 7.9).abs() < 1e-12);
+        for _ in 0..2000 {
+            out = flt.filter(Vec3::new(20.0, 0.0, 0.0), Vec3::zeros(), Vec3::zeros());
+            assert!(out.bound_n <= last + 1e-9);
+            last = out.bound_n;
+        }
+        assert!((out.bound_n - 1.75).abs() < 1e-3, "{out:?}");
+        assert!((out.force.norm() - out.bound_n).abs() < 1e-6);
+    }
+
+    #[test]
+    fn bad_params_name_the_key() {
+        let c = Checker::new(Path::new("rt-config/service.toml"));
+        let p = PassivityParams {
+            continuous_force_n: 9.0,
+            ..PassivityParams::default()
+        };
+        let e = p.validate(&c, "passivity").unwrap_err();
+        assert_eq!(e.key, "passivity.continuous_force_n");
+        assert!(e.to_string().contains("rt-config/service.toml"), "{e}");
+        assert!(PassivityFilter::new(&p).is_err());
+        let e = crate::config::parse_toml::<PassivityParams>("dt_s = 0.001\nbogus = 1", Path::new("x.toml"));
+        assert!(e.is_err());
+        let text = toml::to_string(&PassivityParams::default()).unwrap();
+        let back: PassivityParams = crate::config::parse_toml(&text, Path::new("x.toml")).unwrap();
+        assert_eq!(back, PassivityParams::default());
+        back.validate(&c, "passivity").unwrap();
+    }
+}

@@ -1,0 +1,323 @@
+//! The haptic loop's computation for one tick, without threads or rings so
+//! it can be tested directly: read the tool pose, find the contact with the
+//! deformed surface, step the reduced model with the contact implicit,
+//! produce the tool force, and guard it with the watchdog (ramp to zero on a
+//! silent device, a non-finite value or an overrun streak; reset the reduced
+//! state on a non-finite value). The passivity filter sits between the
+//! contact force and the watchdog gain (see `service`).
+//!
+//! Everything here is sized at construction: [`Servo::tick`] and
+//! [`Servo::swap`] never allocate, free, lock or block.
+
+use super::contact::{self, Candidates, ContactOutput, ContactParams, SurfaceIndex};
+use super::device::DeviceSample;
+use crate::mesh::Vec3;
+use crate::reduced::ReducedDynamics;
+use nalgebra::{SMatrix, SVector};
+use std::sync::Arc;
+
+/// A reduced model as the loop runs it: linear reduced dynamics about the
+/// background solve's displacement ū, in coordinates δq (u ≈ ū + Φ δq).
+#[derive(Debug, Clone)]
+pub struct LoopModel<const R: usize> {
+    /// Sequence number of the refresh (0: the model linearized at rest).
+    pub epoch: u64,
+    /// The reduced dynamics (K_r(ū), shared Φ rows, state δq).
+    pub dynamics: ReducedDynamics<R>,
+    /// ū per mesh node (m).
+    pub offset: Arc<Vec<Vec3>>,
+    /// Φᵀ f̄_c: the reduced contact force the full solve was given.
+    pub f_bar: SVector<f64, R>,
+    /// State transfer from the previous epoch: δq ← T δq + s.
+    pub transfer: SMatrix<f64, R, R>,
+    /// See `transfer`.
+    pub shift: SVector<f64, R>,
+    /// Creation time (s on the service clock).
+    pub created_s: f64,
+}
+
+/// Watchdog and contact settings of the loop.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ServoParams {
+    /// Tick period (s).
+    pub dt: f64,
+    /// Contact.
+    pub contact: ContactParams,
+    /// Scene position of the device origin (m).
+    pub device_origin: Vec3,
+    /// Device silence before the force ramps down (s).
+    pub device_timeout_s: f64,
+    /// Model age that raises the stale-model flag (s); infinite to disable.
+    pub model_timeout_s: f64,
+    /// Consecutive deadline misses that ramp the force down.
+    pub overrun_streak: u32,
+    /// Full-to-zero ramp time on a fault (s).
+    pub ramp_down_s: f64,
+    /// Zero-to-full ramp time at start and after a fault (s).
+    pub ramp_in_s: f64,
+}
+
+/// Status bits of a tick (also the stream's flags).
+pub mod flags {
+    /// The watchdog is holding the force down (a fault is active).
+    pub const WATCHDOG: u32 = 1 << 0;
+    /// The tool touches the surface.
+    pub const CONTACT: u32 = 1 << 1;
+    /// The passivity filter changed the force.
+    pub const LIMITED: u32 = 1 << 2;
+    /// The reduced model is older than the model timeout.
+    pub const MODEL_STALE: u32 = 1 << 3;
+    /// No fresh device sample within the device timeout.
+    pub const DEVICE_SILENT: u32 = 1 << 4;
+    /// A non-finite value was caught this tick (state reset).
+    pub const NONFINITE: u32 = 1 << 5;
+    /// Too many consecutive deadline misses.
+    pub const OVERRUN: u32 = 1 << 6;
+    /// The contact list overflowed and was truncated.
+    pub const TRUNCATED: u32 = 1 << 7;
+    /// The loop runs under SCHED_FIFO.
+    pub const RT_GRANTED: u32 = 1 << 8;
+}
+
+/// Counters of the loop (read at the end).
+#[derive(Debug, Clone, Copy, Default, PartialEq, serde::Serialize)]
+pub struct ServoCounters {
+    /// Ticks run.
+    pub ticks: u64,
+    /// Models swapped in.
+    pub model_swaps: u64,
+    /// Ticks with a non-finite value (each resets the reduced state).
+    pub nonfinite: u64,
+    /// Ticks with the device silent.
+    pub device_silent_ticks: u64,
+    /// Ticks with a stale model.
+    pub model_stale_ticks: u64,
+    /// Ticks with the watchdog gain below 1 because of a fault.
+    pub watchdog_ticks: u64,
+    /// Ticks in contact.
+    pub contact_ticks: u64,
+    /// Ticks whose contact list was truncated.
+    pub truncated_ticks: u64,
+    /// Ticks where the contact stiffness was dropped (not PSD).
+    pub contact_stiffness_dropped: u64,
+}
+
+/// What one tick produced.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct TickOutput {
+    /// The desired (unfiltered) force on the tool (N), scene frame.
+    pub desired: Vec3,
+    /// Tool centre (m, scene frame).
+    pub tool: Vec3,
+    /// Status bits ([`flags`]).
+    pub flags: u32,
+    /// Deepest penetration (m).
+    pub depth: f64,
+}
+
+/// The loop state.
+pub struct Servo<const R: usize> {
+    model: Box<LoopModel<R>>,
+    index: Arc<SurfaceIndex>,
+    params: ServoParams,
+    scratch: Candidates,
+    contact: ContactOutput<R>,
+    gain: f64,
+    last_seq: u64,
+    last_fresh_s: f64,
+    counters: ServoCounters,
+    tool: Vec3,
+    now_s: f64,
+    fault_until_s: f64,
+}
+
+/// How long a fault keeps the force down after its last tick, beyond the
+/// ramp-down time (s): a single bad sample still takes the force to zero
+/// before it ramps back in.
+pub const FAULT_HOLD_S: f64 = 0.1;
+
+impl<const R: usize> Servo<R> {
+    /// A loop on `model` with the surface `index`. Allocates here only.
+    pub fn new(model: Box<LoopModel<R>>, index: Arc<SurfaceIndex>, params: ServoParams, now_s: f64) -> Servo<R> {
+        Servo {
+            model,
+            index,
+            params,
+            scratch: Candidates::new(),
+            contact: ContactOutput::default(),
+            gain: 0.0,
+            last_seq: 0,
+            last_fresh_s: now_s,
+            counters: ServoCounters::default(),
+            tool: Vec3::zeros(),
+            now_s,
+            fault_until_s: f64::NEG_INFINITY,
+        }
+    }
+
+    /// Swaps in a new model, carrying the state over by its transfer
+    /// (δq ← T δq + s, δq̇ ← T δq̇), and returns the old one (to be sent
+    /// back for freeing off this thread). A transferred state that is not
+    /// finite resets the reduced state.
+    pub fn swap(&mut self, mut new: Box<LoopModel<R>>) -> Box<LoopModel<R>> {
+        let q = new.transfer * self.model.dynamics.q() + new.shift;
+        let qd = new.transfer * self.model.dynamics.qd();
+        if q.iter().chain(qd.iter()).all(|v| v.is_finite()) {
+            new.dynamics.set_state(&q, &qd);
+        } else {
+            new.dynamics.reset();
+            self.counters.nonfinite += 1;
+        }
+        self.counters.model_swaps += 1;
+        std::mem::replace(&mut self.model, new)
+    }
+
+    /// The model in use.
+    pub fn model(&self) -> &LoopModel<R> {
+        &self.model
+    }
+
+    /// The contact of the last tick.
+    pub fn contact(&self) -> &ContactOutput<R> {
+        &self.contact
+    }
+
+    /// Counters so far.
+    pub fn counters(&self) -> &ServoCounters {
+        &self.counters
+    }
+
+    /// The watchdog gain in [0, 1] applied to the output force.
+    pub fn gain(&self) -> f64 {
+        self.gain
+    }
+
+    /// Deformed position of mesh node `i` under the current model and state.
+    pub fn node_position(&self, i: u32) -> Vec3 {
+        let m = &self.model;
+        let base = self.index.rest(i) + m.offset.get(i as usize).copied().unwrap_or_else(Vec3::zeros);
+        match m.dynamics.displacement_at(i) {
+            Some(d) => base + d,
+            None => base,
+        }
+    }
+
+    /// One tick: the freshest device `sample` (None if the ring was empty),
+    /// the time `now_s`, and the current streak of deadline misses. Returns
+    /// the desired force and the status; the caller filters it and then
+    /// applies [`Servo::apply_gain`]. Allocates nothing.
+    pub fn tick(&mut self, sample: Option<&DeviceSample>, now_s: f64, overrun_streak: u32) -> TickOutput {
+        self.counters.ticks += 1;
+        self.now_s = now_s;
+        let mut fl = 0u32;
+        let p = self.params;
+        if let Some(s) = sample {
+            if s.is_finite() {
+                if s.seq != self.last_seq {
+                    self.last_seq = s.seq;
+                    self.last_fresh_s = now_s;
+                }
+                self.tool = s.position + p.device_origin;
+            } else {
+                fl |= flags::NONFINITE;
+            }
+        }
+        if now_s - self.last_fresh_s > p.device_timeout_s {
+            fl |= flags::DEVICE_SILENT;
+            self.counters.device_silent_ticks += 1;
+        }
+        if overrun_streak >= p.overrun_streak {
+            fl |= flags::OVERRUN;
+        }
+        if now_s - self.model.created_s > p.model_timeout_s && self.model.epoch > 0 {
+            fl |= flags::MODEL_STALE;
+            self.counters.model_stale_ticks += 1;
+        }
+
+        // Contact against the surface as the current state deforms it.
+        let tool = self.tool;
+        {
+            let m = &self.model;
+            let index = &self.index;
+            let dynamics = &m.dynamics;
+            let offset = &m.offset;
+            contact::evaluate(
+                index,
+                &p.contact,
+                &tool,
+                |i| {
+                    let base = index.rest(i) + offset.get(i as usize).copied().unwrap_or_else(Vec3::zeros);
+                    base + dynamics.displacement_at(i).unwrap_or_else(Vec3::zeros)
+                },
+                |i| dynamics.rows_at(i).copied(),
+                &mut self.scratch,
+                &mut self.contact,
+            );
+        }
+        if !self.contact.nodes.is_empty() {
+            fl |= flags::CONTACT;
+            self.counters.contact_ticks += 1;
+        }
+        if self.contact.truncated {
+            fl |= flags::TRUNCATED;
+            self.counters.truncated_ticks += 1;
+        }
+        let f = self.contact.reduced_force - self.model.f_bar;
+        let desired = self.contact.tool_force;
+        let finite = desired.iter().all(|v| v.is_finite()) && f.iter().all(|v| v.is_finite());
+        if finite {
+            let kc = &self.contact.reduced_stiffness;
+            if !self.model.dynamics.step_with_contact(&f, kc) {
+                self.counters.contact_stiffness_dropped += 1;
+            }
+        }
+        let state_ok = self.model.dynamics.q().iter().all(|v| v.is_finite())
+            && self.model.dynamics.qd().iter().all(|v| v.is_finite());
+        if !finite || !state_ok {
+            fl |= flags::NONFINITE;
+        }
+        if fl & flags::NONFINITE != 0 {
+            self.model.dynamics.reset();
+            self.counters.nonfinite += 1;
+        }
+        TickOutput {
+            desired: if finite { desired } else { Vec3::zeros() },
+            tool,
+            flags: fl,
+            depth: self.contact.max_depth,
+        }
+    }
+
+    /// Applies the watchdog to the (filtered) force of this tick: a fault in
+    /// `tick_flags` ramps the gain to zero within the ramp-down time and
+    /// holds it there for the ramp-down time plus [`FAULT_HOLD_S`] after the
+    /// fault's last tick; then the gain ramps back in. A non-finite `force`
+    /// counts as zero. Returns the force to command.
+    pub fn apply_gain(&mut self, force: Vec3, tick_flags: &mut u32) -> Vec3 {
+        let p = self.params;
+        if *tick_flags & (flags::DEVICE_SILENT | flags::NONFINITE | flags::OVERRUN) != 0 {
+            self.fault_until_s = self.now_s + p.ramp_down_s + FAULT_HOLD_S;
+        }
+        let fault = self.now_s < self.fault_until_s;
+        if fault {
+            self.gain = if p.ramp_down_s > 0.0 {
+                (self.gain - p.dt / p.ramp_down_s).max(0.0)
+            } else {
+                0.0
+            };
+            *tick_flags |= flags::WATCHDOG;
+            self.counters.watchdog_ticks += 1;
+        } else {
+            self.gain = if p.ramp_in_s > 0.0 {
+                (self.gain + p.dt / p.ramp_in_s).min(1.0)
+            } else {
+                1.0
+            };
+        }
+        if force.iter().all(|v| v.is_finite()) {
+            force * self.gain
+        } else {
+            Vec3::zeros()
+        }
+    }
+}

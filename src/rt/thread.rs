@@ -1,0 +1,158 @@
+//! Scheduling set-up of a real-time thread: SCHED_FIFO at a configured
+//! priority (`thread-priority`), pinning to one CPU (`core_affinity`; the
+//! former has no affinity on Linux), locked memory (`mlockall`) and a
+//! prefaulted stack. Where the OS refuses (no CAP_SYS_NICE, RLIMIT_RTPRIO 0,
+//! RLIMIT_MEMLOCK too small) the call records the refusal and the thread
+//! runs on at normal priority: the service says so once and the report shows
+//! it.
+
+use serde::Serialize;
+
+/// What a thread asks for.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct RtRequest {
+    /// SCHED_FIFO priority 1..=99, or None for the normal policy.
+    pub fifo_priority: Option<u8>,
+    /// CPU to pin to, or None.
+    pub cpu: Option<usize>,
+    /// Bytes of stack to touch so the loop never page-faults on it.
+    pub prefault_stack_bytes: usize,
+}
+
+/// What the OS granted to one thread.
+#[derive(Debug, Clone, Default, PartialEq, Serialize)]
+pub struct RtGrant {
+    /// SCHED_FIFO was granted.
+    pub fifo: bool,
+    /// The priority asked for (0: none asked).
+    pub priority: u8,
+    /// The CPU the thread is pinned to, if pinning worked.
+    pub cpu: Option<usize>,
+    /// Stack bytes prefaulted.
+    pub stack_prefaulted_bytes: usize,
+    /// Why something asked for was refused (one line each).
+    pub refusals: Vec<String>,
+}
+
+/// Locks the process's current and future pages in RAM (`mlockall`). Call
+/// once from the main thread before starting RT threads. Returns the OS
+/// error text when refused.
+pub fn lock_memory() -> Result<(), String> {
+    // SAFETY: mlockall takes flags only and has no memory-safety preconditions.
+    let rc = unsafe { libc::mlockall(libc::MCL_CURRENT | libc::MCL_FUTURE) };
+    if rc == 0 {
+        Ok(())
+    } else {
+        Err(format!(
+            "mlockall refused: {} (raise RLIMIT_MEMLOCK, e.g. LimitMEMLOCK=infinity in the systemd unit)",
+            std::io::Error::last_os_error()
+        ))
+    }
+}
+
+/// Undoes [`lock_memory`].
+pub fn unlock_memory() {
+    // SAFETY: munlockall has no preconditions.
+    unsafe { libc::munlockall() };
+}
+
+#[inline(never)]
+fn prefault(bytes: usize) {
+    // Touch the stack in 4 KiB pages below this frame through a recursion of
+    // fixed-size frames, so no variable-length array is needed.
+    const CHUNK: usize = 16 * 1024;
+    let mut page = [0u8; CHUNK];
+    for i in (0..CHUNK).step_by(4096) {
+        page[i] = 1;
+    }
+    std::hint::black_box(&mut page);
+    if bytes > CHUNK {
+        prefault(bytes - CHUNK);
+    }
+}
+
+/// Applies `req` to the calling thread and reports what was granted. Call it
+/// at the start of the thread, before its loop (it may allocate for the
+/// refusal messages).
+pub fn setup_current(req: &RtRequest) -> RtGrant {
+    let mut grant = RtGrant::default();
+    if let Some(cpu) = req.cpu {
+        let ids = core_affinity::get_core_ids().unwrap_or_default();
+        match ids.iter().find(|c| c.id == cpu) {
+            Some(&id) if core_affinity::set_for_current(id) => grant.cpu = Some(cpu),
+            Some(_) => grant.refusals.push(format!("pinning to CPU {cpu} refused by the OS")),
+            None => grant.refusals.push(format!(
+                "CPU {cpu} is not available to this process (available: {:?})",
+                ids.iter().map(|c| c.id).collect::<Vec<_>>()
+            )),
+        }
+    }
+    if let Some(p) = req.fifo_priority {
+        grant.priority = p;
+        match set_fifo(p) {
+            Ok(()) => grant.fifo = true,
+            Err(e) => grant.refusals.push(format!(
+                "SCHED_FIFO priority {p} refused ({e}); running at normal priority. Grant CAP_SYS_NICE \
+                 (setcap cap_sys_nice+ep) or RLIMIT_RTPRIO (LimitRTPRIO=99)"
+            )),
+        }
+    }
+    if req.prefault_stack_bytes > 0 {
+        prefault(req.prefault_stack_bytes);
+        grant.stack_prefaulted_bytes = req.prefault_stack_bytes;
+    }
+    grant
+}
+
+fn set_fifo(priority: u8) -> Result<(), String> {
+    use thread_priority::unix::{
+        set_thread_priority_and_policy, thread_native_id, RealtimeThreadSchedulePolicy, ThreadSchedulePolicy,
+    };
+    use thread_priority::{ThreadPriority, ThreadPriorityValue};
+    let value = ThreadPriorityValue::try_from(priority.clamp(1, 99)).map_err(|e| e.to_string())?;
+    set_thread_priority_and_policy(
+        thread_native_id(),
+        ThreadPriority::Crossplatform(value),
+        ThreadSchedulePolicy::Realtime(RealtimeThreadSchedulePolicy::Fifo),
+    )
+    .map_err(|e| format!("{e:?}"))
+}
+
+/// Whether the calling thread runs under SCHED_FIFO now.
+pub fn current_is_fifo() -> bool {
+    // SAFETY: sched_getscheduler(0) queries the calling thread; no pointers.
+    unsafe { libc::sched_getscheduler(0) == libc::SCHED_FIFO }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn setup_reports_what_it_got_and_never_fails() {
+        let g = std::thread::spawn(|| {
+            setup_current(&RtRequest {
+                fifo_priority: Some(10),
+                cpu: Some(0),
+                prefault_stack_bytes: 64 * 1024,
+            })
+        })
+        .join()
+        .unwrap();
+        assert_eq!(g.priority, 10);
+        assert_eq!(g.stack_prefaulted_bytes, 64 * 1024);
+        // Either granted or refused with a reason, never silently.
+        assert!(g.fifo || g.refusals.iter().any(|r| r.contains("SCHED_FIFO")));
+        assert!(g.cpu == Some(0) || g.refusals.iter().any(|r| r.contains("CPU 0")));
+        let g = std::thread::spawn(|| {
+            setup_current(&RtRequest {
+                fifo_priority: None,
+                cpu: Some(100_000),
+                prefault_stack_bytes: 0,
+            })
+        })
+        .join()
+        .unwrap();
+        assert!(!g.fifo && g.cpu.is_none() && g.refusals.len() == 1);
+    }
+}

@@ -1,0 +1,348 @@
+//! The service configuration, `rt-config/nvtmm.toml`: rates, priorities,
+//! CPUs, ring capacities, the device backend, the scripted interaction of the
+//! simulated device, contact, watchdog and background-solve settings. Every
+//! key is validated at start; errors name the file, the key and the range.
+
+use crate::config::{load_toml, Checker, ConfigError};
+use crate::haptics::contact::ContactParams;
+use serde::Deserialize;
+use std::path::{Path, PathBuf};
+
+/// The whole service configuration.
+#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ServiceConfig {
+    /// The scene (mesh, material, model, fixed regions, `[reduced]`),
+    /// relative to this file.
+    pub scene: PathBuf,
+    /// Default run length (s) when `--seconds` is not given.
+    #[serde(default = "d_seconds")]
+    pub seconds: f64,
+    /// The haptic loop.
+    #[serde(default, rename = "loop")]
+    pub servo: LoopConfig,
+    /// The device and its I/O thread.
+    #[serde(default)]
+    pub device: DeviceConfig,
+    /// The scripted hand of the simulated device.
+    #[serde(default)]
+    pub interaction: InteractionConfig,
+    /// Tool contact.
+    #[serde(default)]
+    pub contact: ContactParams,
+    /// Watchdog.
+    #[serde(default)]
+    pub watchdog: WatchdogConfig,
+    /// The background full solve.
+    #[serde(default)]
+    pub background: BackgroundConfig,
+    /// Ring capacities.
+    #[serde(default)]
+    pub rings: RingConfig,
+    /// The report.
+    #[serde(default)]
+    pub report: ReportConfig,
+    /// The passivity QP (its `dt_s` is set from `loop.rate_hz`).
+    #[serde(default)]
+    pub passivity: crate::haptics::passivity::PassivityParams,
+    /// The file this was read from (for messages and relative paths).
+    #[serde(skip)]
+    pub path: PathBuf,
+}
+
+fn d_seconds() -> f64 {
+    20.0
+}
+
+/// The 1 kHz haptic loop.
+#[derive(Debug, Clone, Copy, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct LoopConfig {
+    /// Loop rate (Hz).
+    pub rate_hz: f64,
+    /// SCHED_FIFO priority (1..=99); 0 = normal policy.
+    pub priority: u8,
+    /// CPU to pin the loop to (-1: not pinned).
+    pub cpu: i32,
+    /// Stack size of the loop thread (KiB), prefaulted.
+    pub stack_kib: usize,
+    /// Lock all memory (mlockall) before starting.
+    pub lock_memory: bool,
+    /// Seconds of a bare absolute-deadline sleep loop, on the loop's thread
+    /// and CPU, before the loop starts (the jitter baseline).
+    pub baseline_s: f64,
+}
+
+impl Default for LoopConfig {
+    fn default() -> Self {
+        LoopConfig {
+            rate_hz: 1000.0,
+            priority: 80,
+            cpu: 1,
+            stack_kib: 1024,
+            lock_memory: true,
+            baseline_s: 2.0,
+        }
+    }
+}
+
+/// Which device backend.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum Backend {
+    /// The simulated Touch X with a scripted hand.
+    TouchxSim,
+    /// The UDP bridge to a process that owns the vendor driver.
+    Udp,
+    /// OpenHaptics HD (cargo feature `openhaptics`).
+    Openhaptics,
+}
+
+/// The device and its I/O thread.
+#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct DeviceConfig {
+    /// Backend.
+    pub backend: Backend,
+    /// The Touch X parameter file, relative to this file.
+    pub touchx: PathBuf,
+    /// The UDP bridge parameter file, relative to this file.
+    pub udp: PathBuf,
+    /// Device I/O rate (Hz).
+    pub rate_hz: f64,
+    /// SCHED_FIFO priority of the I/O thread (0 = normal).
+    pub priority: u8,
+    /// CPU of the I/O thread (-1: not pinned).
+    pub cpu: i32,
+    /// Scene position (m) of the device frame's origin: the device frame is
+    /// the scene frame translated by this offset.
+    pub origin_m: [f64; 3],
+}
+
+impl Default for DeviceConfig {
+    fn default() -> Self {
+        DeviceConfig {
+            backend: Backend::TouchxSim,
+            touchx: PathBuf::from("touchx.toml"),
+            udp: PathBuf::from("udp_device.toml"),
+            rate_hz: 1000.0,
+            priority: 70,
+            cpu: 1,
+            origin_m: [0.0; 3],
+        }
+    }
+}
+
+/// The scripted interaction of the simulated device: approach the wall along
+/// its normal, press, slide along the wall, release, rest.
+#[derive(Debug, Clone, Copy, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct InteractionConfig {
+    /// Start this far (m) outside the wall (tool surface to wall).
+    pub clearance_m: f64,
+    /// Press this far (m) into the undeformed wall (tool surface).
+    pub press_depth_m: f64,
+    /// Slide this far (m) along the wall while pressed.
+    pub slide_m: f64,
+    /// Durations (s) of approach, press, hold, slide, hold, release.
+    pub phases_s: [f64; 6],
+    /// Repeat the script until the run ends.
+    pub repeat: bool,
+}
+
+impl Default for InteractionConfig {
+    fn default() -> Self {
+        InteractionConfig {
+            clearance_m: 5e-3,
+            press_depth_m: 5e-3,
+            slide_m: 10e-3,
+            phases_s: [1.0, 1.0, 1.0, 2.0, 1.0, 1.0],
+            repeat: true,
+        }
+    }
+}
+
+/// Watchdog limits.
+#[derive(Debug, Clone, Copy, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct WatchdogConfig {
+    /// No new model from the background within this time (ms): keep the
+    /// last one and flag it.
+    pub model_timeout_ms: f64,
+    /// No fresh device sample within this time (ms): ramp the force to zero.
+    pub device_timeout_ms: f64,
+    /// This many consecutive deadline misses: ramp the force to zero.
+    pub overrun_streak: u32,
+    /// Time (ms) to ramp the force from full to zero on a fault (≤ 10).
+    pub ramp_down_ms: f64,
+    /// Time (s) to ramp the force in at start and after a fault clears.
+    pub ramp_in_s: f64,
+}
+
+impl Default for WatchdogConfig {
+    fn default() -> Self {
+        WatchdogConfig {
+            model_timeout_ms: 500.0,
+            device_timeout_ms: 5.0,
+            overrun_streak: 5,
+            ramp_down_ms: 10.0,
+            ramp_in_s: 0.5,
+        }
+    }
+}
+
+/// The background full NVTMM solve.
+#[derive(Debug, Clone, Copy, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct BackgroundConfig {
+    /// Time step of the full solve (s); the solve never runs ahead of real
+    /// time (it sleeps when faster).
+    pub dt: f64,
+    /// Run the full solve and refresh the reduced model (false: the loop
+    /// keeps the model linearized at rest, a linear reduced model).
+    pub enabled: bool,
+    /// CPU of the background thread (-1: not pinned).
+    pub cpu: i32,
+}
+
+impl Default for BackgroundConfig {
+    fn default() -> Self {
+        BackgroundConfig {
+            dt: 0.01,
+            enabled: true,
+            cpu: -1,
+        }
+    }
+}
+
+/// Ring capacities (items). Overflow policies are fixed per ring and
+/// documented in `docs/SERVICE.md`.
+#[derive(Debug, Clone, Copy, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct RingConfig {
+    /// Device → loop pose samples.
+    pub pose: usize,
+    /// Loop → device force commands.
+    pub force: usize,
+    /// Loop → background contact forces (one message per tick in contact).
+    pub contact: usize,
+    /// Background → loop new reduced models.
+    pub model: usize,
+    /// Loop → background returned models (to be freed off the RT thread).
+    pub returned: usize,
+    /// Loop → stream state snapshots.
+    pub state: usize,
+}
+
+impl Default for RingConfig {
+    fn default() -> Self {
+        RingConfig {
+            pose: 64,
+            force: 64,
+            contact: 2048,
+            model: 2,
+            returned: 4,
+            state: 64,
+        }
+    }
+}
+
+/// The end-of-run report.
+#[derive(Debug, Clone, Copy, PartialEq, Deserialize, Default)]
+#[serde(deny_unknown_fields, default)]
+pub struct ReportConfig {
+    /// Print a one-line status every second while running.
+    pub live: bool,
+}
+
+impl ServiceConfig {
+    /// Reads and validates `path`.
+    pub fn load(path: &Path) -> Result<ServiceConfig, ConfigError> {
+        let mut cfg: ServiceConfig = load_toml(path)?;
+        cfg.path = path.to_path_buf();
+        cfg.validate()?;
+        Ok(cfg)
+    }
+
+    /// Resolves a path given in this file relative to the file's directory.
+    pub fn resolve(&self, p: &Path) -> PathBuf {
+        if p.is_absolute() {
+            p.to_path_buf()
+        } else {
+            self.path.parent().unwrap_or(Path::new(".")).join(p)
+        }
+    }
+
+    /// Checks every key against its allowed range.
+    pub fn validate(&self) -> Result<(), ConfigError> {
+        let c = Checker::new(&self.path);
+        c.f64_in("seconds", self.seconds, 0.1, 86_400.0, "s")?;
+        let l = &self.servo;
+        c.f64_in("loop.rate_hz", l.rate_hz, 100.0, 10_000.0, "Hz")?;
+        c.int_in("loop.priority", l.priority, 0, 99)?;
+        c.int_in("loop.cpu", l.cpu, -1, 1023)?;
+        c.int_in("loop.stack_kib", l.stack_kib, 256, 65_536)?;
+        c.f64_in("loop.baseline_s", l.baseline_s, 0.0, 60.0, "s")?;
+        let d = &self.device;
+        c.f64_in("device.rate_hz", d.rate_hz, 100.0, 10_000.0, "Hz")?;
+        c.int_in("device.priority", d.priority, 0, 99)?;
+        c.int_in("device.cpu", d.cpu, -1, 1023)?;
+        for (k, v) in d.origin_m.iter().enumerate() {
+            c.f64_in(&format!("device.origin_m[{k}]"), *v, -10.0, 10.0, "m")?;
+        }
+        let i = &self.interaction;
+        c.f64_in("interaction.clearance_m", i.clearance_m, 0.0, 0.05, "m")?;
+        c.f64_in("interaction.press_depth_m", i.press_depth_m, 0.0, 0.03, "m")?;
+        c.f64_in("interaction.slide_m", i.slide_m, 0.0, 0.1, "m")?;
+        for (k, v) in i.phases_s.iter().enumerate() {
+            c.f64_in(&format!("interaction.phases_s[{k}]"), *v, 0.01, 600.0, "s")?;
+        }
+        let k = &self.contact;
+        c.f64_in("contact.tool_radius_m", k.tool_radius_m, 1e-4, 0.02, "m")?;
+        c.f64_in("contact.pressure_stiffness", k.pressure_stiffness, 1.0, 1e12, "Pa/m")?;
+        c.f64_in("contact.search_margin_m", k.search_margin_m, 0.0, 0.05, "m")?;
+        let w = &self.watchdog;
+        c.f64_in("watchdog.model_timeout_ms", w.model_timeout_ms, 1.0, 60_000.0, "ms")?;
+        c.f64_in("watchdog.device_timeout_ms", w.device_timeout_ms, 1.0, 1_000.0, "ms")?;
+        c.int_in("watchdog.overrun_streak", w.overrun_streak, 1, 10_000)?;
+        c.f64_in("watchdog.ramp_down_ms", w.ramp_down_ms, 0.0, 10.0, "ms")?;
+        c.f64_in("watchdog.ramp_in_s", w.ramp_in_s, 0.0, 10.0, "s")?;
+        let b = &self.background;
+        c.f64_in("background.dt", b.dt, 1e-4, 0.1, "s")?;
+        c.int_in("background.cpu", b.cpu, -1, 1023)?;
+        let r = &self.rings;
+        c.int_in("rings.pose", r.pose, 2, 65_536)?;
+        c.int_in("rings.force", r.force, 2, 65_536)?;
+        c.int_in("rings.contact", r.contact, 2, 65_536)?;
+        c.int_in("rings.model", r.model, 1, 64)?;
+        c.int_in("rings.returned", r.returned, 1, 64)?;
+        c.int_in("rings.state", r.state, 2, 65_536)?;
+        let mut qp = self.passivity.clone();
+        qp.dt_s = 1.0 / l.rate_hz;
+        qp.validate(&c, "passivity")?;
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::config::parse_toml;
+
+    #[test]
+    fn defaults_validate_and_bad_keys_are_named() {
+        let p = Path::new("nvtmm.toml");
+        let mut cfg: ServiceConfig = parse_toml("scene = \"s.toml\"", p).unwrap();
+        cfg.path = p.into();
+        cfg.validate().unwrap();
+        let mut bad: ServiceConfig = parse_toml("scene = \"s.toml\"\n[loop]\npriority = 120", p).unwrap();
+        bad.path = p.into();
+        let e = bad.validate().unwrap_err();
+        assert_eq!(e.key, "loop.priority");
+        let e = parse_toml::<ServiceConfig>("scene = \"s.toml\"\n[device]\nbackend = \"phantom\"", p).unwrap_err();
+        assert!(e.msg.contains("phantom"), "{e}");
+        let mut bad: ServiceConfig = parse_toml("scene = \"s.toml\"\n[watchdog]\nramp_down_ms = 50", p).unwrap();
+        bad.path = p.into();
+        assert_eq!(bad.validate().unwrap_err().key, "watchdog.ramp_down_ms");
+    }
+}

@@ -1,0 +1,222 @@
+//! The end-of-run report of `nvtmm run`: JSON with fixed keys (scripts
+//! depend on them, see `docs/SERVICE.md`) and a human-readable summary.
+
+use crate::rt::stats::Percentiles;
+use serde::Serialize;
+use std::collections::BTreeMap;
+
+/// The passivity QP's part of the report.
+#[derive(Debug, Clone, Default, Serialize)]
+pub struct QpReport {
+    /// QP solves.
+    pub solves: u64,
+    /// Ticks with the norm bound active.
+    pub active_norm: u64,
+    /// Ticks with the rate bound active.
+    pub active_rate: u64,
+    /// Ticks with the energy bound active.
+    pub active_energy: u64,
+    /// 99th percentile of interior-point iterations.
+    pub iters_p99: u32,
+    /// 99th percentile of the solve time (µs).
+    pub solve_us_p99: f64,
+    /// Median solve time (µs).
+    pub solve_us_p50: f64,
+    /// Solver fallbacks (safe force used instead).
+    pub fallbacks: u64,
+    /// Lowest tank level (J).
+    pub tank_low_j: f64,
+}
+
+/// One ring's counters.
+#[derive(Debug, Clone, Default, Serialize)]
+pub struct RingReport {
+    /// Capacity (items).
+    pub capacity: usize,
+    /// What happens when it is full.
+    pub policy: &'static str,
+    /// Items that could not be pushed (dropped or deferred).
+    pub overflows: u64,
+}
+
+/// The background solve's part.
+#[derive(Debug, Clone, Default, Serialize)]
+pub struct BackgroundReport {
+    /// Whether the background solve ran.
+    pub enabled: bool,
+    /// Full steps done.
+    pub steps: u64,
+    /// Failed steps (state kept).
+    pub failed_steps: u64,
+    /// Full step wall time (ms).
+    pub step_ms: Percentiles,
+    /// Linearization refresh time (ms).
+    pub refresh_ms: Percentiles,
+    /// Refreshes per second of wall time.
+    pub refresh_hz: f64,
+    /// Simulated time / wall time of the full solve.
+    pub real_time_factor: f64,
+    /// Largest displacement of the full solve at the end (m).
+    pub max_displacement_m: f64,
+}
+
+/// The whole report. Keys are a scripting contract.
+#[derive(Debug, Clone, Default, Serialize)]
+pub struct Report {
+    /// Loop ticks run.
+    pub ticks: u64,
+    /// Seconds the loop ran.
+    pub seconds: f64,
+    /// Ticks whose computation ended after the next tick's deadline.
+    pub deadline_misses: u64,
+    /// Deadline misses whose own compute time exceeded the period.
+    pub deadline_misses_compute: u64,
+    /// Wake-up lateness of the loop against its absolute deadlines (µs).
+    pub period_jitter_us: Percentiles,
+    /// Work per tick, wake-up to force pushed (µs).
+    pub tick_compute_us: Percentiles,
+    /// Device sample time to that sample's force written to the device (µs).
+    pub pose_to_force_latency_us: Percentiles,
+    /// A bare absolute-deadline sleep loop on the loop's thread and CPU,
+    /// measured in the same run just before the loop started (µs).
+    pub baseline_jitter_us: Percentiles,
+    /// System-allocator calls made by the RT threads after start.
+    pub allocations_after_start: u64,
+    /// Whether the RT threads' allocator was installed (false: the count
+    /// above could not be taken and is 0 by construction).
+    pub allocator_installed: bool,
+    /// Largest force commanded (N).
+    pub max_force_n: f64,
+    /// The passivity QP.
+    pub qp: QpReport,
+    /// Energy the hand put into the device port (J).
+    pub energy_in_j: f64,
+    /// Energy the device port delivered to the hand (J).
+    pub energy_out_j: f64,
+    /// Where the energies come from ("device" true port velocity, or
+    /// "observer" measured velocity).
+    pub energy_source: &'static str,
+    /// Per-ring capacity, policy and overflows.
+    pub ring_overflows: BTreeMap<&'static str, RingReport>,
+    /// Models swapped into the loop.
+    pub model_swaps: u64,
+    /// Whether the loop got SCHED_FIFO.
+    pub rt_policy_granted: bool,
+    /// What the OS refused (one line each).
+    pub rt_refusals: Vec<String>,
+    /// Loop CPU, if pinned.
+    pub loop_cpu: Option<usize>,
+    /// Memory locked (mlockall).
+    pub memory_locked: bool,
+    /// Device backend.
+    pub device: String,
+    /// Mesh nodes and tets of the full model.
+    pub nodes: usize,
+    /// Tets.
+    pub tets: usize,
+    /// Reduced model size r and capacity R.
+    pub r: usize,
+    /// Capacity R.
+    pub r_capacity: usize,
+    /// Basis: seconds to compute (0 on a cache hit) and where it came from.
+    pub basis_s: f64,
+    /// "hit", "computed", ...
+    pub basis_cache: String,
+    /// The background solve.
+    pub background: BackgroundReport,
+    /// Watchdog and loop counters.
+    pub watchdog: crate::haptics::servo::ServoCounters,
+    /// Device ticks, stale reads and errors.
+    pub device_ticks: u64,
+    /// Device reads that returned an error.
+    pub device_errors: u64,
+    /// Largest tool penetration (m).
+    pub max_depth_m: f64,
+    /// Stream frames published (0 with the stream off).
+    pub stream_frames: u64,
+}
+
+impl Report {
+    /// The human-readable summary.
+    pub fn render(&self) -> String {
+        let p = |x: &Percentiles| {
+            format!(
+                "p50 {:.1}  p99 {:.1}  p99.9 {:.1}  max {:.1}",
+                x.p50, x.p99, x.p999, x.max
+            )
+        };
+        let mut s = String::new();
+        s += &format!(
+            "nvtmm run: {} ticks in {:.2} s on {} ({} nodes, {} tets, r = {} of {})\n",
+            self.ticks, self.seconds, self.device, self.nodes, self.tets, self.r, self.r_capacity
+        );
+        s += &format!(
+            "  RT: SCHED_FIFO {}, CPU {}, memory {}\n",
+            if self.rt_policy_granted { "granted" } else { "REFUSED" },
+            self.loop_cpu
+                .map(|c| c.to_string())
+                .unwrap_or_else(|| "not pinned".into()),
+            if self.memory_locked { "locked" } else { "not locked" }
+        );
+        for r in &self.rt_refusals {
+            s += &format!("    refused: {r}\n");
+        }
+        s += &format!(
+            "  deadline misses: {} ({} from compute)\n",
+            self.deadline_misses, self.deadline_misses_compute
+        );
+        s += &format!("  period jitter (µs):   {}\n", p(&self.period_jitter_us));
+        s += &format!("  baseline jitter (µs): {}\n", p(&self.baseline_jitter_us));
+        s += &format!("  tick compute (µs):    {}\n", p(&self.tick_compute_us));
+        s += &format!("  pose→force (µs):      {}\n", p(&self.pose_to_force_latency_us));
+        s += &format!(
+            "  allocations after start: {}{}\n",
+            self.allocations_after_start,
+            if self.allocator_installed {
+                ""
+            } else {
+                " (allocator not installed: not measured)"
+            }
+        );
+        s += &format!(
+            "  force: max {:.3} N, deepest contact {:.2} mm; energy in {:.4} J, out {:.4} J ({})\n",
+            self.max_force_n,
+            self.max_depth_m * 1e3,
+            self.energy_in_j,
+            self.energy_out_j,
+            self.energy_source
+        );
+        s += &format!(
+            "  QP: {} solves, active norm {} rate {} energy {}, iters p99 {}, solve p50 {:.1} µs p99 {:.1} µs, {} fallbacks\n",
+            self.qp.solves,
+            self.qp.active_norm,
+            self.qp.active_rate,
+            self.qp.active_energy,
+            self.qp.iters_p99,
+            self.qp.solve_us_p50,
+            self.qp.solve_us_p99,
+            self.qp.fallbacks
+        );
+        let b = &self.background;
+        if b.enabled {
+            s += &format!(
+                "  background: {} full steps ({} failed), step p50 {:.1} ms, refresh p50 {:.2} ms, {:.1} models/s, real-time factor {:.2}, {} swaps\n",
+                b.steps, b.failed_steps, b.step_ms.p50, b.refresh_ms.p50, b.refresh_hz, b.real_time_factor, self.model_swaps
+            );
+        } else {
+            s += "  background: off (linear reduced model at rest)\n";
+        }
+        let w = &self.watchdog;
+        s += &format!(
+            "  watchdog: {} ticks held down, device silent {} ticks, non-finite {}, stale model {} ticks; contact {} ticks\n",
+            w.watchdog_ticks, w.device_silent_ticks, w.nonfinite, w.model_stale_ticks, w.contact_ticks
+        );
+        let rings: Vec<String> = self
+            .ring_overflows
+            .iter()
+            .map(|(k, v)| format!("{k} {}/{}", v.overflows, v.capacity))
+            .collect();
+        s += &format!("  ring overflows: {}\n", rings.join(", "));
+        s
+    }
+}

@@ -1,0 +1,111 @@
+//! A synthetic stream source: a probe pressing a smooth dent into the top of
+//! the vessel surface and releasing it (period 3 s, 8 mm deep, 20 mm wide), with a
+//! spring-like force. It is not physics; it exercises the stream, the viewer
+//! and the tools without the haptic service (`nvtmm stream-demo`, tests).
+
+use super::{flags, StateFrame, Topology};
+use crate::mesh::{TetMesh, Vec3};
+
+/// The dent generator; see the module doc.
+#[derive(Debug, Clone)]
+pub struct Dent {
+    rest: Vec<Vec3>,
+    centre: Vec3,
+    normal: Vec3,
+    positions: Vec<[f32; 3]>,
+    /// Dent radius on the surface (m).
+    pub radius_m: f64,
+    /// Largest dent depth (m).
+    pub depth_m: f64,
+    /// Press-and-release period (s).
+    pub period_s: f64,
+    /// Probe sphere radius (m).
+    pub tool_radius_m: f64,
+    /// Spring constant for the force (N/m).
+    pub stiffness_n_per_m: f64,
+}
+
+impl Dent {
+    /// A dent at the topology's highest vertex, pressed along that node's
+    /// inward normal.
+    pub fn new(mesh: &TetMesh, topology: &Topology) -> Dent {
+        let rest: Vec<Vec3> = topology
+            .rest_positions
+            .iter()
+            .map(|p| Vec3::new(p[0] as f64, p[1] as f64, p[2] as f64))
+            .collect();
+        let top = (0..rest.len())
+            .max_by(|&a, &b| rest[a].z.total_cmp(&rest[b].z))
+            .unwrap_or(0);
+        let normals = mesh.surface_vertex_normals();
+        let normal = topology
+            .node_ids
+            .get(top)
+            .and_then(|&n| normals.get(n as usize))
+            .copied()
+            .filter(|n| n.norm() > 0.5)
+            .unwrap_or(Vec3::z());
+        Dent {
+            centre: rest.get(top).copied().unwrap_or_default(),
+            positions: topology.rest_positions.clone(),
+            rest,
+            normal,
+            radius_m: 0.02,
+            depth_m: 0.008,
+            period_s: 3.0,
+            tool_radius_m: 0.004,
+            stiffness_n_per_m: 300.0,
+        }
+    }
+
+    /// Dent depth at time `t` (m).
+    pub fn depth(&self, t: f64) -> f64 {
+        self.depth_m * 0.5 * (1.0 - (std::f64::consts::TAU * t / self.period_s).cos())
+    }
+
+    /// The frame at simulation time `t`.
+    pub fn frame(&mut self, t: f64) -> StateFrame<'_> {
+        let d = self.depth(t);
+        for (p, x) in self.positions.iter_mut().zip(&self.rest) {
+            let r2 = (x - self.centre).norm_squared() / (self.radius_m * self.radius_m);
+            let w = if r2 < 1.0 { (1.0 - r2) * (1.0 - r2) } else { 0.0 };
+            let y = x - self.normal * (d * w);
+            *p = [y.x as f32, y.y as f32, y.z as f32];
+        }
+        let tool = self.centre + self.normal * (self.tool_radius_m - d);
+        let f = self.normal * (self.stiffness_n_per_m * d);
+        let mut fl = flags::DEVICE_SIMULATED;
+        if d > 1e-5 {
+            fl |= flags::IN_CONTACT;
+        }
+        StateFrame {
+            time_s: t,
+            positions: &self.positions,
+            tool_position: [tool.x as f32, tool.y as f32, tool.z as f32],
+            tool_radius: self.tool_radius_m as f32,
+            force: [f.x as f32, f.y as f32, f.z as f32],
+            flags: fl,
+            loop_rate_hz: 1000.0,
+            tick_p99_us: 40.0 + 5.0 * (t * 0.7).sin() as f32,
+        }
+    }
+}
+
+/// Publishes `frames` dent frames, `1 / cfg.rate_hz` apart in simulation time
+/// but as fast as possible in wall time, through a [`super::Publisher`] with
+/// `record` (for tests and examples: a recording without waiting).
+pub fn publish_frames(
+    mesh: &TetMesh,
+    topology: Topology,
+    cfg: super::StreamConfig,
+    record: Option<&std::path::Path>,
+    frames: usize,
+) -> Result<super::PublisherStats, super::StreamError> {
+    let mut dent = Dent::new(mesh, &topology);
+    let mut p = super::Publisher::new(cfg, topology, record)?;
+    for k in 0..frames {
+        let t = k as f64 * p.period_s();
+        p.publish(&dent.frame(t))?;
+    }
+    p.finish()
+}

@@ -1,0 +1,319 @@
+//! Recordings: the datagrams exactly as sent, each with its send time, behind
+//! a 24-byte header (layout in `docs/STREAM.md`). Replay to UDP at the
+//! recorded pace, or export to a ParaView `.pvd` + `.vtu` series.
+
+use super::format::{self, MAX_DATAGRAM};
+use super::{flags, Decoded, Decoder, DecoderStats, StreamError};
+use crate::mesh::io::{write_vtu_cells, PvdSeries};
+use crate::mesh::Vec3;
+use crate::rt::clock;
+use std::fs::File;
+use std::io::{BufReader, BufWriter, ErrorKind, Read, Write};
+use std::net::{SocketAddr, UdpSocket};
+use std::path::{Path, PathBuf};
+
+/// First eight bytes of a recording.
+pub const RECORD_MAGIC: [u8; 8] = *b"NVTSREC\0";
+/// Recording container version.
+pub const RECORD_VERSION: u16 = 1;
+/// Recording header length (bytes).
+pub const RECORD_HEADER_LEN: usize = 24;
+/// Per-datagram record header length (bytes): `t_ns` u64 + `len` u32.
+pub const RECORD_ENTRY_LEN: usize = 12;
+
+/// Appends datagrams to a recording file.
+#[derive(Debug)]
+pub struct RecordWriter {
+    w: BufWriter<File>,
+}
+
+impl RecordWriter {
+    /// Creates (truncates) `path` and writes the header.
+    pub fn create(path: &Path) -> Result<RecordWriter, StreamError> {
+        let io = |source| StreamError::Io {
+            path: path.to_path_buf(),
+            source,
+        };
+        let mut w = BufWriter::new(File::create(path).map_err(io)?);
+        let unix_ns = std::time::SystemTime::now()
+            .duration_since(std::time::UNIX_EPOCH)
+            .map_or(0, |d| d.as_nanos() as u64);
+        let mut h = Vec::with_capacity(RECORD_HEADER_LEN);
+        h.extend_from_slice(&RECORD_MAGIC);
+        h.extend_from_slice(&RECORD_VERSION.to_le_bytes());
+        h.extend_from_slice(&format::VERSION.to_le_bytes());
+        h.extend_from_slice(&(RECORD_HEADER_LEN as u32).to_le_bytes());
+        h.extend_from_slice(&unix_ns.to_le_bytes());
+        w.write_all(&h).map_err(io)?;
+        Ok(RecordWriter { w })
+    }
+
+    /// Appends one datagram sent `t_ns` after the recording started.
+    pub fn write(&mut self, t_ns: u64, datagram: &[u8]) -> std::io::Result<()> {
+        self.w.write_all(&t_ns.to_le_bytes())?;
+        self.w.write_all(&(datagram.len() as u32).to_le_bytes())?;
+        self.w.write_all(datagram)
+    }
+
+    /// Flushes to disk.
+    pub fn finish(mut self) -> std::io::Result<()> {
+        self.w.flush()
+    }
+}
+
+/// Reads a recording: an iterator of `(t_ns, datagram)`.
+#[derive(Debug)]
+pub struct RecordReader {
+    path: PathBuf,
+    r: BufReader<File>,
+    offset: u64,
+    /// Wall-clock start of the recording (ns since the Unix epoch).
+    pub start_unix_ns: u64,
+    /// Stream format version of the recorded datagrams.
+    pub stream_version: u16,
+    done: bool,
+}
+
+impl RecordReader {
+    /// Opens `path` and checks its header.
+    pub fn open(path: &Path) -> Result<RecordReader, StreamError> {
+        let io = |source| StreamError::Io {
+            path: path.to_path_buf(),
+            source,
+        };
+        let bad = |what: String| StreamError::BadRecording {
+            path: path.to_path_buf(),
+            what,
+        };
+        let mut r = BufReader::new(File::open(path).map_err(io)?);
+        let mut h = [0u8; RECORD_HEADER_LEN];
+        r.read_exact(&mut h).map_err(|e| {
+            if e.kind() == ErrorKind::UnexpectedEof {
+                bad(format!("shorter than the {RECORD_HEADER_LEN}-byte header"))
+            } else {
+                io(e)
+            }
+        })?;
+        if h[..8] != RECORD_MAGIC {
+            return Err(bad("not an nvtmm stream recording (bad magic at byte 0)".into()));
+        }
+        let version = u16::from_le_bytes([h[8], h[9]]);
+        if version != RECORD_VERSION {
+            return Err(bad(format!(
+                "recording version {version} at byte 8 (this build reads {RECORD_VERSION})"
+            )));
+        }
+        let stream_version = u16::from_le_bytes([h[10], h[11]]);
+        let header_len = u32::from_le_bytes([h[12], h[13], h[14], h[15]]) as u64;
+        if header_len < RECORD_HEADER_LEN as u64 {
+            return Err(bad(format!(
+                "header length {header_len} at byte 12 (at least {RECORD_HEADER_LEN})"
+            )));
+        }
+        let extra = header_len - RECORD_HEADER_LEN as u64;
+        std::io::copy(&mut (&mut r).take(extra), &mut std::io::sink()).map_err(io)?;
+        let mut u = [0u8; 8];
+        u.copy_from_slice(&h[16..24]);
+        Ok(RecordReader {
+            path: path.to_path_buf(),
+            r,
+            offset: header_len,
+            start_unix_ns: u64::from_le_bytes(u),
+            stream_version,
+            done: false,
+        })
+    }
+
+    fn bad(&self, what: String) -> StreamError {
+        StreamError::BadRecording {
+            path: self.path.clone(),
+            what,
+        }
+    }
+
+    fn next_record(&mut self) -> Result<Option<(u64, Vec<u8>)>, StreamError> {
+        let mut e = [0u8; RECORD_ENTRY_LEN];
+        let mut got = 0;
+        while got < e.len() {
+            match self.r.read(&mut e[got..]) {
+                Ok(0) if got == 0 => return Ok(None),
+                Ok(0) => return Err(self.bad(format!("truncated record header at byte {}", self.offset))),
+                Ok(n) => got += n,
+                Err(err) if err.kind() == ErrorKind::Interrupted => {}
+                Err(source) => {
+                    return Err(StreamError::Io {
+                        path: self.path.clone(),
+                        source,
+                    })
+                }
+            }
+        }
+        let mut t = [0u8; 8];
+        t.copy_from_slice(&e[..8]);
+        let len = u32::from_le_bytes([e[8], e[9], e[10], e[11]]) as usize;
+        if len > MAX_DATAGRAM {
+            return Err(self.bad(format!(
+                "record at byte {} claims {len} bytes (datagrams are at most {MAX_DATAGRAM})",
+                self.offset
+            )));
+        }
+        let mut d = vec![0u8; len];
+        self.r
+            .read_exact(&mut d)
+            .map_err(|_| self.bad(format!("truncated datagram in the record at byte {}", self.offset)))?;
+        self.offset += (RECORD_ENTRY_LEN + len) as u64;
+        Ok(Some((u64::from_le_bytes(t), d)))
+    }
+}
+
+impl Iterator for RecordReader {
+    type Item = Result<(u64, Vec<u8>), StreamError>;
+    fn next(&mut self) -> Option<Self::Item> {
+        if self.done {
+            return None;
+        }
+        let r = self.next_record().transpose();
+        if !matches!(r, Some(Ok(_))) {
+            self.done = true;
+        }
+        r
+    }
+}
+
+/// What a replay or export did.
+#[derive(Debug, Clone, Default, serde::Serialize)]
+pub struct ReplaySummary {
+    /// Datagrams read from the recording.
+    pub datagrams: u64,
+    /// Recorded duration (s, first to last datagram).
+    pub duration_s: f64,
+    /// Datagrams that could not be sent.
+    pub send_errors: u64,
+    /// Frames written (export only).
+    pub frames_written: u64,
+    /// What the decoder saw (export only).
+    pub decoder: DecoderStats,
+}
+
+/// Sends a recording's datagrams to `to` at the recorded pace divided by
+/// `speed` (> 0; 2 = twice as fast).
+pub fn replay_udp(path: &Path, to: SocketAddr, speed: f64) -> Result<ReplaySummary, StreamError> {
+    if !(speed.is_finite() && speed > 0.0) {
+        return Err(StreamError::Invalid {
+            what: "replay speed",
+            msg: format!("{speed}: must be a positive number"),
+        });
+    }
+    let bind: SocketAddr = if to.is_ipv4() {
+        ([0, 0, 0, 0], 0).into()
+    } else {
+        (std::net::Ipv6Addr::UNSPECIFIED, 0).into()
+    };
+    let sock = UdpSocket::bind(bind).map_err(|source| StreamError::Socket {
+        what: "UDP socket for",
+        addr: to.to_string(),
+        source,
+    })?;
+    let start = clock::now_ns();
+    let mut s = ReplaySummary::default();
+    let mut first = None;
+    for r in RecordReader::open(path)? {
+        let (t, d) = r?;
+        let t0 = *first.get_or_insert(t);
+        let rel = t.saturating_sub(t0);
+        s.duration_s = rel as f64 * 1e-9;
+        clock::sleep_until(start + (rel as f64 / speed) as i64);
+        if sock.send_to(&d, to).is_err() {
+            s.send_errors += 1;
+        }
+        s.datagrams += 1;
+    }
+    Ok(s)
+}
+
+fn v3(p: &[f32; 3]) -> Vec3 {
+    Vec3::new(p[0] as f64, p[1] as f64, p[2] as f64)
+}
+
+/// Exports a recording to `dir`: `surface.pvd` (the stream surface per state
+/// frame, with `displacement` vectors and `displacement_magnitude` from
+/// rest) and `tool.pvd` (one point per frame at the tool centre with `force`,
+/// `radius` and `flags`). Times are the frames' simulation times.
+pub fn export_vtu(path: &Path, dir: &Path) -> Result<ReplaySummary, StreamError> {
+    let mut surface = PvdSeries::create(dir, "surface")?;
+    let mut tool = PvdSeries::create(dir, "tool")?;
+    let mut dec = Decoder::new();
+    let mut s = ReplaySummary::default();
+    let mut first = None;
+    for r in RecordReader::open(path)? {
+        let (t, d) = r?;
+        s.datagrams += 1;
+        s.duration_s = t.saturating_sub(*first.get_or_insert(t)) as f64 * 1e-9;
+        let Ok(Some(Decoded::State(st))) = dec.push(&d) else {
+            continue;
+        };
+        let Some(topo) = dec.topology() else { continue };
+        let pts: Vec<Vec3> = st.positions.iter().map(v3).collect();
+        let disp: Vec<Vec3> = pts.iter().zip(&topo.rest_positions).map(|(p, r)| p - v3(r)).collect();
+        let mag: Vec<f64> = disp.iter().map(|u| u.norm()).collect();
+        let cells: Vec<u32> = topo.triangles.iter().flatten().copied().collect();
+        surface.add_file(st.time_s, |p| {
+            write_vtu_cells(
+                p,
+                &pts,
+                5,
+                3,
+                &cells,
+                &[("displacement", &disp)],
+                &[("displacement_magnitude", &mag)],
+            )
+        })?;
+        let force = [v3(&st.force)];
+        let radius = [st.tool_radius as f64];
+        let fl = [st.flags as f64];
+        let contact = [f64::from(st.flags & flags::IN_CONTACT != 0)];
+        tool.add_file(st.time_s, |p| {
+            write_vtu_cells(
+                p,
+                &[v3(&st.tool_position)],
+                1,
+                1,
+                &[0],
+                &[("force", &force)],
+                &[("radius", &radius), ("flags", &fl), ("in_contact", &contact)],
+            )
+        })?;
+        s.frames_written += 1;
+    }
+    surface.finish()?;
+    tool.finish()?;
+    s.decoder = dec.stats().clone();
+    Ok(s)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn bad_recordings_are_refused_with_the_place() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("x.nvts");
+        std::fs::write(&p, b"hello").unwrap();
+        let e = RecordReader::open(&p).unwrap_err().to_string();
+        assert!(e.contains("header"), "{e}");
+        std::fs::write(&p, [0u8; 40]).unwrap();
+        assert!(RecordReader::open(&p).unwrap_err().to_string().contains("magic"));
+        let mut w = RecordWriter::create(&p).unwrap();
+        w.write(5, &[1, 2, 3]).unwrap();
+        w.finish().unwrap();
+        let mut bytes = std::fs::read(&p).unwrap();
+        let rs: Vec<_> = RecordReader::open(&p).unwrap().collect();
+        assert_eq!(rs.len(), 1);
+        assert_eq!(rs[0].as_ref().unwrap(), &(5, vec![1, 2, 3]));
+        bytes.pop();
+        std::fs::write(&p, &bytes).unwrap();
+        let e = RecordReader::open(&p).unwrap().next().unwrap().unwrap_err().to_string();
+        assert!(e.contains("byte 24"), "{e}");
+    }
+}

@@ -1,0 +1,414 @@
+//! `nvtmm view`: receives the UDP stream and serves a self-contained web page
+//! (HTML + JS compiled into the binary, no CDN) that draws it, fed over a
+//! WebSocket on the same port.
+//!
+//! Threads only: one receives and decodes datagrams into the latest topology
+//! and state; one accepts HTTP connections; each WebSocket client gets a
+//! thread that waits for new frames and forwards them. A slow client only
+//! delays itself (writes time out and drop it).
+//!
+//! `GET /snapshot` returns the latest topology and state messages (each
+//! behind its u32 length) so the page draws at once on load.
+//!
+//! WebSocket messages (binary): a 12-byte header — kind u8 (1 topology, 2
+//! state), 3 zero bytes, epoch u32, seq u32, little-endian — followed by the
+//! message payload exactly as in `docs/STREAM.md`. After each state, a text
+//! message with the decoder's counters as JSON.
+
+use super::format::{self, KIND_STATE, KIND_TOPOLOGY, MAX_DATAGRAM};
+use super::{Decoded, Decoder, DecoderStats, StreamError};
+use std::io::{Read, Write};
+use std::net::{SocketAddr, TcpListener, TcpStream, UdpSocket};
+use std::sync::atomic::{AtomicUsize, Ordering};
+use std::sync::{Arc, Condvar, Mutex, MutexGuard};
+use std::time::Duration;
+use tungstenite::protocol::Role;
+use tungstenite::{Bytes, Message, WebSocket};
+
+/// The page, compiled in.
+pub const PAGE: &str = include_str!("viewer.html");
+
+const MAX_CLIENTS: usize = 32;
+const MAX_REQUEST: usize = 16 * 1024;
+
+#[derive(Debug, Default)]
+struct Latest {
+    topology: Option<Bytes>,
+    topology_version: u64,
+    state: Option<Bytes>,
+    state_version: u64,
+    stats: DecoderStats,
+    clients: usize,
+}
+
+#[derive(Debug, Default)]
+struct Shared {
+    latest: Mutex<Latest>,
+    changed: Condvar,
+    connections: AtomicUsize,
+}
+
+impl Shared {
+    fn lock(&self) -> MutexGuard<'_, Latest> {
+        // A panicking holder cannot leave `Latest` half-updated in a way that
+        // matters (every field is replaced whole), so keep serving.
+        self.latest.lock().unwrap_or_else(|e| e.into_inner())
+    }
+}
+
+/// A running viewer (threads keep running for the process lifetime).
+#[derive(Debug)]
+pub struct Viewer {
+    http: SocketAddr,
+    stream: SocketAddr,
+    shared: Arc<Shared>,
+}
+
+/// The viewer's counters.
+#[derive(Debug, Clone, serde::Serialize)]
+pub struct ViewerStats {
+    /// Decoder counters of the UDP stream.
+    pub decoder: DecoderStats,
+    /// WebSocket clients connected now.
+    pub clients: usize,
+}
+
+fn ws_message(kind: u8, epoch: u32, seq: u32, payload: impl FnOnce(&mut Vec<u8>)) -> Bytes {
+    let mut m = Vec::new();
+    m.push(kind);
+    m.extend_from_slice(&[0, 0, 0]);
+    m.extend_from_slice(&epoch.to_le_bytes());
+    m.extend_from_slice(&seq.to_le_bytes());
+    payload(&mut m);
+    Bytes::from(m)
+}
+
+fn stats_json(s: &DecoderStats, clients: usize) -> String {
+    let mut v = serde_json::json!({
+        "datagrams": s.datagrams,
+        "topologies": s.topologies,
+        "frames": s.states,
+        "gaps": s.gaps,
+        "reordered": s.reordered,
+        "stale": s.stale,
+        "incomplete": s.incomplete,
+        "duplicates": s.duplicates,
+        "awaiting_topology": s.awaiting_topology,
+        "rejected": s.total_rejected(),
+        "clients": clients,
+    });
+    for r in format::RejectReason::ALL {
+        v[format!("rejected_{}", r.name())] = s.rejected_for(r).into();
+    }
+    v.to_string()
+}
+
+/// Binds the HTTP listener at `listen` and the UDP receiver at `stream`, and
+/// starts the threads. Returns once both are bound.
+pub fn start(listen: SocketAddr, stream: SocketAddr) -> Result<Viewer, StreamError> {
+    let udp = UdpSocket::bind(stream).map_err(|source| StreamError::Socket {
+        what: "bind UDP stream receiver at",
+        addr: stream.to_string(),
+        source,
+    })?;
+    let http = TcpListener::bind(listen).map_err(|source| StreamError::Socket {
+        what: "bind HTTP viewer at",
+        addr: listen.to_string(),
+        source,
+    })?;
+    let addrs = (http.local_addr(), udp.local_addr());
+    let (Ok(http_addr), Ok(udp_addr)) = addrs else {
+        return Err(StreamError::Invalid {
+            what: "viewer sockets",
+            msg: "no local address".into(),
+        });
+    };
+    let shared = Arc::new(Shared::default());
+    let sh = shared.clone();
+    std::thread::Builder::new()
+        .name("view-udp".into())
+        .spawn(move || receive(udp, &sh))
+        .map_err(|source| StreamError::Io {
+            path: "(thread view-udp)".into(),
+            source,
+        })?;
+    let sh = shared.clone();
+    std::thread::Builder::new()
+        .name("view-http".into())
+        .spawn(move || {
+            for conn in http.incoming().flatten() {
+                let sh = sh.clone();
+                if sh.connections.fetch_add(1, Ordering::SeqCst) >= MAX_CLIENTS {
+                    sh.connections.fetch_sub(1, Ordering::SeqCst);
+                    let _ = respond(conn, "503 Service Unavailable", "text/plain", b"too many connections\n");
+                    continue;
+                }
+                let spawned = std::thread::Builder::new().name("view-conn".into()).spawn({
+                    let sh = sh.clone();
+                    move || {
+                        serve(conn, &sh);
+                        sh.connections.fetch_sub(1, Ordering::SeqCst);
+                    }
+                });
+                if spawned.is_err() {
+                    sh.connections.fetch_sub(1, Ordering::SeqCst);
+                }
+            }
+        })
+        .map_err(|source| StreamError::Io {
+            path: "(thread view-http)".into(),
+            source,
+        })?;
+    Ok(Viewer {
+        http: http_addr,
+        stream: udp_addr,
+        shared,
+    })
+}
+
+impl Viewer {
+    /// The page's address.
+    pub fn http_addr(&self) -> SocketAddr {
+        self.http
+    }
+
+    /// The UDP address the stream is received on.
+    pub fn stream_addr(&self) -> SocketAddr {
+        self.stream
+    }
+
+    /// Counters now.
+    pub fn stats(&self) -> ViewerStats {
+        let l = self.shared.lock();
+        ViewerStats {
+            decoder: l.stats.clone(),
+            clients: l.clients,
+        }
+    }
+}
+
+fn receive(udp: UdpSocket, sh: &Shared) {
+    let mut dec = Decoder::new();
+    let mut buf = vec![0u8; MAX_DATAGRAM + 1];
+    loop {
+        let n = match udp.recv(&mut buf) {
+            Ok(n) => n,
+            Err(_) => {
+                std::thread::sleep(Duration::from_millis(10));
+                continue;
+            }
+        };
+        let got = dec.push(&buf[..n]);
+        let mut l = sh.lock();
+        match got {
+            Ok(Some(Decoded::Topology(t))) => {
+                // Re-sends of the same topology do not wake the clients.
+                let m = ws_message(KIND_TOPOLOGY, t.epoch, 0, |m| format::encode_topology(&t, m));
+                if l.topology.as_ref() != Some(&m) {
+                    l.topology = Some(m);
+                    l.topology_version += 1;
+                }
+            }
+            Ok(Some(Decoded::State(s))) => {
+                l.state = Some(ws_message(KIND_STATE, s.epoch, s.seq, |m| {
+                    format::encode_state(&s.as_frame(), m)
+                }));
+                l.state_version += 1;
+            }
+            _ => {}
+        }
+        l.stats = dec.stats().clone();
+        drop(l);
+        sh.changed.notify_all();
+    }
+}
+
+fn respond(mut s: TcpStream, status: &str, ctype: &str, body: &[u8]) -> std::io::Result<()> {
+    write!(
+        s,
+        "HTTP/1.1 {status}\r\nContent-Type: {ctype}\r\nContent-Length: {}\r\nCache-Control: no-store\r\nConnection: close\r\n\r\n",
+        body.len()
+    )?;
+    s.write_all(body)?;
+    s.flush()
+}
+
+/// Reads the request head (up to the blank line).
+fn read_head(s: &mut TcpStream) -> Option<String> {
+    let mut head = Vec::new();
+    let mut b = [0u8; 1024];
+    while !head.windows(4).any(|w| w == b"\r\n\r\n") {
+        let n = s.read(&mut b).ok()?;
+        if n == 0 || head.len() + n > MAX_REQUEST {
+            return None;
+        }
+        head.extend_from_slice(&b[..n]);
+    }
+    String::from_utf8(head).ok()
+}
+
+fn serve(mut s: TcpStream, sh: &Shared) {
+    let _ = s.set_read_timeout(Some(Duration::from_secs(5)));
+    let _ = s.set_write_timeout(Some(Duration::from_secs(5)));
+    let Some(head) = read_head(&mut s) else { return };
+    let mut lines = head.split("\r\n");
+    let req: Vec<&str> = lines.next().unwrap_or("").split(' ').collect();
+    let header = |name: &str| {
+        head.split("\r\n").skip(1).find_map(|l| {
+            let (k, v) = l.split_once(':')?;
+            k.trim().eq_ignore_ascii_case(name).then(|| v.trim().to_string())
+        })
+    };
+    let path = req.get(1).copied().unwrap_or("");
+    let path = path.split('?').next().unwrap_or("");
+    if req.first() != Some(&"GET") {
+        let _ = respond(s, "405 Method Not Allowed", "text/plain", b"GET only\n");
+        return;
+    }
+    match path {
+        "/" | "/index.html" => {
+            let _ = respond(s, "200 OK", "text/html; charset=utf-8", PAGE.as_bytes());
+        }
+        "/stats" => {
+            let body = {
+                let l = sh.lock();
+                stats_json(&l.stats, l.clients)
+            };
+            let _ = respond(s, "200 OK", "application/json", body.as_bytes());
+        }
+        "/snapshot" => {
+            let body = snapshot(sh);
+            let _ = respond(s, "200 OK", "application/octet-stream", &body);
+        }
+        "/ws" => match header("Sec-WebSocket-Key") {
+            Some(key) if header("Upgrade").is_some_and(|u| u.eq_ignore_ascii_case("websocket")) => {
+                let accept = tungstenite::handshake::derive_accept_key(key.as_bytes());
+                let ok = write!(
+                    s,
+                    "HTTP/1.1 101 Switching Protocols\r\nUpgrade: websocket\r\nConnection: Upgrade\r\nSec-WebSocket-Accept: {accept}\r\n\r\n"
+                );
+                if ok.is_ok() {
+                    let _ = s.set_read_timeout(None);
+                    sh.lock().clients += 1;
+                    forward(WebSocket::from_raw_socket(s, Role::Server, None), sh);
+                    sh.lock().clients -= 1;
+                }
+            }
+            _ => {
+                let _ = respond(s, "400 Bad Request", "text/plain", b"WebSocket upgrade expected\n");
+            }
+        },
+        _ => {
+            let _ = respond(s, "404 Not Found", "text/plain", b"not found\n");
+        }
+    }
+}
+
+/// The latest topology and state messages, each behind its u32 length
+/// (waits up to 5 s for both to exist; empty if they do not), so a page
+/// draws at once on load, before its WebSocket delivers anything.
+fn snapshot(sh: &Shared) -> Vec<u8> {
+    let l = sh.lock();
+    let (l, _) = sh
+        .changed
+        .wait_timeout_while(l, Duration::from_secs(5), |l| l.topology.is_none() || l.state.is_none())
+        .unwrap_or_else(|e| e.into_inner());
+    let mut out = Vec::new();
+    if let (Some(t), Some(s)) = (&l.topology, &l.state) {
+        for m in [t, s] {
+            out.extend_from_slice(&(m.len() as u32).to_le_bytes());
+            out.extend_from_slice(m);
+        }
+    }
+    out
+}
+
+/// Sends the latest topology and state to one client until it goes away.
+fn forward(mut ws: WebSocket<TcpStream>, sh: &Shared) {
+    let (mut topo_v, mut state_v) = (0u64, 0u64);
+    loop {
+        let (topo, state, stats) = {
+            let l = sh.lock();
+            let (l, _) = sh
+                .changed
+                .wait_timeout_while(l, Duration::from_millis(1000), |l| {
+                    l.topology_version == topo_v && l.state_version == state_v
+                })
+                .unwrap_or_else(|e| e.into_inner());
+            let topo = (l.topology_version != topo_v).then(|| l.topology.clone()).flatten();
+            let state = (l.state_version != state_v).then(|| l.state.clone()).flatten();
+            topo_v = l.topology_version;
+            state_v = l.state_version;
+            (topo, state, stats_json(&l.stats, l.clients))
+        };
+        let mut send = |m: Message| ws.send(m).is_ok();
+        if let Some(t) = topo {
+            if !send(Message::Binary(t)) {
+                return;
+            }
+        }
+        if let Some(s) = state {
+            if !send(Message::Binary(s)) {
+                return;
+            }
+        }
+        if !send(Message::text(stats)) {
+            return;
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::stream::{Publisher, StateFrame, StreamConfig, Topology};
+
+    #[test]
+    fn page_and_frames_reach_a_websocket_client() {
+        let v = start("127.0.0.1:0".parse().unwrap(), "127.0.0.1:0".parse().unwrap()).unwrap();
+        let mut s = TcpStream::connect(v.http_addr()).unwrap();
+        write!(s, "GET / HTTP/1.1\r\nHost: x\r\n\r\n").unwrap();
+        let mut page = String::new();
+        s.read_to_string(&mut page).unwrap();
+        assert!(page.starts_with("HTTP/1.1 200"));
+        assert!(page.contains("<canvas"));
+        let tcp = TcpStream::connect(v.http_addr()).unwrap();
+        tcp.set_read_timeout(Some(Duration::from_secs(10))).unwrap();
+        let (mut ws, _) = tungstenite::client(format!("ws://{}/ws", v.http_addr()), tcp).unwrap();
+        let topo = Topology {
+            epoch: 2,
+            rest_positions: vec![[0.0; 3], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]],
+            triangles: vec![[0, 1, 2]],
+            node_ids: vec![0, 1, 2],
+        };
+        let cfg = StreamConfig {
+            target: v.stream_addr().to_string(),
+            ..StreamConfig::default()
+        };
+        let mut p = Publisher::new(cfg, topo.clone(), None).unwrap();
+        let pos = topo.rest_positions.clone();
+        let (mut kinds, mut texts) = (Vec::new(), 0);
+        for k in 0..200 {
+            let f = StateFrame {
+                time_s: k as f64 * 0.01,
+                positions: &pos,
+                tool_position: [0.0; 3],
+                tool_radius: 0.01,
+                force: [0.0; 3],
+                flags: 0,
+                loop_rate_hz: 1000.0,
+                tick_p99_us: 10.0,
+            };
+            p.publish(&f).unwrap();
+            match ws.read().unwrap() {
+                Message::Binary(b) => kinds.push(b[0]),
+                Message::Text(_) => texts += 1,
+                _ => {}
+            }
+            if kinds.contains(&KIND_TOPOLOGY) && kinds.contains(&KIND_STATE) && texts > 0 {
+                return;
+            }
+        }
+        panic!("got kinds {kinds:?}, {texts} texts");
+    }
+}

@@ -1,0 +1,283 @@
+//! The haptic loop's tick on a small plate: the watchdog takes the force to
+//! zero within its ramp time when the device goes silent or sends a
+//! non-finite value (and the reduced state resets), and a model refreshed
+//! from the full NVTMM solve swaps in mid-contact without a force jump.
+
+mod common;
+
+use nvtmm::haptics::contact::{ContactParams, SurfaceIndex};
+use nvtmm::haptics::device::DeviceSample;
+use nvtmm::haptics::servo::{flags, LoopModel, Servo, ServoParams};
+use nvtmm::material::Material;
+use nvtmm::mesh::{TetMesh, Vec3};
+use nvtmm::model::nvtmm::Nvtmm;
+use nvtmm::model::ForceModel;
+use nvtmm::reduced::{basis_rows, BasisParams, DynamicsParams, ModalBasis, Refresher};
+use nvtmm::service::background::{rest_model, Background};
+use nvtmm::solver::loads::{Loads, NodalLoad, TimeProfile};
+use nvtmm::solver::{ImplicitEuler, ImplicitEulerParams, NewtonParams, TissueState};
+use std::sync::Arc;
+
+const R: usize = 16;
+const DT: f64 = 1e-3;
+
+struct Plate {
+    mesh: TetMesh,
+    model: Nvtmm,
+    mass: Vec<f64>,
+    fixed: Vec<u32>,
+    basis: ModalBasis,
+    top: f64,
+    center: Vec3,
+}
+
+fn plate() -> Plate {
+    // 24 x 24 x 4 mm, clamped at x = 0 and x = 24 mm.
+    let mesh = common::block(12, 12, 2, 2e-3);
+    let mat = Material::aorta();
+    let model = Nvtmm::new(&mesh, &mat);
+    let mass = mesh.lumped_mass(mat.density);
+    let mut fixed: Vec<u32> = ["x_min", "x_max"]
+        .iter()
+        .flat_map(|s| mesh.node_set(s).unwrap().to_vec())
+        .collect();
+    fixed.sort_unstable();
+    fixed.dedup();
+    let center = Vec3::new(0.012, 0.012, 0.004);
+    let contact: Vec<u32> = mesh
+        .node_set("z_max")
+        .unwrap()
+        .iter()
+        .copied()
+        .filter(|&i| (mesh.rest()[i as usize] - center).norm() <= 5e-3)
+        .collect();
+    let zeros = vec![Vec3::zeros(); mesh.num_nodes()];
+    let basis = ModalBasis::compute_contact(
+        &mesh,
+        &model,
+        &zeros,
+        &mass,
+        &fixed,
+        R,
+        &contact,
+        R / 2,
+        None,
+        &BasisParams::default(),
+    )
+    .unwrap();
+    Plate {
+        mesh,
+        model,
+        mass,
+        fixed,
+        basis,
+        top: 0.004,
+        center,
+    }
+}
+
+fn dynamics() -> DynamicsParams {
+    DynamicsParams {
+        dt: DT,
+        alpha: 5.0,
+        beta: 1e-3,
+    }
+}
+
+fn servo(p: &Plate) -> Servo<R> {
+    let rows = basis_rows::<R>(&p.basis).unwrap();
+    let mut refresher = Refresher::new(&p.mesh, &p.basis, &p.mass);
+    let zeros = vec![Vec3::zeros(); p.mesh.num_nodes()];
+    let k0 = refresher.reduced_stiffness(&p.model, &zeros);
+    let m = rest_model::<R>(rows, &k0, &dynamics(), p.mesh.num_nodes()).unwrap();
+    let contact = ContactParams {
+        tool_radius_m: 3e-3,
+        pressure_stiffness: 1e8,
+        search_margin_m: 4e-3,
+    };
+    let index = Arc::new(SurfaceIndex::new(&p.mesh, &contact));
+    let params = ServoParams {
+        dt: DT,
+        contact,
+        device_origin: Vec3::zeros(),
+        device_timeout_s: 5e-3,
+        model_timeout_s: f64::INFINITY,
+        overrun_streak: 5,
+        ramp_down_s: 10e-3,
+        ramp_in_s: 0.05,
+    };
+    Servo::new(m, index, params, 0.0)
+}
+
+fn sample(pos: Vec3, seq: u64, t: f64) -> DeviceSample {
+    DeviceSample {
+        position: pos,
+        velocity: Vec3::zeros(),
+        buttons: 0,
+        time_s: t,
+        seq,
+    }
+}
+
+/// One tick with the gain applied (no passivity filter here).
+fn tick(s: &mut Servo<R>, smp: Option<&DeviceSample>, t: f64) -> (Vec3, u32) {
+    let out = s.tick(smp, t, 0);
+    let mut fl = out.flags;
+    let f = s.apply_gain(out.desired, &mut fl);
+    (f, fl)
+}
+
+#[test]
+fn the_force_ramps_to_zero_within_10_ms_when_the_device_goes_silent_or_sends_nan() {
+    let p = plate();
+    let mut s = servo(&p);
+    // Tool sphere 1 mm into the top face.
+    let pos = Vec3::new(p.center.x, p.center.y, p.top + 3e-3 - 1e-3);
+    let mut t = 0.0;
+    let mut seq = 0;
+    let mut f = Vec3::zeros();
+    for _ in 0..300 {
+        seq += 1;
+        t += DT;
+        f = tick(&mut s, Some(&sample(pos, seq, t)), t).0;
+    }
+    assert!(f.z > 1e-3, "the plate pushes the tool up: {f:?}");
+    assert_eq!(s.gain(), 1.0);
+    // Silence: the same sample again and again.
+    let last_fresh = t;
+    let stale = sample(pos, seq, t);
+    let mut zero_at = None;
+    for _ in 0..100 {
+        t += DT;
+        let (f, fl) = tick(&mut s, Some(&stale), t);
+        if t - last_fresh > 5e-3 + 1e-9 {
+            assert!(fl & flags::DEVICE_SILENT != 0);
+        }
+        if f == Vec3::zeros() && zero_at.is_none() {
+            zero_at = Some(t);
+        }
+        if let Some(z) = zero_at {
+            assert_eq!(f, Vec3::zeros(), "stays at zero after {z}");
+        }
+    }
+    let z = zero_at.expect("force reached zero");
+    // Detected after the 5 ms timeout, then at most 10 ms of ramp.
+    assert!(
+        z - last_fresh <= 5e-3 + 10e-3 + 2.0 * DT,
+        "zero after {} ms",
+        (z - last_fresh) * 1e3
+    );
+    assert!(s.counters().watchdog_ticks > 0);
+
+    // Fresh samples again: the force ramps back in.
+    for _ in 0..400 {
+        seq += 1;
+        t += DT;
+        f = tick(&mut s, Some(&sample(pos, seq, t)), t).0;
+    }
+    assert_eq!(s.gain(), 1.0);
+    assert!(f.z > 1e-3);
+
+    // One NaN sample: the reduced state resets and the force goes to zero
+    // within 10 ms, then comes back.
+    seq += 1;
+    t += DT;
+    let mut bad = sample(pos, seq, t);
+    bad.position.x = f64::NAN;
+    let (_, fl) = tick(&mut s, Some(&bad), t);
+    assert!(fl & flags::NONFINITE != 0 && fl & flags::WATCHDOG != 0);
+    assert!(s.model().dynamics.q().iter().all(|&v| v == 0.0), "state reset");
+    let t_nan = t;
+    let mut reached = None;
+    for _ in 0..200 {
+        seq += 1;
+        t += DT;
+        let (f, _) = tick(&mut s, Some(&sample(pos, seq, t)), t);
+        if f == Vec3::zeros() && reached.is_none() {
+            reached = Some(t);
+        }
+    }
+    let r = reached.expect("force reached zero after the NaN");
+    assert!(r - t_nan <= 10e-3 + DT, "{} ms", (r - t_nan) * 1e3);
+    assert!(s.counters().nonfinite >= 1);
+    assert!(s.gain() > 0.0, "ramping back in");
+}
+
+#[test]
+fn a_refreshed_model_swaps_in_mid_contact_without_a_force_jump() {
+    let p = plate();
+    let mut s = servo(&p);
+    let pos = Vec3::new(p.center.x, p.center.y, p.top + 3e-3 - 1.5e-3);
+    let mut t = 0.0;
+    let mut seq = 0;
+    let mut f_before = Vec3::zeros();
+    for _ in 0..1500 {
+        seq += 1;
+        t += DT;
+        f_before = tick(&mut s, Some(&sample(pos, seq, t)), t).0;
+    }
+    // The full model under the loop's contact forces, quasi-static.
+    let n = p.mesh.num_nodes();
+    let node_forces: Vec<(u32, Vec3)> = s.contact().nodes.iter().map(|c| (c.node, c.force)).collect();
+    assert!(!node_forces.is_empty());
+    let loads = Loads {
+        nodal: node_forces
+            .iter()
+            .map(|&(i, f)| NodalLoad {
+                nodes: vec![i],
+                force: f,
+                profile: TimeProfile::Constant { from_t0: 0.0 },
+            })
+            .collect(),
+        gravity: Vec3::zeros(),
+    };
+    let params = ImplicitEulerParams {
+        dt: 0.05,
+        rayleigh_alpha: 20.0,
+        newton: NewtonParams {
+            max_iters: 10,
+            rel_tol: 1e-9,
+            ..NewtonParams::default()
+        },
+        ..ImplicitEulerParams::default()
+    };
+    let mut model = Nvtmm::new(&p.mesh, &Material::aorta());
+    let mut solver = ImplicitEuler::new(&p.mesh, p.mass.clone(), params).unwrap();
+    let mut state = TissueState::at_rest(n);
+    for _ in 0..40 {
+        assert!(solver.step(&mut state, &mut model, &loads, &p.fixed).ok());
+    }
+    let mut fbar = vec![Vec3::zeros(); n];
+    for &(i, f) in &node_forces {
+        fbar[i as usize] = f;
+    }
+    let rows = basis_rows::<R>(&p.basis).unwrap();
+    let mut bg = Background::<R> {
+        model: Box::new(Nvtmm::new(&p.mesh, &Material::aorta())) as Box<dyn ForceModel>,
+        solver: ImplicitEuler::new(&p.mesh, p.mass.clone(), params).unwrap(),
+        fixed: p.fixed.clone(),
+        refresher: Refresher::new(&p.mesh, &p.basis, &p.mass),
+        rows,
+        dynamics: dynamics(),
+        last_sent: (s.model().offset.clone(), nalgebra::SVector::zeros(), 0),
+    };
+    let m: Box<LoopModel<R>> = bg.build_model(&state.u, &fbar, 1).unwrap();
+    let ubar_max = state.u.iter().map(|u| u.norm()).fold(0.0, f64::max);
+    assert!(ubar_max > 2e-4, "the full solve moved: {ubar_max}");
+    let old = s.swap(m);
+    assert_eq!(old.epoch, 0);
+    assert_eq!(s.model().epoch, 1);
+    seq += 1;
+    t += DT;
+    let f_after = tick(&mut s, Some(&sample(pos, seq, t)), t).0;
+    let jump = (f_after - f_before).norm();
+    eprintln!(
+        "force before {:.5} N, after {:.5} N, jump {:.2e} N ({:.2} %)",
+        f_before.norm(),
+        f_after.norm(),
+        jump,
+        100.0 * jump / f_before.norm()
+    );
+    assert!(f_before.norm() > 1e-3);
+    assert!(jump <= 0.05 * f_before.norm(), "jump {jump} vs {}", f_before.norm());
+}
