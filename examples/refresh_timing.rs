@@ -23,7 +23,11 @@ fn main() {
     let t = Instant::now();
     let basis = ModalBasis::compute(mesh, &model, &u0, &mass, &load.fixed, r, None).expect("basis");
     println!("basis {:.3} s", t.elapsed().as_secs_f64());
-    let u: Vec<Vec3> = mesh.rest().iter().map(|x| Vec3::new(0.0, 0.0, -1e-3 * (x.y * 30.0).sin())).collect();
+    let u: Vec<Vec3> = mesh
+        .rest()
+        .iter()
+        .map(|x| Vec3::new(0.0, 0.0, -1e-3 * (x.y * 30.0).sin()))
+        .collect();
     let mut k = BlockTangent::zeros(mesh);
     for _ in 0..3 {
         let t = Instant::now();
@@ -35,12 +39,22 @@ fn main() {
     for _ in 0..3 {
         let t = Instant::now();
         let kr = refr.reduced_stiffness(&model, &u);
-        println!("reduced_stiffness {:.2} ms ({}x{})", t.elapsed().as_secs_f64() * 1e3, kr.nrows(), kr.ncols());
+        println!(
+            "reduced_stiffness {:.2} ms ({}x{})",
+            t.elapsed().as_secs_f64() * 1e3,
+            kr.nrows(),
+            kr.ncols()
+        );
     }
     for _ in 0..3 {
         let t = Instant::now();
         let kr = refr.project_tangent(&k);
-        println!("project_tangent {:.2} ms ({}x{})", t.elapsed().as_secs_f64() * 1e3, kr.nrows(), kr.ncols());
+        println!(
+            "project_tangent {:.2} ms ({}x{})",
+            t.elapsed().as_secs_f64() * 1e3,
+            kr.nrows(),
+            kr.ncols()
+        );
     }
     let t = Instant::now();
     let _ = refr.project_mass(&u);

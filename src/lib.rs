@@ -29,6 +29,7 @@
 #![warn(missing_docs)]
 
 pub mod bench;
+pub mod bench_reduced;
 pub mod config;
 pub mod experiment;
 pub mod haptics;

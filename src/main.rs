@@ -11,6 +11,7 @@ use std::process::ExitCode;
 static ALLOCATOR: nvtmm::rt::alloc::RtAllocator = nvtmm::rt::alloc::RtAllocator;
 
 mod cli_mesh;
+mod cli_reduced;
 mod cli_run;
 mod cli_sim;
 mod cli_stream;
@@ -77,6 +78,17 @@ enum Command {
     /// Reproduce the paper's experiments.
     #[command(subcommand)]
     Experiment(ExperimentCmd),
+    /// Compute (or load from the cache) a scene's reduced basis (docs/REDUCED.md).
+    Basis {
+        /// Scene file (TOML) with a [reduced] table.
+        scene: PathBuf,
+        /// Basis size (overrides [reduced].r).
+        #[arg(long)]
+        r: Option<usize>,
+        /// Recompute and overwrite the cache file.
+        #[arg(long)]
+        force: bool,
+    },
     /// Replay a stream recording to UDP, or export it for ParaView (--vtu DIR).
     Replay(cli_stream::ReplayArgs),
     /// Serve the stream viewer (a web page on localhost) fed by the UDP stream.
@@ -87,6 +99,15 @@ enum Command {
 
 #[derive(Subcommand)]
 enum ExperimentCmd {
+    /// Reduced vs full contact force and displacement over r, and the region-of-interest trade (docs/RESULTS.md).
+    Reduced {
+        /// Output directory.
+        #[arg(long, default_value = "out/reduced")]
+        out: PathBuf,
+        /// 1458 nodes, r = 8 and 16 only.
+        #[arg(long)]
+        quick: bool,
+    },
     /// Fig. 5: constant force from t = 3 s, TMM vs NVTMM (Prony), 10 s.
     Fig5 {
         /// Output directory.
@@ -118,6 +139,21 @@ enum ExperimentCmd {
 
 #[derive(Subcommand)]
 enum BenchCmd {
+    /// Time the reduced model: step_with_contact, one refresh, the basis (docs/BENCHMARKS.md).
+    Reduced {
+        /// Basis size (1..=64).
+        #[arg(long)]
+        r: usize,
+        /// Arch size (nodes).
+        #[arg(long, default_value_t = 5832)]
+        nodes: usize,
+        /// Steps to time (after 100 warm-up steps).
+        #[arg(long, default_value_t = 20000)]
+        steps: usize,
+        /// Print JSON.
+        #[arg(long)]
+        json: bool,
+    },
     /// Time full implicit steps on the built-in arch under the standard load.
     Step {
         /// Model: msm, tmm, nvtmm, fem.
@@ -247,7 +283,9 @@ fn main() -> ExitCode {
             } => cli_mesh::render(&input, &out, width, height, azimuth, elevation),
         },
         Command::Simulate { scene, out, quiet } => cli_sim::simulate(&scene, out.as_deref(), quiet),
+        Command::Basis { scene, r, force } => cli_reduced::basis(&scene, r, force),
         Command::Bench(b) => match b {
+            BenchCmd::Reduced { r, nodes, steps, json } => cli_reduced::bench_reduced_cmd(r, nodes, steps, json),
             BenchCmd::Step {
                 model,
                 law,
@@ -272,6 +310,7 @@ fn main() -> ExitCode {
             BenchCmd::Extremes { quick, json } => cli_sim::bench_extremes(quick, json),
         },
         Command::Experiment(e) => match e {
+            ExperimentCmd::Reduced { out, quick } => cli_reduced::experiment_reduced(&out, quick),
             ExperimentCmd::Fig5 { out, quick } => cli_sim::experiment_fig5(&out, quick),
             ExperimentCmd::Table { out, quick } => cli_sim::experiment_table(&out, quick),
             ExperimentCmd::Trade { out, quick } => cli_sim::experiment_trade(&out, quick),

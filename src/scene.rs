@@ -211,8 +211,7 @@ pub struct SphereConfig {
 
 /// The `[roi]` table: exactly one of a box, a sphere, or an interval of arc
 /// length along the built-in arch's centreline. A tet is kept when its
-/// centroid (for `arclength`: the mean arc length of its nodes' rings) is
-/// inside.
+/// centroid is inside (for `arclength`: when all its nodes' rings are).
 #[derive(Debug, Clone, PartialEq, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct RoiConfig {

@@ -1,11 +1,13 @@
-//! After construction, the reduced model's `step` — and the RT-path helpers
-//! around it, `project_nodal` and `displacement_at` — allocate nothing over
-//! 1000 steps: the haptic loop can run it without touching the allocator.
+//! After construction, the reduced model's `step` and `step_with_contact`,
+//! with and without Prony terms — and the RT-path helpers around them,
+//! `project_nodal`, `rows_at` and `displacement_at` — allocate nothing over
+//! 1000 steps: the haptic loop can run them without touching the allocator.
 
 mod common;
 
 use common::counting::count_allocations;
-use nvtmm::material::Material;
+use nalgebra::SMatrix;
+use nvtmm::material::{Material, PronyTerm};
 use nvtmm::mesh::arch::{generate, ArchParams};
 use nvtmm::mesh::Vec3;
 use nvtmm::model::tmm::Tmm;
@@ -54,4 +56,35 @@ fn reduced_step_allocates_nothing() {
 
     assert!(moved > 0.0, "the loaded node did not move");
     assert_eq!(count, 0, "{count} allocations in 1000 reduced steps");
+
+    // The same with two Prony terms, alternating plain steps and steps with
+    // a stiff linearized contact at the node (k n nᵀ projected through its rows).
+    d.reset();
+    d.set_prony(&[PronyTerm { alpha: 0.3, tau: 0.05 }, PronyTerm { alpha: 0.2, tau: 0.5 }])
+        .expect("prony");
+    let mut kc = Box::new(SMatrix::<f64, 16, 16>::zeros());
+    let ((), count) = count_allocations(|| {
+        for i in 0..1000 {
+            let force = Vec3::new(0.0, 0.0, -0.05);
+            let f = match d.project_nodal(&[(node, force)]) {
+                Ok(f) => f,
+                Err(_) => break,
+            };
+            if i % 2 == 0 {
+                d.step(&f);
+            } else if let Some(rows) = d.rows_at(node) {
+                let n = Vec3::new(0.0, 0.0, 1.0);
+                let nr = rows.tr_mul(&n);
+                *kc = nr * nr.transpose() * 1e3;
+                let _ = d.step_with_contact(&f, &kc);
+            }
+            moved += d.displacement_at(node).map_or(0.0, |x| x.norm());
+        }
+    });
+    assert_eq!(d.prony_history().len(), 2);
+    assert!(d.prony_history()[0].norm() > 0.0, "the history did not grow");
+    assert_eq!(
+        count, 0,
+        "{count} allocations in 1000 reduced steps with Prony terms and contact"
+    );
 }

@@ -163,7 +163,11 @@ fn the_force_ramps_to_zero_within_10_ms_when_the_device_goes_silent_or_sends_nan
     }
     let z = zero_at.expect("force reached zero");
     // Detected after the 5 ms timeout, then at most 10 ms of ramp.
-    assert!(z - last_fresh <= 5e-3 + 10e-3 + 2.0 * DT, "zero after {} ms", (z - last_fresh) * 1e3);
+    assert!(
+        z - last_fresh <= 5e-3 + 10e-3 + 2.0 * DT,
+        "zero after {} ms",
+        (z - last_fresh) * 1e3
+    );
     assert!(s.counters().watchdog_ticks > 0);
 
     // Fresh samples again: the force ramps back in.

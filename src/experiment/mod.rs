@@ -8,6 +8,7 @@
 
 pub mod fig5;
 pub mod plot;
+pub mod reduced;
 pub mod table;
 pub mod trade;
 

@@ -3,9 +3,10 @@
 //! on faces that were interior in the whole mesh and are boundary now), which
 //! a scene fixes so the region behaves as if clamped to the tissue around it.
 //!
-//! A tet is inside when its centroid is (for an arc-length interval: when
-//! the mean arc length of its four nodes is). Node sets carry over, restricted
-//! to the kept nodes, plus a set `roi_cut` of the cut nodes.
+//! A tet is inside when its centroid is (for an interval of a per-node
+//! value such as arc length: when all four of its nodes are, so an arch is
+//! cut cleanly across its rings). Node sets carry over, restricted
+//! to the kept nodes (possibly empty), plus a set `roi_cut` of the cut nodes.
 
 use super::arch::Arch;
 use super::{TetMesh, TopologyError, Vec3};
@@ -32,8 +33,8 @@ pub enum Region {
         radius: f64,
     },
     /// An interval of a per-node coordinate (e.g. arc length along the arch
-    /// centreline, [`arch_node_arclength`]): keeps tets whose nodes' mean
-    /// value lies in [lo, hi].
+    /// centreline, [`arch_node_arclength`]): keeps tets whose four nodes'
+    /// values all lie in [lo, hi].
     Interval {
         /// One value per node of the whole mesh.
         node_value: Vec<f64>,
@@ -117,10 +118,10 @@ pub fn extract(mesh: &TetMesh, region: &Region) -> Result<SubMesh, RoiError> {
                 let c = tet.iter().map(|&i| rest[i as usize]).sum::<Vec3>() / 4.0;
                 (c - center).norm() <= *radius
             }
-            Region::Interval { node_value, lo, hi } => {
-                let s = tet.iter().map(|&i| node_value[i as usize]).sum::<f64>() / 4.0;
+            Region::Interval { node_value, lo, hi } => tet.iter().all(|&i| {
+                let s = node_value[i as usize];
                 s >= *lo && s <= *hi
-            }
+            }),
         }
     };
     let kept: Vec<[u32; 4]> = mesh.tets().iter().copied().filter(|t| inside(t)).collect();
@@ -146,9 +147,9 @@ pub fn extract(mesh: &TetMesh, region: &Region) -> Result<SubMesh, RoiError> {
             .filter(|&&i| used[i as usize])
             .map(|&i| to_sub[i as usize])
             .collect();
-        if !sub.is_empty() {
-            sets.insert(name.clone(), sub);
-        }
+        // Kept even when empty, so a scene that fixes a set the region
+        // does not reach still builds.
+        sets.insert(name.clone(), sub);
     }
     let sub_rest: Vec<Vec3> = to_full.iter().map(|&f| rest[f as usize]).collect();
     let mut sub = TetMesh::new(sub_rest, tets, sets)?;
@@ -198,9 +199,9 @@ mod tests {
             assert!((s.mesh.rest()[c as usize].x - 0.02).abs() < 1e-12);
         }
         assert_eq!(s.mesh.node_set(CUT_SET).unwrap(), &s.cut[..]);
-        // x_min survives, x_max is gone.
-        assert!(s.mesh.node_set("x_min").is_some());
-        assert!(s.mesh.node_set("x_max").is_none());
+        // x_min survives, x_max is empty.
+        assert!(!s.mesh.node_set("x_min").unwrap().is_empty());
+        assert_eq!(s.mesh.node_set("x_max"), Some(&[][..]));
         for (i, &f) in s.to_full.iter().enumerate() {
             assert_eq!(s.mesh.rest()[i], m.rest()[f as usize]);
             assert_eq!(s.from_full(f), Some(i as u32));

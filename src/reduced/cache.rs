@@ -414,6 +414,56 @@ pub fn load_or_compute(
     ))
 }
 
+/// The basis a scene asks for (its `[reduced]` table; `r_override`
+/// replaces `r`), on the mesh [`crate::scene::Scene::build`] made (region of
+/// interest and fixed nodes included), linearized at rest with the scene's
+/// elastic model (Prony terms do not change the instantaneous modes), through
+/// the cache unless `[reduced].cache = false`. `force` recomputes and
+/// overwrites. Errors name the scene key or the failed computation.
+pub fn basis_for_scene(
+    scene: &crate::scene::Scene,
+    built: &crate::scene::Built,
+    r_override: Option<usize>,
+    force: bool,
+) -> Result<(ModalBasis, CacheOutcome), String> {
+    let red = scene.reduced.as_ref();
+    let r = match (r_override, red) {
+        (Some(r), _) => r,
+        (None, Some(c)) => c.r,
+        (None, None) => return Err(format!("{}: no [reduced] table (or give --r)", scene.path.display())),
+    };
+    if !(1..=crate::scene::MAX_REDUCED_R).contains(&r) {
+        return Err(format!("r = {r}: must be in 1..={}", crate::scene::MAX_REDUCED_R));
+    }
+    let contact_modes = red.is_some_and(|c| c.contact_modes);
+    let contact = if contact_modes {
+        scene.contact_nodes(&built.mesh).map_err(|e| e.to_string())?
+    } else {
+        Vec::new()
+    };
+    let material = scene.material();
+    let model = crate::scene::build_model(scene.model, &built.mesh, &material, scene.material.law, &[]);
+    let mass = built.mesh.lumped_mass(material.density);
+    let req = BasisRequest {
+        mesh: &built.mesh,
+        model: model.as_ref(),
+        material,
+        law: scene.material.law,
+        mass: &mass,
+        fixed: &built.fixed,
+        r,
+        contact: &contact,
+        max_static: if contact_modes { r / 2 } else { 0 },
+        params: BasisParams::default(),
+    };
+    let dir = if red.is_none_or(|c| c.cache) {
+        Some(scene.cache_dir())
+    } else {
+        None
+    };
+    load_or_compute(&req, dir.as_deref(), force).map_err(|e| format!("basis (r = {r}): {e}"))
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -12,8 +12,31 @@
 //! coordinates stay at rest. The system matrix is factored (Cholesky) once at
 //! construction; [`ReducedDynamics::step`] is two triangular solves and two
 //! small mat-vecs on the stack and never allocates.
+//!
+//! **Prony terms in reduced form** (paper eq. 10–15). For the linear reduced
+//! model the elastic restoring force is g = K_r q, and projecting the
+//! paper's force recurrence through Φ (a linear map, so it commutes with the
+//! recurrence) gives, per term i, a reduced history γ_i ∈ ℝʳ:
+//!
+//! ```text
+//! γ_iⁿ = A_i K_r qⁿ + B_i γ_iⁿ⁻¹,   A_i = h α_i/(h + τ_i),  B_i = τ_i/(h + τ_i)   (eq. 15)
+//! f_int(qⁿ) = −(K_r qⁿ − Σ γ_iⁿ) = −s K_r qⁿ + Σ B_i γ_iⁿ⁻¹,  s = 1 − Σ A_i     (eq. 13)
+//! ```
+//!
+//! so inside the implicit step the elastic stiffness is scaled by s and the
+//! history adds a constant force H = Σ B_i γ_iⁿ⁻¹:
+//!
+//! ```text
+//! (I + h D_r + h² s K_r) q̇ₙ₊₁ = q̇ₙ + h (fₙ₊₁ − s K_r qₙ + H),   then γ_i ← A_i K_r qₙ₊₁ + B_i γ_i
+//! ```
+//!
+//! Under a held q the history tends to γ_i = α_i K_r q and the force to
+//! −(1 − Σ α_i) K_r q, the relaxed modulus of eq. 11. At most
+//! [`MAX_PRONY_TERMS`] terms, in fixed arrays; with none (the default) s = 1,
+//! H = 0 and the step is exactly the elastic one.
 
 use super::basis::{ModalBasis, ReducedError};
+use crate::material::PronyTerm;
 use crate::mesh::Vec3;
 use nalgebra::{Cholesky, Const, DMatrix, SMatrix, SVector};
 use std::sync::Arc;
@@ -52,6 +75,9 @@ pub struct DynamicsParams {
     pub beta: f64,
 }
 
+/// Most Prony terms a reduced model carries (fixed arrays, no heap).
+pub const MAX_PRONY_TERMS: usize = 4;
+
 /// A node index outside the basis (returned by the RT-path helpers; carries
 /// the index, allocates nothing).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -69,6 +95,17 @@ pub struct ReducedDynamics<const R: usize> {
     rows: BasisRows<R>,
     q: SVector<f64, R>,
     qd: SVector<f64, R>,
+    alpha: f64,
+    beta: f64,
+    /// Number of active Prony terms and their A_i, B_i (eq. 15).
+    prony_n: usize,
+    prony_terms: [PronyTerm; MAX_PRONY_TERMS],
+    prony_a: [f64; MAX_PRONY_TERMS],
+    prony_b: [f64; MAX_PRONY_TERMS],
+    /// Reduced histories γ_i.
+    gamma: [SVector<f64, R>; MAX_PRONY_TERMS],
+    /// s = 1 − Σ A_i.
+    prony_scale: f64,
 }
 
 impl<const R: usize> ReducedDynamics<R> {
@@ -143,20 +180,133 @@ impl<const R: usize> ReducedDynamics<R> {
             rows,
             q: SVector::zeros(),
             qd: SVector::zeros(),
+            alpha: params.alpha,
+            beta: params.beta,
+            prony_n: 0,
+            prony_terms: [PronyTerm { alpha: 0.0, tau: 1.0 }; MAX_PRONY_TERMS],
+            prony_a: [0.0; MAX_PRONY_TERMS],
+            prony_b: [0.0; MAX_PRONY_TERMS],
+            gamma: [SVector::zeros(); MAX_PRONY_TERMS],
+            prony_scale: 1.0,
         })
+    }
+
+    /// Sets the Prony terms (at most [`MAX_PRONY_TERMS`]; each α_i in (0, 1),
+    /// τ_i > 0, Σ α_i < 1; an empty slice switches viscoelasticity off),
+    /// refactors the step matrix with s = 1 − Σ A_i and clears the
+    /// histories. Not for the RT path (it factors an R × R matrix).
+    pub fn set_prony(&mut self, terms: &[PronyTerm]) -> Result<(), ReducedError> {
+        if terms.len() > MAX_PRONY_TERMS {
+            return Err(ReducedError::BadParameter {
+                name: "prony terms",
+                value: terms.len() as f64,
+                allowed: "at most MAX_PRONY_TERMS (4)",
+            });
+        }
+        let mut sum = 0.0;
+        for t in terms {
+            if !(t.alpha.is_finite() && t.alpha > 0.0 && t.alpha < 1.0) {
+                return Err(ReducedError::BadParameter {
+                    name: "prony alpha",
+                    value: t.alpha,
+                    allowed: "in (0, 1)",
+                });
+            }
+            if !(t.tau.is_finite() && t.tau > 0.0) {
+                return Err(ReducedError::BadParameter {
+                    name: "prony tau",
+                    value: t.tau,
+                    allowed: "> 0 s",
+                });
+            }
+            sum += t.alpha;
+        }
+        if sum >= 1.0 {
+            return Err(ReducedError::BadParameter {
+                name: "prony alpha sum",
+                value: sum,
+                allowed: "< 1",
+            });
+        }
+        let h = self.dt;
+        let mut a_sum = 0.0;
+        let mut pa = [0.0; MAX_PRONY_TERMS];
+        let mut pb = [0.0; MAX_PRONY_TERMS];
+        let mut pt = [PronyTerm { alpha: 0.0, tau: 1.0 }; MAX_PRONY_TERMS];
+        for (i, t) in terms.iter().enumerate() {
+            pa[i] = h * t.alpha / (h + t.tau);
+            pb[i] = t.tau / (h + t.tau);
+            pt[i] = *t;
+            a_sum += pa[i];
+        }
+        let scale = 1.0 - a_sum;
+        let a = SMatrix::<f64, R, R>::identity() * (1.0 + h * self.alpha) + self.k * (h * self.beta + h * h * scale);
+        let system = Cholesky::new(a).ok_or(ReducedError::NotPositiveDefinite)?;
+        self.a = a;
+        self.system = system;
+        self.prony_n = terms.len();
+        self.prony_terms = pt;
+        self.prony_a = pa;
+        self.prony_b = pb;
+        self.prony_scale = scale;
+        self.gamma = [SVector::zeros(); MAX_PRONY_TERMS];
+        Ok(())
+    }
+
+    /// The active Prony terms.
+    pub fn prony(&self) -> &[PronyTerm] {
+        &self.prony_terms[..self.prony_n]
+    }
+
+    /// The reduced Prony histories γ_i (one per active term).
+    pub fn prony_history(&self) -> &[SVector<f64, R>] {
+        &self.gamma[..self.prony_n]
+    }
+
+    /// Sets the histories (e.g. carried over from the previous model by
+    /// projection at a swap); extra entries are ignored, missing ones zeroed.
+    pub fn set_prony_history(&mut self, gamma: &[SVector<f64, R>]) {
+        for i in 0..self.prony_n {
+            self.gamma[i] = gamma.get(i).copied().unwrap_or_else(SVector::zeros);
+            for v in self.gamma[i].iter_mut().skip(self.r) {
+                *v = 0.0;
+            }
+        }
+    }
+
+    /// The right-hand side q̇ₙ + h (f − s K_r qₙ + H), inactive entries zeroed.
+    fn rhs(&self, f: &SVector<f64, R>) -> SVector<f64, R> {
+        let mut force = f - self.k * self.q * self.prony_scale;
+        for i in 0..self.prony_n {
+            force += self.gamma[i] * self.prony_b[i];
+        }
+        let mut rhs = self.qd + force * self.dt;
+        for v in rhs.iter_mut().skip(self.r) {
+            *v = 0.0;
+        }
+        rhs
+    }
+
+    /// γ_i ← A_i K_r qₙ₊₁ + B_i γ_i after a step (eq. 15).
+    fn update_history(&mut self) {
+        if self.prony_n == 0 {
+            return;
+        }
+        let g = self.k * self.q;
+        for i in 0..self.prony_n {
+            self.gamma[i] = g * self.prony_a[i] + self.gamma[i] * self.prony_b[i];
+        }
     }
 
     /// One implicit Euler step under the reduced force `f` (Φᵀ f_ext, e.g.
     /// from [`ReducedDynamics::project_nodal`]). Entries beyond the active
     /// size are ignored. Allocates nothing.
     pub fn step(&mut self, f: &SVector<f64, R>) {
-        let mut rhs = self.qd + (f - self.k * self.q) * self.dt;
-        for v in rhs.iter_mut().skip(self.r) {
-            *v = 0.0;
-        }
+        let mut rhs = self.rhs(f);
         self.system.solve_mut(&mut rhs);
         self.qd = rhs;
         self.q += self.qd * self.dt;
+        self.update_history();
     }
 
     /// One implicit Euler step under the reduced force `f` = Φᵀ f_c(qₙ) of a
@@ -175,10 +325,7 @@ impl<const R: usize> ReducedDynamics<R> {
                 a[(i, j)] += h * h * k_c[(i, j)];
             }
         }
-        let mut rhs = self.qd + (f - self.k * self.q) * h;
-        for v in rhs.iter_mut().skip(self.r) {
-            *v = 0.0;
-        }
+        let mut rhs = self.rhs(f);
         let ok = match Cholesky::new(a) {
             Some(chol) => {
                 chol.solve_mut(&mut rhs);
@@ -191,6 +338,7 @@ impl<const R: usize> ReducedDynamics<R> {
         };
         self.qd = rhs;
         self.q += self.qd * h;
+        self.update_history();
         ok
     }
 
@@ -204,10 +352,11 @@ impl<const R: usize> ReducedDynamics<R> {
         &self.rows
     }
 
-    /// Zeroes the state (q = q̇ = 0).
+    /// Zeroes the state (q = q̇ = 0 and the Prony histories).
     pub fn reset(&mut self) {
         self.q = SVector::zeros();
         self.qd = SVector::zeros();
+        self.gamma = [SVector::zeros(); MAX_PRONY_TERMS];
     }
 
     /// Φᵀ f for forces on a few nodes, from those nodes' rows of Φ only.
@@ -372,5 +521,51 @@ mod tests {
         let d = ReducedDynamics::<2>::new(&b, &p).unwrap();
         assert_eq!(d.project_nodal(&[(1, Vec3::zeros())]), Err(NodeOutOfRange(1)));
         assert_eq!(d.displacement_at(1), None);
+    }
+
+    #[test]
+    fn prony_creep_follows_the_standard_linear_solid() {
+        // One mode, stiff and critically damped next to τ: the held-force
+        // response is quasi-static, u(t)/u_el = 1/(1−α) − α/(1−α) e^{−t(1−α)/τ}.
+        let omega2: f64 = 1e6;
+        let b = ModalBasis {
+            omega2: vec![omega2],
+            ..one_mode()
+        };
+        let p = DynamicsParams {
+            dt: 1e-4,
+            alpha: 2.0 * omega2.sqrt(),
+            beta: 0.0,
+        };
+        let (a, tau) = (0.5, 0.5);
+        let mut d = ReducedDynamics::<4>::new(&b, &p).unwrap();
+        d.set_prony(&[PronyTerm { alpha: a, tau }]).unwrap();
+        assert_eq!(d.prony().len(), 1);
+        let mut f = SVector::<f64, 4>::zeros();
+        f[0] = 1.0;
+        let u_el = 1.0 / omega2;
+        let tau_c = tau / (1.0 - a);
+        let mut worst: f64 = 0.0;
+        for n in 1..=(5.0 * tau_c / p.dt) as usize {
+            d.step(&f);
+            let t = n as f64 * p.dt;
+            if t > 0.02 {
+                let want = 1.0 / (1.0 - a) - a / (1.0 - a) * (-t / tau_c).exp();
+                worst = worst.max((d.q()[0] / u_el - want).abs() / want);
+            }
+        }
+        assert!(worst < 5e-3, "creep error {worst}");
+        // Off again: the plain elastic step, bit for bit.
+        let mut e = ReducedDynamics::<4>::new(&b, &p).unwrap();
+        d.set_prony(&[]).unwrap();
+        d.reset();
+        for _ in 0..50 {
+            d.step(&f);
+            e.step(&f);
+        }
+        assert_eq!(d.q(), e.q());
+        assert!(d
+            .set_prony(&[PronyTerm { alpha: 0.6, tau: 1.0 }, PronyTerm { alpha: 0.5, tau: 1.0 }])
+            .is_err());
     }
 }

@@ -157,7 +157,9 @@ impl Refresher {
         if k.num_nodes() * 3 != n3 {
             return DMatrix::zeros(r, r);
         }
-        self.chunks.par_iter_mut().for_each(|ch| mul_chunk(k, ch.w, &ch.x, &mut ch.y));
+        self.chunks
+            .par_iter_mut()
+            .for_each(|ch| mul_chunk(k, ch.w, &ch.x, &mut ch.y));
         let mut kr = DMatrix::zeros(r, r);
         for a in &self.chunks {
             let xa = nalgebra::DMatrixView::from_slice(&a.x, a.w, n3);

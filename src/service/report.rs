@@ -139,7 +139,12 @@ pub struct Report {
 impl Report {
     /// The human-readable summary.
     pub fn render(&self) -> String {
-        let p = |x: &Percentiles| format!("p50 {:.1}  p99 {:.1}  p99.9 {:.1}  max {:.1}", x.p50, x.p99, x.p999, x.max);
+        let p = |x: &Percentiles| {
+            format!(
+                "p50 {:.1}  p99 {:.1}  p99.9 {:.1}  max {:.1}",
+                x.p50, x.p99, x.p999, x.max
+            )
+        };
         let mut s = String::new();
         s += &format!(
             "nvtmm run: {} ticks in {:.2} s on {} ({} nodes, {} tets, r = {} of {})\n",
@@ -148,7 +153,9 @@ impl Report {
         s += &format!(
             "  RT: SCHED_FIFO {}, CPU {}, memory {}\n",
             if self.rt_policy_granted { "granted" } else { "REFUSED" },
-            self.loop_cpu.map(|c| c.to_string()).unwrap_or_else(|| "not pinned".into()),
+            self.loop_cpu
+                .map(|c| c.to_string())
+                .unwrap_or_else(|| "not pinned".into()),
             if self.memory_locked { "locked" } else { "not locked" }
         );
         for r in &self.rt_refusals {
@@ -165,7 +172,11 @@ impl Report {
         s += &format!(
             "  allocations after start: {}{}\n",
             self.allocations_after_start,
-            if self.allocator_installed { "" } else { " (allocator not installed: not measured)" }
+            if self.allocator_installed {
+                ""
+            } else {
+                " (allocator not installed: not measured)"
+            }
         );
         s += &format!(
             "  force: max {:.3} N, deepest contact {:.2} mm; energy in {:.4} J, out {:.4} J ({})\n",

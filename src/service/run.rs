@@ -323,7 +323,9 @@ fn loop_thread<const R: usize>(
         }
         let now_s = clock::to_s(wake);
         let out = servo.tick(last.as_ref(), now_s, streak);
-        let (x, v) = last.map(|s| (s.position, s.velocity)).unwrap_or((Vec3::zeros(), Vec3::zeros()));
+        let (x, v) = last
+            .map(|s| (s.position, s.velocity))
+            .unwrap_or((Vec3::zeros(), Vec3::zeros()));
         let q0 = clock::now_ns();
         let fo = filter.filter(out.desired, x, v);
         res.qp_us.record((clock::now_ns() - q0) as f64 * 1e-3);
@@ -868,7 +870,8 @@ fn run_with<const R: usize>(p: Prepared, progress: bool) -> Result<Report, Servi
     let bg_handle = if cfg.background.enabled {
         let mut params = scene.integrator;
         params.dt = cfg.background.dt;
-        let solver = ImplicitEuler::new(&mesh, mass.clone(), params).map_err(|e| ServiceError::Solver(e.to_string()))?;
+        let solver =
+            ImplicitEuler::new(&mesh, mass.clone(), params).map_err(|e| ServiceError::Solver(e.to_string()))?;
         let bg = Background::<R> {
             model,
             solver,
@@ -1030,7 +1033,10 @@ fn run_with<const R: usize>(p: Prepared, progress: bool) -> Result<Report, Servi
         .map_err(|_| ServiceError::Thread("device", "panicked".into()))?;
     dev.stop();
     let bs: Option<BackgroundStats> = match bg_handle {
-        Some(h) => Some(h.join().map_err(|_| ServiceError::Thread("background", "panicked".into()))?),
+        Some(h) => Some(
+            h.join()
+                .map_err(|_| ServiceError::Thread("background", "panicked".into()))?,
+        ),
         None => None,
     };
     let (stream_frames, stream_errors, stream_error) = match pub_handle {
@@ -1048,7 +1054,10 @@ fn run_with<const R: usize>(p: Prepared, progress: bool) -> Result<Report, Servi
     let mut ring_overflows = std::collections::BTreeMap::new();
     ring_overflows.insert("pose", ring_report(rings.pose, "drop newest", dr.pose_ring_full));
     ring_overflows.insert("force", ring_report(rings.force, "drop newest", lr.force_ring_full));
-    ring_overflows.insert("contact", ring_report(rings.contact, "drop newest", lr.contact_ring_full));
+    ring_overflows.insert(
+        "contact",
+        ring_report(rings.contact, "drop newest", lr.contact_ring_full),
+    );
     ring_overflows.insert(
         "model",
         ring_report(

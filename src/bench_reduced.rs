@@ -1,0 +1,185 @@
+//! `nvtmm bench reduced`: the cost of the reduced model at one mesh size.
+//!
+//! Set-up: the built-in arch with `nodes` nodes, both ends fixed (the
+//! standard load's supports, [`crate::bench::standard_load`]), NVTMM (StVK)
+//! with the aorta material. The contact region is the standard probe
+//! footprint: the outer-wall nodes within [`PROBE_RADIUS_M`] of the arch top
+//! ([`arch_top_node`]). Measured:
+//!
+//! - `basis_s`: [`ModalBasis::compute_contact`] with r columns, up to ⌊r/2⌋
+//!   of them static modes of the region, default tolerance, cold start;
+//! - `us_per_step`, `us_per_step_p99`: median and 99th percentile of one
+//!   [`ReducedDynamics::step_with_contact`] (the haptic loop's step), over
+//!   `steps` steps of a probe pressing the region with a stiff penalty
+//!   (10⁴ N/m per touched node along −z); only the call is timed;
+//! - `refresh_ms`: one linearization refresh at a displacement of the
+//!   pressed state: [`Refresher::reduced_stiffness`] (tangent assembly,
+//!   r block-sparse mat-vecs, Φᵀ(KΦ)) plus building the new
+//!   [`ReducedDynamics`] on the shared rows (median of 3).
+
+use crate::bench::{arch_top_node, standard_load, PROBE_RADIUS_M, STANDARD_FORCE_N};
+use crate::material::Material;
+use crate::mesh::arch::{generate, Arch, ArchParams};
+use crate::mesh::Vec3;
+use crate::model::nvtmm::Nvtmm;
+use crate::reduced::refresh::Refresher;
+use crate::reduced::{BasisParams, DynamicsParams, ModalBasis, ReducedDynamics};
+use nalgebra::{SMatrix, SVector};
+use std::time::Instant;
+
+/// Result of `nvtmm bench reduced` (the JSON keys are a scripting contract).
+#[derive(Debug, Clone, serde::Serialize)]
+pub struct ReducedBench {
+    /// Basis size.
+    pub r: usize,
+    /// Mesh nodes.
+    pub nodes: usize,
+    /// Median time of one `step_with_contact` (µs).
+    pub us_per_step: f64,
+    /// 99th percentile of the same (µs).
+    pub us_per_step_p99: f64,
+    /// One linearization refresh (ms).
+    pub refresh_ms: f64,
+    /// Basis computation (s).
+    pub basis_s: f64,
+}
+
+/// Capacities the reduced model is compiled for; r runs at the smallest one
+/// that holds it.
+pub const CAPACITIES: [usize; 5] = [8, 16, 32, 48, 64];
+
+/// The standard probe region of an arch: the outer-wall nodes within
+/// [`PROBE_RADIUS_M`] of the arch top.
+pub fn probe_region(arch: &Arch) -> Vec<u32> {
+    let mesh = &arch.mesh;
+    let top = mesh.rest()[arch_top_node(arch) as usize];
+    let mut nodes: Vec<u32> = mesh
+        .node_set("outer_wall")
+        .unwrap_or(&[])
+        .iter()
+        .copied()
+        .filter(|&i| (mesh.rest()[i as usize] - top).norm() <= PROBE_RADIUS_M)
+        .collect();
+    if nodes.is_empty() {
+        nodes.push(arch_top_node(arch));
+    }
+    nodes
+}
+
+/// The reduced model's damping in the benchmark and experiments.
+pub fn bench_dynamics_params() -> DynamicsParams {
+    DynamicsParams {
+        dt: 1e-3,
+        alpha: 5.0,
+        beta: 1e-4,
+    }
+}
+
+/// Runs the benchmark (`steps` timed steps after 100 warm-up steps).
+pub fn bench_reduced(r: usize, nodes: usize, steps: usize) -> Result<ReducedBench, String> {
+    let cap = CAPACITIES
+        .iter()
+        .copied()
+        .find(|&c| c >= r)
+        .ok_or_else(|| format!("--r {r}: allowed 1..={}", CAPACITIES[CAPACITIES.len() - 1]))?;
+    if r == 0 {
+        return Err("--r 0: allowed 1..=64".into());
+    }
+    if steps == 0 {
+        return Err("--steps must be at least 1".into());
+    }
+    match cap {
+        8 => run::<8>(r, nodes, steps),
+        16 => run::<16>(r, nodes, steps),
+        32 => run::<32>(r, nodes, steps),
+        48 => run::<48>(r, nodes, steps),
+        _ => run::<64>(r, nodes, steps),
+    }
+}
+
+fn run<const R: usize>(r: usize, nodes: usize, steps: usize) -> Result<ReducedBench, String> {
+    let arch = generate(&ArchParams::default(), nodes).map_err(|e| e.to_string())?;
+    let mesh = &arch.mesh;
+    let mat = Material::aorta();
+    let model = Nvtmm::new(mesh, &mat);
+    let mass = mesh.lumped_mass(mat.density);
+    let fixed = standard_load(&arch, STANDARD_FORCE_N).fixed;
+    let contact = probe_region(&arch);
+    let u0 = vec![Vec3::zeros(); mesh.num_nodes()];
+    let t0 = Instant::now();
+    let basis = ModalBasis::compute_contact(
+        mesh,
+        &model,
+        &u0,
+        &mass,
+        &fixed,
+        r,
+        &contact,
+        r / 2,
+        None,
+        &BasisParams::default(),
+    )
+    .map_err(|e| format!("basis: {e}"))?;
+    let basis_s = t0.elapsed().as_secs_f64();
+    let params = bench_dynamics_params();
+    let mut d = Box::new(ReducedDynamics::<R>::new(&basis, &params).map_err(|e| e.to_string())?);
+
+    // A probe pressing the region down: penalty k per touched node on the
+    // penetration below a plane that descends 1 mm over the first 200 steps.
+    let k_pen = 1e4;
+    let n = Vec3::new(0.0, 0.0, 1.0);
+    let z0: Vec<f64> = contact.iter().map(|&c| mesh.rest()[c as usize].z).collect();
+    let zmax = z0.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+    let mut times = Vec::with_capacity(steps);
+    let mut kc = Box::new(SMatrix::<f64, R, R>::zeros());
+    for step in 0..steps + 100 {
+        let plane = zmax - 1e-3 * ((step as f64) / 200.0).min(1.0);
+        let mut f = SVector::<f64, R>::zeros();
+        kc.fill(0.0);
+        for (&c, &z) in contact.iter().zip(&z0) {
+            let Some(rows) = d.rows_at(c) else { continue };
+            let uz = (rows * d.q()).dot(&n);
+            let pen = plane - (z + uz);
+            if pen < 0.0 {
+                let nr = rows.tr_mul(&n);
+                f += nr * (k_pen * pen);
+                *kc += nr * nr.transpose() * k_pen;
+            }
+        }
+        let t = Instant::now();
+        std::hint::black_box(d.step_with_contact(&f, &kc));
+        let us = t.elapsed().as_secs_f64() * 1e6;
+        if step >= 100 {
+            times.push(us);
+        }
+    }
+    times.sort_by(f64::total_cmp);
+    let us_per_step = times[times.len() / 2];
+    let us_per_step_p99 = times[((times.len() as f64 * 0.99) as usize).min(times.len() - 1)];
+
+    // One refresh at the pressed state.
+    let mut q = nalgebra::DVector::zeros(basis.len());
+    for j in 0..basis.len() {
+        q[j] = d.q()[j];
+    }
+    let u = basis.expand(&q);
+    let mut refresher = Refresher::new(mesh, &basis, &mass);
+    let rows = d.rows().clone();
+    let mut rt = Vec::new();
+    for _ in 0..3 {
+        let t = Instant::now();
+        let kr = refresher.reduced_stiffness(&model, &u);
+        let m = ReducedDynamics::<R>::with_rows(rows.clone(), basis.len(), &kr, &params).map_err(|e| e.to_string())?;
+        std::hint::black_box(&m);
+        rt.push(t.elapsed().as_secs_f64() * 1e3);
+    }
+    rt.sort_by(f64::total_cmp);
+    Ok(ReducedBench {
+        r,
+        nodes: mesh.num_nodes(),
+        us_per_step,
+        us_per_step_p99,
+        refresh_ms: rt[1],
+        basis_s,
+    })
+}

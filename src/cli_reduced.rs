@@ -1,0 +1,83 @@
+//! `nvtmm basis …` and `nvtmm bench reduced …` subcommands.
+
+use indicatif::{ProgressBar, ProgressStyle};
+use nvtmm::bench_reduced::bench_reduced;
+use nvtmm::reduced::cache::{basis_for_scene, CacheStatus};
+use nvtmm::scene::Scene;
+use std::path::Path;
+use std::time::Duration;
+
+type Result<T> = std::result::Result<T, Box<dyn std::error::Error>>;
+
+/// `nvtmm basis SCENE.toml [--r R] [--force]`.
+pub fn basis(scene_path: &Path, r: Option<usize>, force: bool) -> Result<()> {
+    let scene = Scene::load(scene_path)?;
+    let bar = ProgressBar::new_spinner();
+    bar.set_style(
+        ProgressStyle::with_template("{spinner} [{elapsed_precise}] {msg}")
+            .unwrap_or_else(|_| ProgressStyle::default_spinner()),
+    );
+    bar.enable_steady_tick(Duration::from_millis(120));
+    bar.set_message("building the mesh");
+    let built = scene.build()?;
+    bar.set_message(format!(
+        "basis on {} nodes ({} fixed): cache lookup, else shift-invert subspace iteration",
+        built.mesh.num_nodes(),
+        built.fixed.len()
+    ));
+    let res = basis_for_scene(&scene, &built, r, force);
+    bar.finish_and_clear();
+    let (b, outcome) = res?;
+    let what = match &outcome.status {
+        CacheStatus::Hit => "loaded from the cache".to_string(),
+        CacheStatus::Computed => format!("computed in {:.2} s", outcome.compute_s),
+        CacheStatus::Bypassed => format!("computed in {:.2} s (cache not read)", outcome.compute_s),
+        CacheStatus::Recomputed(why) => format!("computed in {:.2} s (cache file unusable: {why})", outcome.compute_s),
+    };
+    let f = |w: f64| w.max(0.0).sqrt() / (2.0 * std::f64::consts::PI);
+    println!(
+        "basis: {} vectors ({} static), {} nodes, {what}; frequencies {:.2}..{:.2} Hz",
+        b.len(),
+        b.num_static,
+        b.num_nodes(),
+        b.omega2.first().map_or(0.0, |&w| f(w)),
+        b.omega2.last().map_or(0.0, |&w| f(w)),
+    );
+    match (&outcome.path, &outcome.store_error) {
+        (_, Some(e)) => eprintln!("warning: could not store the basis: {e}"),
+        (Some(p), None) => println!("cache: {} (key {:016x})", p.display(), outcome.key),
+        (None, None) => println!("cache: off"),
+    }
+    Ok(())
+}
+
+/// `nvtmm bench reduced --r R [--nodes N] [--steps S] [--json]`.
+pub fn bench_reduced_cmd(r: usize, nodes: usize, steps: usize, json: bool) -> Result<()> {
+    let b = bench_reduced(r, nodes, steps)?;
+    if json {
+        println!("{}", serde_json::to_string_pretty(&b)?);
+    } else {
+        println!(
+            "reduced r = {} on {} nodes: step {:.2} µs median, {:.2} µs p99; refresh {:.2} ms; basis {:.2} s",
+            b.r, b.nodes, b.us_per_step, b.us_per_step_p99, b.refresh_ms, b.basis_s
+        );
+    }
+    Ok(())
+}
+
+/// `nvtmm experiment reduced [--out DIR] [--quick]`.
+pub fn experiment_reduced(out: &Path, quick: bool) -> Result<()> {
+    nvtmm::experiment::reduced::run(out, quick)?;
+    let md = out.join("reduced.md");
+    print!(
+        "{}",
+        std::fs::read_to_string(&md).map_err(|e| format!("{}: {e}", md.display()))?
+    );
+    println!(
+        "wrote {}, {}, {}",
+        out.join("reduced.csv").display(),
+        out.join("roi.csv").display(),
+        md.display()
+    );
+    Ok(())
+}
