@@ -289,6 +289,7 @@ fn loop_thread<const R: usize>(
     let dt = period as f64 * 1e-9;
     let mut tick: u64 = 0;
     let mut window_max_us = 0.0f64;
+    let mut v_prev = Vec3::zeros();
     // A retired model the return ring had no room for (kept, never freed here).
     let mut pending_return: Option<Box<LoopModel<R>>> = None;
     let mut contact_msg = ContactMsg {
