@@ -156,7 +156,11 @@ fn energy_delivered_never_exceeds_energy_absorbed_plus_the_tank() {
             depth * 1e3
         );
         assert!(max_f > 0.5, "the wall was touched and pushed back: {max_f} N");
-        assert!(out - inn <= tank, "speed {speed}: net delivered {} J > tank {tank} J", out - inn);
+        assert!(
+            out - inn <= tank,
+            "speed {speed}: net delivered {} J > tank {tank} J",
+            out - inn
+        );
         assert!(max_f <= 7.9 + 1e-9, "saturated to the peak force");
     }
 }

@@ -145,7 +145,11 @@ fn eval_contact<const R: usize>(
 
 /// Steps `m` under its contact; returns the tool force and whether all was
 /// finite.
-fn step_model<const R: usize>(m: &mut LoopModel<R>, c: &ContactOutput<R>, counters: &mut ServoCounters) -> (Vec3, bool) {
+fn step_model<const R: usize>(
+    m: &mut LoopModel<R>,
+    c: &ContactOutput<R>,
+    counters: &mut ServoCounters,
+) -> (Vec3, bool) {
     let f = c.reduced_force - m.f_bar;
     let desired = c.tool_force;
     let finite = desired.iter().all(|v| v.is_finite()) && f.iter().all(|v| v.is_finite());
@@ -295,7 +299,8 @@ impl<const R: usize> Servo<R> {
             else {
                 continue;
             };
-            let old = self.model.offset.get(i).copied().unwrap_or_else(Vec3::zeros) + rows_old * self.model.dynamics.q();
+            let old =
+                self.model.offset.get(i).copied().unwrap_or_else(Vec3::zeros) + rows_old * self.model.dynamics.q();
             let now = new.offset.get(i).copied().unwrap_or_else(Vec3::zeros) + rows_new * q;
             let d = old - now;
             for c in 0..3 {
@@ -393,7 +398,14 @@ impl<const R: usize> Servo<R> {
 
         // Contact against the surface as the current state deforms it.
         let tool = self.tool;
-        eval_contact(&self.model, &self.index, &p.contact, &tool, &mut self.scratch, &mut self.contact);
+        eval_contact(
+            &self.model,
+            &self.index,
+            &p.contact,
+            &tool,
+            &mut self.scratch,
+            &mut self.contact,
+        );
         if !self.contact.nodes.is_empty() {
             fl |= flags::CONTACT;
             self.counters.contact_ticks += 1;
@@ -406,7 +418,14 @@ impl<const R: usize> Servo<R> {
         // A cross-fade: the old model runs on and the force blends over.
         if let Some(old) = self.fading.as_mut() {
             let mut scratch = Candidates::new();
-            eval_contact(old, &self.index, &p.contact, &tool, &mut scratch, &mut self.fade_contact);
+            eval_contact(
+                old,
+                &self.index,
+                &p.contact,
+                &tool,
+                &mut scratch,
+                &mut self.fade_contact,
+            );
             let (f_old, ok_old) = step_model(old, &self.fade_contact, &mut self.counters);
             self.blend = (self.blend + p.dt / p.swap_blend_s.max(p.dt)).min(1.0);
             desired = f_old * (1.0 - self.blend) + desired * self.blend;

@@ -328,7 +328,9 @@ fn loop_thread<const R: usize>(
             .map(|s| (s.position, s.velocity))
             .unwrap_or((Vec3::zeros(), Vec3::zeros()));
         let q0 = clock::now_ns();
-        let fo = filter.filter(out.desired, x, v);
+        let v_pred = crate::haptics::passivity::predict_velocity(v, v_prev);
+        v_prev = v;
+        let fo = filter.filter(out.desired, x, v_pred);
         res.qp_us.record((clock::now_ns() - q0) as f64 * 1e-3);
         let mut fl = out.flags;
         if res.grant.fifo {
@@ -552,7 +554,10 @@ fn publisher_thread<const R: usize>(mut p: PublisherPlan<R>) -> (u64, u64, Optio
         for (k, &node) in topo.node_ids.iter().enumerate() {
             let i = node as usize;
             let rest = Vec3::from(topo.rest_positions[k].map(f64::from));
-            let ubar = offset.as_ref().and_then(|o| o.get(i).copied()).unwrap_or_else(Vec3::zeros);
+            let ubar = offset
+                .as_ref()
+                .and_then(|o| o.get(i).copied())
+                .unwrap_or_else(Vec3::zeros);
             let d = p.rows.get(i).map(|row| row * s.q).unwrap_or_else(Vec3::zeros);
             let x = rest + ubar + d;
             positions[k] = [x.x as f32, x.y as f32, x.z as f32];
@@ -1041,7 +1046,9 @@ fn run_with<const R: usize>(p: Prepared, progress: bool) -> Result<Report, Servi
         None => None,
     };
     let (stream_frames, stream_errors, stream_error) = match pub_handle {
-        Some(h) => h.join().map_err(|_| ServiceError::Thread("stream", "panicked".into()))?,
+        Some(h) => h
+            .join()
+            .map_err(|_| ServiceError::Thread("stream", "panicked".into()))?,
         None => (0, 0, None),
     };
     if let Some(e) = &stream_error {

@@ -1,0 +1,162 @@
+//! `nvtmm run` end to end on a small arch for a few seconds, with the RT
+//! allocator installed as in the binary: the loop and device threads make no
+//! system-allocator call after start (clarabel's per-solve allocation goes
+//! to the RT pool), every histogram fills sensibly, models are refreshed and
+//! swapped, the stream is recorded, and the report has its keys.
+
+use nvtmm::rt::stats::Percentiles;
+use nvtmm::service::run::{run_service, RunOptions};
+
+#[global_allocator]
+static ALLOC: nvtmm::rt::alloc::RtAllocator = nvtmm::rt::alloc::RtAllocator;
+
+fn sane(name: &str, p: &Percentiles) {
+    assert!(
+        p.p50 <= p.p99 && p.p99 <= p.p999 && p.p999 <= p.max.max(p.p999),
+        "{name}: {p:?}"
+    );
+    assert!(p.max > 0.0 && p.max.is_finite(), "{name}: {p:?}");
+}
+
+#[test]
+fn a_short_run_allocates_nothing_after_start_and_fills_every_histogram() {
+    let dir = tempfile::tempdir().unwrap();
+    let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
+    let scene = dir.path().join("scene.toml");
+    std::fs::write(
+        &scene,
+        format!(
+            r#"model = "nvtmm"
+duration = 1.0
+[mesh]
+arch_nodes = 1458
+[material]
+law = "stvk"
+youngs_pa = 65e3
+poisson = 0.45
+density = 1050.0
+[[prony]]
+alpha = 0.5
+tau = 0.58
+[fixed]
+sets = ["inlet", "outlet_descending"]
+[integrator]
+dt = 1e-2
+rayleigh_beta = 1e-3
+newton = {{ max_iters = 1 }}
+linear = {{ kind = "cg", precond = "block_ic0", tol = 1e-6, max_iter = 500 }}
+[reduced]
+r = 16
+contact_modes = true
+contact_region = {{ center = [0.0065, -0.031, 0.177], radius = 0.015, set = "outer_wall" }}
+alpha = 5.0
+beta = 1e-3
+cache_dir = "{}"
+"#,
+            dir.path().join("cache").display()
+        ),
+    )
+    .unwrap();
+    let cfg = dir.path().join("nvtmm.toml");
+    std::fs::write(
+        &cfg,
+        format!(
+            r#"scene = "scene.toml"
+seconds = 3.0
+[loop]
+baseline_s = 0.5
+[device]
+touchx = "{}"
+origin_m = [0.0065, -0.031, 0.177]
+[interaction]
+phases_s = [0.3, 0.3, 0.3, 0.6, 0.3, 0.3]
+[stream]
+enabled = false
+"#,
+            root.join("rt-config/touchx.toml").display()
+        ),
+    )
+    .unwrap();
+    let record = dir.path().join("run.nvts");
+    let report = run_service(&RunOptions {
+        config: cfg,
+        seconds: None,
+        progress: false,
+        record: Some(record.clone()),
+    })
+    .unwrap();
+    eprintln!("{}", report.render());
+    assert!(report.allocator_installed, "the RT pool serves the loop thread");
+    assert_eq!(report.allocations_after_start, 0);
+    assert!(report.ticks > 1000, "{} ticks", report.ticks);
+    for (name, p) in [
+        ("period_jitter_us", &report.period_jitter_us),
+        ("tick_compute_us", &report.tick_compute_us),
+        ("pose_to_force_latency_us", &report.pose_to_force_latency_us),
+        ("baseline_jitter_us", &report.baseline_jitter_us),
+    ] {
+        sane(name, p);
+    }
+    assert!(report.watchdog.contact_ticks > 0, "the probe touched the wall");
+    assert!(report.max_force_n > 0.0 && report.max_force_n <= 7.9);
+    assert!(report.model_swaps > 0, "refreshed models reached the loop");
+    assert!(report.background.steps > 0);
+    assert!(report.stream_frames > 0);
+    assert!(std::fs::metadata(&record).unwrap().len() > 0);
+    assert!(report.energy_out_j <= report.energy_in_j + 0.01 + 1e-12);
+    let json = serde_json::to_value(&report).unwrap();
+    for key in [
+        "ticks",
+        "seconds",
+        "deadline_misses",
+        "period_jitter_us",
+        "tick_compute_us",
+        "pose_to_force_latency_us",
+        "baseline_jitter_us",
+        "allocations_after_start",
+        "max_force_n",
+        "qp",
+        "energy_in_j",
+        "energy_out_j",
+        "ring_overflows",
+        "model_swaps",
+        "rt_policy_granted",
+    ] {
+        assert!(json.get(key).is_some(), "report key {key}");
+    }
+    for key in ["p50", "p99", "p999", "max"] {
+        assert!(json["tick_compute_us"].get(key).is_some());
+    }
+    for key in [
+        "solves",
+        "active_norm",
+        "active_rate",
+        "active_energy",
+        "iters_p99",
+        "solve_us_p99",
+    ] {
+        assert!(json["qp"].get(key).is_some(), "qp.{key}");
+    }
+}
+
+#[test]
+fn bad_configuration_names_the_file_and_key() {
+    let dir = tempfile::tempdir().unwrap();
+    let cfg = dir.path().join("nvtmm.toml");
+    std::fs::write(&cfg, "scene = \"x.toml\"\n[loop]\npriority = 200\n").unwrap();
+    let err = run_service(&RunOptions {
+        config: cfg.clone(),
+        ..RunOptions::default()
+    })
+    .unwrap_err()
+    .to_string();
+    assert!(err.contains("nvtmm.toml") && err.contains("loop.priority"), "{err}");
+    std::fs::write(&cfg, "scene = \"missing.toml\"\n").unwrap();
+    let err = run_service(&RunOptions {
+        config: cfg,
+        ..RunOptions::default()
+    })
+    .unwrap_err()
+    .to_string();
+    assert!(err.contains("missing.toml"), "{err}");
+}
