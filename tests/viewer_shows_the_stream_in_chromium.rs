@@ -1,6 +1,6 @@
-//! End to end, as a user sees it: a stream source (`nvtmm stream-demo`, a
-//! dent pressed into the arch), `nvtmm view`, and the page in headless
-//! Chromium. The screenshot must show the vessel (enough vessel-coloured
+//! End to end, as a user sees it: the haptic service (`nvtmm run` on the
+//! simulated Touch X pressing a 1458-node arch) publishing its stream,
+//! `nvtmm view`, and the page in headless Chromium. The screenshot must show the vessel (enough vessel-coloured
 //! pixels) and the HUD must change between two loads.
 //!
 //! Needs a Chromium binary (`chromium`, `chromium-browser`, `google-chrome`,
@@ -150,19 +150,26 @@ fn viewer_draws_the_vessel_and_the_hud_updates() {
             .unwrap(),
     );
     wait_for("the viewer", || get(&http, "/stats").is_some());
-    let _demo = Killed(
+    let run_dir = tempfile::tempdir().unwrap();
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let scene = std::fs::read_to_string(root.join("rt-config/scenes/arch_service.toml"))
+        .unwrap()
+        .replace("arch_nodes = 5832", "arch_nodes = 1458")
+        .replace("r = 32", "r = 16")
+        + &format!("cache_dir = \"{}\"\n", run_dir.path().join("cache").display());
+    std::fs::write(run_dir.path().join("scene.toml"), scene).unwrap();
+    let cfg = run_dir.path().join("nvtmm.toml");
+    std::fs::write(
+        &cfg,
+        format!(
+            "scene = \"scene.toml\"\n[loop]\nbaseline_s = 0.2\n[device]\ntouchx = \"{}\"\norigin_m = [0.0065, -0.031, 0.177]\n[stream]\ntarget = \"{udp}\"\ndecimate_vertices = 800\n",
+            root.join("rt-config/touchx.toml").display()
+        ),
+    )
+    .unwrap();
+    let _service = Killed(
         Command::new(nvtmm)
-            .args([
-                "stream-demo",
-                "--to",
-                &udp,
-                "--nodes",
-                "1458",
-                "--decimate",
-                "800",
-                "--seconds",
-                "300",
-            ])
+            .args(["run", cfg.to_str().unwrap(), "--seconds", "300", "--quiet"])
             .stdout(Stdio::null())
             .spawn()
             .unwrap(),

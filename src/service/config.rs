@@ -219,7 +219,7 @@ impl Default for BackgroundConfig {
     fn default() -> Self {
         BackgroundConfig {
             dt: 0.01,
-            dt_max: 0.05,
+            dt_max: 0.01,
             enabled: true,
             cpu: -1,
         }
