@@ -1108,7 +1108,8 @@ mod tests {
             xs in prop::collection::vec(prop::array::uniform3(-1.0f64..1.0), 1..40),
             tank in 0.0f64..0.05,
         ) {
-            let p = PassivityParams { tank_initial_j: tank.max(1e-3), ..PassivityParams::default() };
+            let d = PassivityParams::default();
+            let p = PassivityParams { tank_initial_j: tank.max(d.tank_min_j), ..d };
             let mut flt = PassivityFilter::new(&p).unwrap();
             let mut x = Vec3::zeros();
             for (k, v) in xs.iter().enumerate() {
