@@ -175,6 +175,7 @@ pub struct Servo<const R: usize> {
     now_s: f64,
     fault_until_s: f64,
     fading: Option<Box<LoopModel<R>>>,
+    fade_scratch: Candidates,
     fade_contact: ContactOutput<R>,
     blend: f64,
     retired: Option<Box<LoopModel<R>>>,
@@ -205,6 +206,7 @@ impl<const R: usize> Servo<R> {
             now_s,
             fault_until_s: f64::NEG_INFINITY,
             fading: None,
+            fade_scratch: Candidates::new(),
             fade_contact: ContactOutput::default(),
             blend: 1.0,
             retired: None,
@@ -417,13 +419,12 @@ impl<const R: usize> Servo<R> {
         let (mut desired, mut finite) = step_model(&mut self.model, &self.contact, &mut self.counters);
         // A cross-fade: the old model runs on and the force blends over.
         if let Some(old) = self.fading.as_mut() {
-            let mut scratch = Candidates::new();
             eval_contact(
                 old,
                 &self.index,
                 &p.contact,
                 &tool,
-                &mut scratch,
+                &mut self.fade_scratch,
                 &mut self.fade_contact,
             );
             let (f_old, ok_old) = step_model(old, &self.fade_contact, &mut self.counters);
