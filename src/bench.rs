@@ -47,6 +47,25 @@ pub const STANDARD_FORCE_N: f64 = 0.15;
 /// Radius of the probe patch of the standard load (m).
 pub const PROBE_RADIUS_M: f64 = 5e-3;
 
+/// The standard probe region of an arch: the outer-wall nodes within
+/// [`PROBE_RADIUS_M`] of the arch top (the top node alone if none).
+pub fn probe_region(arch: &Arch) -> Vec<u32> {
+    let mesh = &arch.mesh;
+    let node = arch_top_node(arch);
+    let top = mesh.rest()[node as usize];
+    let mut nodes: Vec<u32> = mesh
+        .node_set("outer_wall")
+        .unwrap_or(&[])
+        .iter()
+        .copied()
+        .filter(|&i| (mesh.rest()[i as usize] - top).norm() <= PROBE_RADIUS_M)
+        .collect();
+    if nodes.is_empty() {
+        nodes.push(node);
+    }
+    nodes
+}
+
 /// The standard load: a total force `force_n` (N) pushing the arch top down
 /// (−z), shared equally by the outer-wall nodes within [`PROBE_RADIUS_M`] of
 /// the top node (a probe's footprint, so the load converges under mesh
@@ -60,17 +79,7 @@ pub fn standard_load(arch: &Arch, force_n: f64) -> StandardLoad {
     fixed.sort_unstable();
     fixed.dedup();
     let node = arch_top_node(arch);
-    let top = mesh.rest()[node as usize];
-    let mut patch: Vec<u32> = mesh
-        .node_set("outer_wall")
-        .unwrap_or(&[])
-        .iter()
-        .copied()
-        .filter(|&i| (mesh.rest()[i as usize] - top).norm() <= PROBE_RADIUS_M)
-        .collect();
-    if patch.is_empty() {
-        patch.push(node);
-    }
+    let patch = probe_region(arch);
     let per = Vec3::new(0.0, 0.0, -force_n) / patch.len() as f64;
     let loads = Loads {
         nodal: vec![NodalLoad {

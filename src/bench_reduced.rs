@@ -17,9 +17,9 @@
 //!   r block-sparse mat-vecs, Φᵀ(KΦ)) plus building the new
 //!   [`ReducedDynamics`] on the shared rows (median of 3).
 
-use crate::bench::{arch_top_node, standard_load, PROBE_RADIUS_M, STANDARD_FORCE_N};
+use crate::bench::{standard_load, STANDARD_FORCE_N};
 use crate::material::Material;
-use crate::mesh::arch::{generate, Arch, ArchParams};
+use crate::mesh::arch::{generate, ArchParams};
 use crate::mesh::Vec3;
 use crate::model::nvtmm::Nvtmm;
 use crate::reduced::refresh::Refresher;
@@ -48,23 +48,7 @@ pub struct ReducedBench {
 /// that holds it.
 pub const CAPACITIES: [usize; 5] = [8, 16, 32, 48, 64];
 
-/// The standard probe region of an arch: the outer-wall nodes within
-/// [`PROBE_RADIUS_M`] of the arch top.
-pub fn probe_region(arch: &Arch) -> Vec<u32> {
-    let mesh = &arch.mesh;
-    let top = mesh.rest()[arch_top_node(arch) as usize];
-    let mut nodes: Vec<u32> = mesh
-        .node_set("outer_wall")
-        .unwrap_or(&[])
-        .iter()
-        .copied()
-        .filter(|&i| (mesh.rest()[i as usize] - top).norm() <= PROBE_RADIUS_M)
-        .collect();
-    if nodes.is_empty() {
-        nodes.push(arch_top_node(arch));
-    }
-    nodes
-}
+pub use crate::bench::probe_region;
 
 /// The reduced model's damping in the benchmark and experiments.
 pub fn bench_dynamics_params() -> DynamicsParams {

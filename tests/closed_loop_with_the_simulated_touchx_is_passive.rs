@@ -15,8 +15,7 @@ use nvtmm::haptics::servo::{Servo, ServoParams};
 use nvtmm::haptics::touchx::{TouchXParams, TouchXSim, Waypoint};
 use nvtmm::material::Material;
 use nvtmm::mesh::Vec3;
-use nvtmm::model::nvtmm::Nvtmm;
-use nvtmm::reduced::{basis_rows, BasisParams, DynamicsParams, ModalBasis, Refresher};
+use nvtmm::reduced::{basis_rows, DynamicsParams, Refresher};
 use nvtmm::service::background::rest_model;
 use std::sync::Arc;
 
@@ -25,41 +24,19 @@ const DT: f64 = 1e-3;
 
 /// Runs one press at `speed` (m/s); returns (delivered, absorbed, max force, max depth).
 fn press(speed: f64, with_filter: bool) -> (f64, f64, f64, f64) {
-    let mesh = common::block(12, 12, 2, 2e-3);
     let mat = Material {
         youngs_pa: 10e6,
         ..Material::aorta()
     };
-    let model = Nvtmm::new(&mesh, &mat);
-    let mass = mesh.lumped_mass(mat.density);
-    let mut fixed: Vec<u32> = ["x_min", "x_max", "z_min"]
-        .iter()
-        .flat_map(|s| mesh.node_set(s).unwrap().to_vec())
-        .collect();
-    fixed.sort_unstable();
-    fixed.dedup();
-    let center = Vec3::new(0.012, 0.012, 0.004);
-    let contact: Vec<u32> = mesh
-        .node_set("z_max")
-        .unwrap()
-        .iter()
-        .copied()
-        .filter(|&i| (mesh.rest()[i as usize] - center).norm() <= 5e-3)
-        .collect();
+    let common::ContactPlate {
+        mesh,
+        model,
+        mass,
+        basis,
+        center,
+        ..
+    } = common::contact_plate(&mat, &["x_min", "x_max", "z_min"], R);
     let zeros = vec![Vec3::zeros(); mesh.num_nodes()];
-    let basis = ModalBasis::compute_contact(
-        &mesh,
-        &model,
-        &zeros,
-        &mass,
-        &fixed,
-        R,
-        &contact,
-        R / 2,
-        None,
-        &BasisParams::default(),
-    )
-    .unwrap();
     let rows = basis_rows::<R>(&basis).unwrap();
     let k0 = Refresher::new(&mesh, &basis, &mass).reduced_stiffness(&model, &zeros);
     let dynp = DynamicsParams {

@@ -12,7 +12,7 @@ use nvtmm::material::Material;
 use nvtmm::mesh::{TetMesh, Vec3};
 use nvtmm::model::nvtmm::Nvtmm;
 use nvtmm::model::ForceModel;
-use nvtmm::reduced::{basis_rows, BasisParams, DynamicsParams, ModalBasis, Refresher};
+use nvtmm::reduced::{basis_rows, DynamicsParams, ModalBasis, Refresher};
 use nvtmm::service::background::{rest_model, Background};
 use nvtmm::solver::loads::{Loads, NodalLoad, TimeProfile};
 use nvtmm::solver::{ImplicitEuler, ImplicitEulerParams, NewtonParams, TissueState};
@@ -32,47 +32,16 @@ struct Plate {
 }
 
 fn plate() -> Plate {
-    // 24 x 24 x 4 mm, clamped at x = 0 and x = 24 mm.
-    let mesh = common::block(12, 12, 2, 2e-3);
-    let mat = Material::aorta();
-    let model = Nvtmm::new(&mesh, &mat);
-    let mass = mesh.lumped_mass(mat.density);
-    let mut fixed: Vec<u32> = ["x_min", "x_max"]
-        .iter()
-        .flat_map(|s| mesh.node_set(s).unwrap().to_vec())
-        .collect();
-    fixed.sort_unstable();
-    fixed.dedup();
-    let center = Vec3::new(0.012, 0.012, 0.004);
-    let contact: Vec<u32> = mesh
-        .node_set("z_max")
-        .unwrap()
-        .iter()
-        .copied()
-        .filter(|&i| (mesh.rest()[i as usize] - center).norm() <= 5e-3)
-        .collect();
-    let zeros = vec![Vec3::zeros(); mesh.num_nodes()];
-    let basis = ModalBasis::compute_contact(
-        &mesh,
-        &model,
-        &zeros,
-        &mass,
-        &fixed,
-        R,
-        &contact,
-        R / 2,
-        None,
-        &BasisParams::default(),
-    )
-    .unwrap();
+    // Clamped at x = 0 and x = 24 mm.
+    let p = common::contact_plate(&Material::aorta(), &["x_min", "x_max"], R);
     Plate {
-        mesh,
-        model,
-        mass,
-        fixed,
-        basis,
+        mesh: p.mesh,
+        model: p.model,
+        mass: p.mass,
+        fixed: p.fixed,
+        basis: p.basis,
         top: 0.004,
-        center,
+        center: p.center,
     }
 }
 

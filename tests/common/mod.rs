@@ -224,3 +224,58 @@ pub fn bits(s: &nvtmm::solver::TissueState) -> Vec<u64> {
         .chain(std::iter::once(s.t.to_bits()))
         .collect()
 }
+
+/// A 24 × 24 × 4 mm NVTMM plate (12 × 12 × 2 cells) with the nodes of
+/// `fixed_sets` fixed and an r-column basis whose r/2 static modes sit on
+/// the top-face nodes within 5 mm of the contact point (0.012, 0.012, 0.004),
+/// for the haptic-loop tests.
+pub struct ContactPlate {
+    pub mesh: TetMesh,
+    pub model: nvtmm::model::nvtmm::Nvtmm,
+    pub mass: Vec<f64>,
+    pub fixed: Vec<u32>,
+    pub basis: nvtmm::reduced::ModalBasis,
+    pub center: Vec3,
+}
+
+pub fn contact_plate(mat: &Material, fixed_sets: &[&str], r: usize) -> ContactPlate {
+    let mesh = block(12, 12, 2, 2e-3);
+    let model = nvtmm::model::nvtmm::Nvtmm::new(&mesh, mat);
+    let mass = mesh.lumped_mass(mat.density);
+    let mut fixed: Vec<u32> = fixed_sets
+        .iter()
+        .flat_map(|s| mesh.node_set(s).expect("block node set").to_vec())
+        .collect();
+    fixed.sort_unstable();
+    fixed.dedup();
+    let center = Vec3::new(0.012, 0.012, 0.004);
+    let contact: Vec<u32> = mesh
+        .node_set("z_max")
+        .expect("block node set")
+        .iter()
+        .copied()
+        .filter(|&i| (mesh.rest()[i as usize] - center).norm() <= 5e-3)
+        .collect();
+    let zeros = vec![Vec3::zeros(); mesh.num_nodes()];
+    let basis = nvtmm::reduced::ModalBasis::compute_contact(
+        &mesh,
+        &model,
+        &zeros,
+        &mass,
+        &fixed,
+        r,
+        &contact,
+        r / 2,
+        None,
+        &nvtmm::reduced::BasisParams::default(),
+    )
+    .expect("plate basis");
+    ContactPlate {
+        mesh,
+        model,
+        mass,
+        fixed,
+        basis,
+        center,
+    }
+}

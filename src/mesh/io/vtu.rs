@@ -563,87 +563,13 @@ pub fn write_vtu_with_data(
             )));
         }
     }
-    write_file(path, |w| {
-        writeln!(w, "<?xml version=\"1.0\"?>")?;
-        writeln!(
-            w,
-            "<VTKFile type=\"UnstructuredGrid\" version=\"1.0\" byte_order=\"LittleEndian\" header_type=\"UInt64\">"
-        )?;
-        writeln!(w, "  <UnstructuredGrid>")?;
-        writeln!(
-            w,
-            "    <Piece NumberOfPoints=\"{n}\" NumberOfCells=\"{}\">",
-            mesh.tets().len()
-        )?;
-        writeln!(w, "      <PointData>")?;
-        for (name, ids) in mesh.node_sets() {
-            let name = escape(&format!("{SET_PREFIX}{name}"));
-            writeln!(w, "        <DataArray type=\"Int32\" Name=\"{name}\" format=\"ascii\">")?;
-            for v in membership(n, ids) {
-                writeln!(w, "{v}")?;
-            }
-            writeln!(w, "        </DataArray>")?;
-        }
-        for (name, v) in point_vectors {
-            writeln!(
-                w,
-                "        <DataArray type=\"Float64\" Name=\"{}\" NumberOfComponents=\"3\" format=\"ascii\">",
-                escape(name)
-            )?;
-            for x in *v {
-                writeln!(w, "{} {} {}", x.x, x.y, x.z)?;
-            }
-            writeln!(w, "        </DataArray>")?;
-        }
-        for (name, v) in point_scalars {
-            writeln!(
-                w,
-                "        <DataArray type=\"Float64\" Name=\"{}\" format=\"ascii\">",
-                escape(name)
-            )?;
-            for x in *v {
-                writeln!(w, "{x}")?;
-            }
-            writeln!(w, "        </DataArray>")?;
-        }
-        writeln!(w, "      </PointData>")?;
-        writeln!(w, "      <Points>")?;
-        writeln!(
-            w,
-            "        <DataArray type=\"Float64\" NumberOfComponents=\"3\" format=\"ascii\">"
-        )?;
-        for x in pos {
-            writeln!(w, "{} {} {}", x.x, x.y, x.z)?;
-        }
-        writeln!(w, "        </DataArray>")?;
-        writeln!(w, "      </Points>")?;
-        writeln!(w, "      <Cells>")?;
-        writeln!(
-            w,
-            "        <DataArray type=\"Int64\" Name=\"connectivity\" format=\"ascii\">"
-        )?;
-        for t in mesh.tets() {
-            writeln!(w, "{} {} {} {}", t[0], t[1], t[2], t[3])?;
-        }
-        writeln!(w, "        </DataArray>")?;
-        writeln!(
-            w,
-            "        <DataArray type=\"Int64\" Name=\"offsets\" format=\"ascii\">"
-        )?;
-        for k in 1..=mesh.tets().len() {
-            writeln!(w, "{}", 4 * k)?;
-        }
-        writeln!(w, "        </DataArray>")?;
-        writeln!(w, "        <DataArray type=\"UInt8\" Name=\"types\" format=\"ascii\">")?;
-        for _ in mesh.tets() {
-            writeln!(w, "10")?;
-        }
-        writeln!(w, "        </DataArray>")?;
-        writeln!(w, "      </Cells>")?;
-        writeln!(w, "    </Piece>")?;
-        writeln!(w, "  </UnstructuredGrid>")?;
-        writeln!(w, "</VTKFile>")
-    })
+    let sets: Vec<(String, Vec<u8>)> = mesh
+        .node_sets()
+        .iter()
+        .map(|(name, ids)| (format!("{SET_PREFIX}{name}"), membership(n, ids)))
+        .collect();
+    let cells: Vec<u32> = mesh.tets().iter().flatten().copied().collect();
+    write_ascii(path, pos, 10, 4, &cells, &sets, point_vectors, point_scalars)
 }
 
 /// Writes a `.vtu` of arbitrary cells of one VTK type (e.g. 5 = triangle,
@@ -684,7 +610,34 @@ pub fn write_vtu_cells(
     {
         return Err(bad(format!("point array '{k}' has {l} values for {n} points")));
     }
-    let ncells = cells.len() / nodes_per_cell;
+    write_ascii(
+        path,
+        points,
+        cell_type,
+        nodes_per_cell,
+        cells,
+        &[],
+        point_vectors,
+        point_scalars,
+    )
+}
+
+/// The ASCII `.vtu` body both writers share: `u8` point flags (node sets),
+/// `Float64` vectors and scalars, points, then cells of one type. Inputs are
+/// already validated.
+#[allow(clippy::too_many_arguments)]
+fn write_ascii(
+    path: &Path,
+    points: &[Vec3],
+    cell_type: u8,
+    nodes_per_cell: usize,
+    cells: &[u32],
+    flags: &[(String, Vec<u8>)],
+    point_vectors: &[(&str, &[Vec3])],
+    point_scalars: &[(&str, &[f64])],
+) -> Result<(), MeshError> {
+    let n = points.len();
+    let ncells = cells.len() / nodes_per_cell.max(1);
     write_file(path, |w| {
         writeln!(w, "<?xml version=\"1.0\"?>")?;
         writeln!(
@@ -694,6 +647,14 @@ pub fn write_vtu_cells(
         writeln!(w, "  <UnstructuredGrid>")?;
         writeln!(w, "    <Piece NumberOfPoints=\"{n}\" NumberOfCells=\"{ncells}\">")?;
         writeln!(w, "      <PointData>")?;
+        for (name, values) in flags {
+            let name = escape(name);
+            writeln!(w, "        <DataArray type=\"Int32\" Name=\"{name}\" format=\"ascii\">")?;
+            for v in values {
+                writeln!(w, "{v}")?;
+            }
+            writeln!(w, "        </DataArray>")?;
+        }
         for (name, v) in point_vectors {
             let name = escape(name);
             writeln!(
@@ -706,10 +667,10 @@ pub fn write_vtu_cells(
             writeln!(w, "        </DataArray>")?;
         }
         for (name, v) in point_scalars {
+            let name = escape(name);
             writeln!(
                 w,
-                "        <DataArray type=\"Float64\" Name=\"{}\" format=\"ascii\">",
-                escape(name)
+                "        <DataArray type=\"Float64\" Name=\"{name}\" format=\"ascii\">"
             )?;
             for x in *v {
                 writeln!(w, "{x}")?;
@@ -732,9 +693,14 @@ pub fn write_vtu_cells(
             w,
             "        <DataArray type=\"Int64\" Name=\"connectivity\" format=\"ascii\">"
         )?;
-        for c in cells.chunks(nodes_per_cell) {
-            let s: Vec<String> = c.iter().map(|i| i.to_string()).collect();
-            writeln!(w, "{}", s.join(" "))?;
+        for c in cells.chunks(nodes_per_cell.max(1)) {
+            for (k, i) in c.iter().enumerate() {
+                if k > 0 {
+                    write!(w, " ")?;
+                }
+                write!(w, "{i}")?;
+            }
+            writeln!(w)?;
         }
         writeln!(w, "        </DataArray>")?;
         writeln!(
