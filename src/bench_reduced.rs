@@ -3,8 +3,8 @@
 //! Set-up: the built-in arch with `nodes` nodes, both ends fixed (the
 //! standard load's supports, [`crate::bench::standard_load`]), NVTMM (StVK)
 //! with the aorta material. The contact region is the standard probe
-//! footprint: the outer-wall nodes within [`PROBE_RADIUS_M`] of the arch top
-//! ([`arch_top_node`]). Measured:
+//! footprint: the outer-wall nodes within [`PROBE_RADIUS_M`](crate::bench::PROBE_RADIUS_M) of the arch top
+//! ([`arch_top_node`](crate::bench::arch_top_node)). Measured:
 //!
 //! - `basis_s`: [`ModalBasis::compute_contact`] with r columns, up to ⌊r/2⌋
 //!   of them static modes of the region, default tolerance, cold start;
