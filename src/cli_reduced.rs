@@ -58,8 +58,19 @@ pub fn bench_reduced_cmd(r: usize, nodes: usize, steps: usize, json: bool) -> Re
         println!("{}", serde_json::to_string_pretty(&b)?);
     } else {
         println!(
-            "reduced r = {} on {} nodes: step {:.2} µs median, {:.2} µs p99; refresh {:.2} ms; basis {:.2} s",
-            b.r, b.nodes, b.us_per_step, b.us_per_step_p99, b.refresh_ms, b.basis_s
+            "reduced r = {} on {} nodes: step {:.2} µs median, {:.2} µs p99; refresh {:.2} ms \
+             (+ {:.2} ms tangent assembly in the full step); basis {:.2} s cold ({} iterations), \
+             {:.2} s warm ({} iterations)",
+            b.r,
+            b.nodes,
+            b.us_per_step,
+            b.us_per_step_p99,
+            b.refresh_ms,
+            b.refresh_assembly_ms,
+            b.basis_s,
+            b.basis_iterations,
+            b.basis_warm_s,
+            b.basis_warm_iterations
         );
     }
     Ok(())

@@ -2,16 +2,21 @@
 //! at a displacement u, K(u) φ = ω² M φ, with the fixed nodes removed, the
 //! lumped mass M, and Φᵀ M Φ = I.
 //!
-//! Method: shift-invert (shift 0) block subspace iteration with Rayleigh–Ritz.
-//! With y = M^½ x the problem is the standard symmetric A y = λ y,
-//! A = M^-½ K M^-½; each iteration applies A⁻¹ = M^½ K⁻¹ M^½ to a block of
-//! p ≥ r vectors (one sparse Cholesky factorization of K on the free DOFs,
-//! faer, reused by every solve), orthonormalizes the block (QR) and rotates
-//! it to the Ritz vectors of A (dense symmetric eigen of the p×p projection,
-//! nalgebra). The iteration stops when every one of the r wanted modes has
-//! ‖Kφ − ω²Mφ‖ ≤ [`RESIDUAL_TOL`] ‖Kφ‖ (or has stagnated at the rounding
-//! floor below [`ACCEPT_TOL`]). A block rather than a Lanczos recurrence because it takes a previous basis as a warm start directly:
-//! after a small change of u the old modes are nearly converged already.
+//! Method: shift-invert (shift 0) block subspace iteration with Rayleigh–Ritz
+//! (Bathe's form). With y = M^½ x the problem is the standard symmetric
+//! A y = λ y, A = M^-½ K M^-½; each iteration applies A⁻¹ = M^½ K⁻¹ M^½ to
+//! a block Y of p ≥ r vectors, Z = A⁻¹ Y (one sparse Cholesky factorization
+//! of K on the free DOFs, faer, sequential; the block's two column halves
+//! are solved on two threads), and rotates Z to the Ritz vectors of A from
+//! the p × p projections Zᵀ Y = Zᵀ A Z and Zᵀ Z (nalgebra), so neither a
+//! product with K nor an orthonormalization of the tall block is needed,
+//! and A times the Ritz vectors (Y S) comes for free for the residuals. The
+//! tall products are faer GEMMs. The iteration stops when every one of the
+//! r wanted modes has ‖Kφ − ω²Mφ‖ ≤ [`RESIDUAL_TOL`] ‖Kφ‖ (or has stagnated
+//! at the rounding floor below [`ACCEPT_TOL`]). A block rather than a
+//! Lanczos recurrence because it takes a previous basis as a warm start
+//! directly: after a small change of u the old modes are nearly converged
+//! already.
 //!
 //! Static (attachment) modes K⁻¹ e_d for the DOFs of given contact nodes can
 //! be added ([`ModalBasis::compute_augmented`]): they make the reduced model's
@@ -19,16 +24,21 @@
 
 use crate::mesh::{TetMesh, Vec3};
 use crate::model::{BlockTangent, ForceModel};
-use faer::linalg::solvers::Solve;
-use faer::sparse::linalg::solvers::Llt;
+use faer::dyn_stack::{MemBuffer, MemStack};
+use faer::linalg::cholesky::llt::factor::LltRegularization;
+use faer::linalg::matmul::matmul;
+use faer::sparse::linalg::cholesky::{
+    factorize_symbolic_cholesky, CholeskySymbolicParams, LltRef, SymbolicCholesky, SymmetricOrdering,
+};
 use faer::sparse::{SparseColMat, Triplet};
-use faer::{MatMut, Side};
+use faer::{Accum, Conj, MatMut, MatRef, Par, Side};
 use nalgebra::{DMatrix, DVector, SymmetricEigen};
 
 /// Default relative eigen-residual ‖Kφ − ω²Mφ‖ / ‖Kφ‖ every wanted mode
 /// reaches before [`ModalBasis::compute`] returns. Eigenvalues are then accurate to
-/// about its square.
-pub const RESIDUAL_TOL: f64 = 1e-10;
+/// about its square. 1e-8 is reachable at every arch size (the rounding
+/// floor is ≈ 2e-9 at 23k nodes) and far below the modal truncation error.
+pub const RESIDUAL_TOL: f64 = 1e-8;
 
 /// Rounding puts a floor under the residual that grows with the condition
 /// number of K (≈ 2e-10 on a 1000-node arch). Once the worst residual is
@@ -37,7 +47,7 @@ pub const RESIDUAL_TOL: f64 = 1e-10;
 pub const ACCEPT_TOL: f64 = 1e-8;
 
 /// See [`ACCEPT_TOL`].
-pub const STAGNATION_ITERATIONS: usize = 8;
+pub const STAGNATION_ITERATIONS: usize = 3;
 
 /// Default number of subspace iterations allowed before
 /// [`ReducedError::NotConverged`].
@@ -408,9 +418,11 @@ struct FreeProblem {
     dof_of_node: Vec<Option<usize>>,
     /// M^½ per free DOF.
     sqrt_m: Vec<f64>,
-    /// K_ff as (row, col, value), both triangles, for products.
-    entries: Vec<(usize, usize, f64)>,
-    llt: Llt<usize, f64>,
+    /// K_ff, both triangles, for products.
+    kff: SparseColMat<usize, f64>,
+    /// Symbolic analysis and numeric values of K_ff's Cholesky factor.
+    symbolic: SymbolicCholesky<usize>,
+    l_values: Vec<f64>,
 }
 
 impl FreeProblem {
@@ -480,14 +492,34 @@ impl FreeProblem {
             .collect();
         let kff = SparseColMat::<usize, f64>::try_new_from_triplets(nf, nf, &triplets)
             .map_err(|_| ReducedError::NotPositiveDefinite)?;
-        let llt = kff
-            .sp_cholesky(Side::Lower)
+        let symbolic = factorize_symbolic_cholesky(
+            kff.symbolic(),
+            Side::Lower,
+            SymmetricOrdering::Amd,
+            CholeskySymbolicParams::default(),
+        )
+        .map_err(|_| ReducedError::NotPositiveDefinite)?;
+        let mut l_values = vec![0.0; symbolic.len_val()];
+        // Sequential: faer's parallel factorization is slower on this
+        // machine (docs/BENCHMARKS.md).
+        let mut scratch = MemBuffer::new(symbolic.factorize_numeric_llt_scratch::<f64>(Par::Seq, Default::default()));
+        symbolic
+            .factorize_numeric_llt::<f64>(
+                &mut l_values,
+                kff.as_ref(),
+                Side::Lower,
+                LltRegularization::default(),
+                Par::Seq,
+                MemStack::new(&mut scratch),
+                Default::default(),
+            )
             .map_err(|_| ReducedError::NotPositiveDefinite)?;
         Ok(FreeProblem {
             dof_of_node,
             sqrt_m,
-            entries,
-            llt,
+            kff,
+            symbolic,
+            l_values,
         })
     }
 
@@ -499,8 +531,25 @@ impl FreeProblem {
     fn apply_inverse(&self, y: &mut DMatrix<f64>) {
         self.scale_rows(y, false);
         let (rows, cols) = y.shape();
-        self.llt
-            .solve_in_place(MatMut::from_column_major_slice_mut(y.as_mut_slice(), rows, cols));
+        // Two halves of the block on two threads: each triangular solve
+        // streams the whole factor, so splitting the columns halves the time
+        // per core where faer's own parallel solve does not pay.
+        let half = cols.div_ceil(2);
+        let (a, b) = y.as_mut_slice().split_at_mut(rows * half);
+        let llt = LltRef::new(&self.symbolic, &self.l_values);
+        let solve = |s: &mut [f64]| {
+            let c = s.len() / rows.max(1);
+            if c > 0 {
+                let mut scratch = MemBuffer::new(self.symbolic.solve_in_place_scratch::<f64>(c, Par::Seq));
+                llt.solve_in_place_with_conj(
+                    Conj::No,
+                    MatMut::from_column_major_slice_mut(s, rows, c),
+                    Par::Seq,
+                    MemStack::new(&mut scratch),
+                );
+            }
+        };
+        rayon::join(|| solve(a), || solve(b));
         self.scale_rows(y, false);
     }
 
@@ -509,12 +558,15 @@ impl FreeProblem {
         let mut x = y.clone();
         self.scale_rows(&mut x, true);
         let mut out = DMatrix::zeros(y.nrows(), y.ncols());
-        for c in 0..y.ncols() {
-            let (xc, mut oc) = (x.column(c), out.column_mut(c));
-            for &(i, j, v) in &self.entries {
-                oc[i] += v * xc[j];
-            }
-        }
+        let (rows, cols) = out.shape();
+        faer::sparse::linalg::matmul::sparse_dense_matmul(
+            MatMut::from_column_major_slice_mut(out.as_mut_slice(), rows, cols),
+            Accum::Replace,
+            self.kff.as_ref(),
+            MatRef::from_column_major_slice(x.as_slice(), x.nrows(), x.ncols()),
+            1.0,
+            Par::Seq,
+        );
         self.scale_rows(&mut out, true);
         out
     }
@@ -584,7 +636,7 @@ fn orthonormalize(y: DMatrix<f64>) -> DMatrix<f64> {
 /// A times them, and the Ritz values, ascending.
 fn rayleigh_ritz(problem: &FreeProblem, q: &DMatrix<f64>) -> (DMatrix<f64>, DMatrix<f64>, Vec<f64>) {
     let aq = problem.apply(q);
-    let h = q.transpose() * &aq;
+    let h = gemm_tn(q, &aq);
     let h = (&h + h.transpose()) * 0.5;
     let eig = SymmetricEigen::new(h);
     let mut order: Vec<usize> = (0..eig.eigenvalues.len()).collect();
@@ -593,7 +645,7 @@ fn rayleigh_ritz(problem: &FreeProblem, q: &DMatrix<f64>) -> (DMatrix<f64>, DMat
         eig.eigenvectors[(i, order[j])]
     });
     let lambda = order.iter().map(|&j| eig.eigenvalues[j]).collect();
-    (q * &s, aq * s, lambda)
+    (gemm_nn(q, &s), gemm_nn(&aq, &s), lambda)
 }
 
 /// Worst relative residual ‖Kφ − ω²Mφ‖ / ‖Kφ‖ over the first `r` Ritz
@@ -614,8 +666,86 @@ fn worst_residual(problem: &FreeProblem, y: &DMatrix<f64>, ay: &DMatrix<f64>, la
     worst
 }
 
+/// Zᵀ Y for two tall column-major blocks (faer's GEMM).
+fn gemm_tn(z: &DMatrix<f64>, y: &DMatrix<f64>) -> DMatrix<f64> {
+    let mut out = DMatrix::zeros(z.ncols(), y.ncols());
+    let (zr, yr) = (
+        MatRef::from_column_major_slice(z.as_slice(), z.nrows(), z.ncols()),
+        MatRef::from_column_major_slice(y.as_slice(), y.nrows(), y.ncols()),
+    );
+    let (rows, cols) = out.shape();
+    matmul(
+        MatMut::from_column_major_slice_mut(out.as_mut_slice(), rows, cols),
+        Accum::Replace,
+        zr.transpose(),
+        yr,
+        1.0,
+        Par::Seq,
+    );
+    out
+}
+
+/// Z S for a tall column-major block and a small matrix (faer's GEMM).
+fn gemm_nn(z: &DMatrix<f64>, s: &DMatrix<f64>) -> DMatrix<f64> {
+    let mut out = DMatrix::zeros(z.nrows(), s.ncols());
+    let (rows, cols) = out.shape();
+    matmul(
+        MatMut::from_column_major_slice_mut(out.as_mut_slice(), rows, cols),
+        Accum::Replace,
+        MatRef::from_column_major_slice(z.as_slice(), z.nrows(), z.ncols()),
+        MatRef::from_column_major_slice(s.as_slice(), s.nrows(), s.ncols()),
+        1.0,
+        Par::Seq,
+    );
+    out
+}
+
+/// Ritz pairs of A on span(Z) given Z and Y = A Z (Bathe's projection: no
+/// product with K and no orthonormalization of the tall block). Solves the
+/// p × p generalized problem (Zᵀ Y) s = λ (Zᵀ Z) s after scaling Z's columns
+/// to unit length, and returns (Z S, Y S, λ ascending) with Sᵀ Zᵀ Z S = I.
+/// `None` if Zᵀ Z is numerically singular (the caller then
+/// re-orthonormalizes).
+fn ritz_from_pair(z: &DMatrix<f64>, y: &DMatrix<f64>) -> Option<(DMatrix<f64>, DMatrix<f64>, Vec<f64>)> {
+    let g = gemm_tn(z, z);
+    let h = gemm_tn(z, y);
+    let p = g.nrows();
+    let d: Vec<f64> = (0..p).map(|j| 1.0 / g[(j, j)].sqrt()).collect();
+    if d.iter().any(|v| !v.is_finite()) {
+        return None;
+    }
+    let scale = |m: &DMatrix<f64>| DMatrix::from_fn(p, p, |i, j| 0.5 * (m[(i, j)] + m[(j, i)]) * d[i] * d[j]);
+    let (g, h) = (scale(&g), scale(&h));
+    let chol = nalgebra::Cholesky::new(g)?;
+    let l = chol.l();
+    // C = L⁻¹ H L⁻ᵀ.
+    let lih = l.solve_lower_triangular(&h)?;
+    let c = l.solve_lower_triangular(&lih.transpose())?;
+    let c = (&c + c.transpose()) * 0.5;
+    let eig = SymmetricEigen::new(c);
+    let mut order: Vec<usize> = (0..p).collect();
+    order.sort_by(|&a, &b| eig.eigenvalues[a].total_cmp(&eig.eigenvalues[b]));
+    let v = DMatrix::from_fn(p, p, |i, j| eig.eigenvectors[(i, order[j])]);
+    // S = D L⁻ᵀ V.
+    let mut s = l.transpose().solve_upper_triangular(&v)?;
+    for (i, di) in d.iter().enumerate() {
+        s.row_mut(i).scale_mut(*di);
+    }
+    if s.iter().any(|v| !v.is_finite()) {
+        return None;
+    }
+    let lambda = order.iter().map(|&j| eig.eigenvalues[j]).collect();
+    Some((gemm_nn(z, &s), gemm_nn(y, &s), lambda))
+}
+
 /// The `r` lowest eigenpairs of A in y coordinates (orthonormal columns),
 /// and the iterations taken.
+///
+/// Each iteration solves Z = A⁻¹ Y for the block (so A Z = Y is known
+/// without a product with K), takes the Ritz pairs of A on span(Z) from the
+/// small projections Zᵀ Y and Zᵀ Z, and continues from the Ritz vectors
+/// (Bathe's subspace iteration). The Ritz vectors come with A times them,
+/// which gives the residuals for free.
 fn subspace_iteration(
     problem: &FreeProblem,
     r: usize,
@@ -636,9 +766,17 @@ fn subspace_iteration(
     // Best residual so far and the iteration it last halved.
     let (mut best, mut best_it) = (f64::INFINITY, 0);
     for it in 1..=params.max_iterations {
-        problem.apply_inverse(&mut y);
-        let q = orthonormalize(y);
-        let (ritz, aritz, lambda) = rayleigh_ritz(problem, &q);
+        let mut z = y.clone();
+        problem.apply_inverse(&mut z);
+        let (ritz, aritz, lambda) = match ritz_from_pair(&z, &y) {
+            Some(t) => t,
+            None => {
+                // Z Z ill-conditioned: fall back to an orthonormal block and
+                // an explicit product with A.
+                let q = orthonormalize(z);
+                rayleigh_ritz(problem, &q)
+            }
+        };
         residual = worst_residual(problem, &ritz, &aritz, &lambda, r);
         if residual <= 0.5 * best {
             (best, best_it) = (residual, it);
@@ -664,16 +802,16 @@ fn subspace_iteration(
 /// rank-k approximation of A's range.
 fn compress(y: &DMatrix<f64>, mut att: DMatrix<f64>, k: usize) -> DMatrix<f64> {
     for _ in 0..2 {
-        let c = y.transpose() * &att;
-        att -= y * c;
+        let c = gemm_tn(y, &att);
+        att -= gemm_nn(y, &c);
     }
-    let g = att.transpose() * &att;
+    let g = gemm_tn(&att, &att);
     let g = (&g + g.transpose()) * 0.5;
     let eig = SymmetricEigen::new(g);
     let mut order: Vec<usize> = (0..eig.eigenvalues.len()).collect();
     order.sort_by(|&a, &b| eig.eigenvalues[b].total_cmp(&eig.eigenvalues[a]));
     let v = DMatrix::from_fn(att.ncols(), k, |i, j| eig.eigenvectors[(i, order[j])]);
-    att * v
+    gemm_nn(&att, &v)
 }
 
 /// Adds the attachment directions of the free `contact` nodes to the modes

@@ -24,14 +24,16 @@
 use super::basis::ModalBasis;
 use crate::mesh::{TetMesh, Vec3};
 use crate::model::{BlockTangent, ForceModel};
+use faer::linalg::matmul::matmul;
+use faer::{Accum, MatMut, MatRef, Par};
 use nalgebra::{DMatrix, DVector};
 
 /// Columns per chunk of the blocked multi-vector product.
-const CHUNK: usize = 8;
+const CHUNK: usize = 16;
 
 /// A block of at most [`CHUNK`] basis columns stored node-major,
-/// `x[(3 i + c) w + k]` = Φ(3i + c, first + k), so the product with a 3 × 3
-/// block streams `w` contiguous numbers.
+/// `x[(3 i + c) CHUNK + k]` = Φ(3i + c, first + k) for k < w (zero beyond),
+/// so the product with a 3 × 3 block streams [`CHUNK`] contiguous numbers.
 #[derive(Debug, Clone)]
 struct Chunk {
     first: usize,
@@ -50,32 +52,38 @@ pub struct Refresher {
     chunks: Vec<Chunk>,
 }
 
-/// y += K x for the column chunk (x, y node-major with `w` columns).
-fn mul_chunk(k: &BlockTangent, w: usize, x: &[f64], y: &mut [f64]) {
+/// y = K x for one column chunk (x, y node-major, [`CHUNK`] columns; the
+/// fixed width lets the inner loops compile to SIMD).
+fn mul_chunk(k: &BlockTangent, x: &[f64], y: &mut [f64]) {
+    const W: usize = CHUNK;
     y.iter_mut().for_each(|v| *v = 0.0);
-    let row = 3 * w;
+    let row = 3 * W;
+    let lane = |s: &[f64], at: usize| -> [f64; W] { s[at..at + W].try_into().unwrap_or([0.0; W]) };
     for (i, d) in k.diag.iter().enumerate() {
-        let (xi, yi) = (&x[i * row..(i + 1) * row], &mut y[i * row..(i + 1) * row]);
+        let (x0, x1, x2) = (lane(x, i * row), lane(x, i * row + W), lane(x, i * row + 2 * W));
         for a in 0..3 {
             let (d0, d1, d2) = (d[(a, 0)], d[(a, 1)], d[(a, 2)]);
-            for c in 0..w {
-                yi[a * w + c] += d0 * xi[c] + d1 * xi[w + c] + d2 * xi[2 * w + c];
+            let yi = &mut y[i * row + a * W..i * row + (a + 1) * W];
+            for c in 0..W {
+                yi[c] += d0 * x0[c] + d1 * x1[c] + d2 * x2[c];
             }
         }
     }
     for (b, &[i, j]) in k.off.iter().zip(&k.edges) {
         let (i, j) = (i as usize, j as usize);
+        let (xj0, xj1, xj2) = (lane(x, j * row), lane(x, j * row + W), lane(x, j * row + 2 * W));
+        let (xi0, xi1, xi2) = (lane(x, i * row), lane(x, i * row + W), lane(x, i * row + 2 * W));
         // y_i += B x_j, y_j += Bᵀ x_i.
         for a in 0..3 {
             let (b0, b1, b2) = (b[(a, 0)], b[(a, 1)], b[(a, 2)]);
-            let (xj, yi) = (j * row, i * row + a * w);
-            for c in 0..w {
-                y[yi + c] += b0 * x[xj + c] + b1 * x[xj + w + c] + b2 * x[xj + 2 * w + c];
+            let yi = &mut y[i * row + a * W..i * row + (a + 1) * W];
+            for c in 0..W {
+                yi[c] += b0 * xj0[c] + b1 * xj1[c] + b2 * xj2[c];
             }
             let (bt0, bt1, bt2) = (b[(0, a)], b[(1, a)], b[(2, a)]);
-            let (xi, yj) = (i * row, j * row + a * w);
-            for c in 0..w {
-                y[yj + c] += bt0 * x[xi + c] + bt1 * x[xi + w + c] + bt2 * x[xi + 2 * w + c];
+            let yj = &mut y[j * row + a * W..j * row + (a + 1) * W];
+            for c in 0..W {
+                yj[c] += bt0 * xi0[c] + bt1 * xi1[c] + bt2 * xi2[c];
             }
         }
     }
@@ -98,17 +106,18 @@ impl Refresher {
         let mut first = 0;
         while first < r {
             let w = CHUNK.min(r - first);
-            let mut x = vec![0.0; 3 * n * w];
+            // Padded to CHUNK columns (zeros beyond w).
+            let mut x = vec![0.0; 3 * n * CHUNK];
             for row in 0..rows {
                 for c in 0..w {
-                    x[row * w + c] = basis.phi[(row, first + c)];
+                    x[row * CHUNK + c] = basis.phi[(row, first + c)];
                 }
             }
             chunks.push(Chunk {
                 first,
                 w,
                 x,
-                y: vec![0.0; 3 * n * w],
+                y: vec![0.0; 3 * n * CHUNK],
             });
             first += w;
         }
@@ -157,15 +166,23 @@ impl Refresher {
         if k.num_nodes() * 3 != n3 {
             return DMatrix::zeros(r, r);
         }
-        self.chunks
-            .par_iter_mut()
-            .for_each(|ch| mul_chunk(k, ch.w, &ch.x, &mut ch.y));
+        self.chunks.par_iter_mut().for_each(|ch| mul_chunk(k, &ch.x, &mut ch.y));
         let mut kr = DMatrix::zeros(r, r);
         for a in &self.chunks {
-            let xa = nalgebra::DMatrixView::from_slice(&a.x, a.w, n3);
+            let xa = MatRef::from_column_major_slice(&a.x, CHUNK, n3);
+            let xa = xa.subrows(0, a.w);
             for b in &self.chunks {
-                let yb = nalgebra::DMatrixView::from_slice(&b.y, b.w, n3);
-                let blk = xa * yb.transpose();
+                let yb = MatRef::from_column_major_slice(&b.y, CHUNK, n3);
+                let yb = yb.subrows(0, b.w);
+                let mut blk = DMatrix::zeros(a.w, b.w);
+                matmul(
+                    MatMut::from_column_major_slice_mut(blk.as_mut_slice(), a.w, b.w),
+                    Accum::Replace,
+                    xa,
+                    yb.transpose(),
+                    1.0,
+                    Par::Seq,
+                );
                 kr.view_mut((a.first, b.first), (a.w, b.w)).copy_from(&blk);
             }
         }
