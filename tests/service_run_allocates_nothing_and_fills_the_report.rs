@@ -72,6 +72,9 @@ origin_m = [0.0065, -0.031, 0.177]
 phases_s = [0.3, 0.3, 0.3, 0.6, 0.3, 0.3]
 [stream]
 enabled = false
+[background]
+basis_refresh_s = 0.5
+basis_refresh_m = 1e-5
 "#,
             root.join("rt-config/touchx.toml").display()
         ),
@@ -101,6 +104,14 @@ enabled = false
     assert!(report.max_force_n > 0.0 && report.max_force_n <= 7.9);
     assert!(report.model_swaps > 0, "refreshed models reached the loop");
     assert!(report.background.steps > 0);
+    // The background basis refresh ran and the loop switched basis without
+    // allocating.
+    assert!(report.background.basis_requests >= 1, "a new basis was asked for");
+    assert!(report.background.basis_recomputed >= 1, "a basis was recomputed");
+    assert!(
+        report.background.basis_swaps >= 1,
+        "a model in the new basis reached the loop"
+    );
     assert!(report.stream_frames > 0);
     assert!(std::fs::metadata(&record).unwrap().len() > 0);
     assert!(report.energy_out_j <= report.energy_in_j + 0.01 + 1e-12);

@@ -1,7 +1,9 @@
 //! The haptic loop's tick on a small plate: the watchdog takes the force to
 //! zero within its ramp time when the device goes silent or sends a
 //! non-finite value (and the reduced state resets), and a model refreshed
-//! from the full NVTMM solve swaps in mid-contact without a force jump.
+//! from the full NVTMM solve swaps in mid-contact without a force jump, in
+//! the same basis and in a basis recomputed at the full solve's state (the
+//! background basis refresh).
 
 mod common;
 
@@ -11,9 +13,9 @@ use nvtmm::haptics::servo::{flags, LoopModel, Servo, ServoParams};
 use nvtmm::material::Material;
 use nvtmm::mesh::{TetMesh, Vec3};
 use nvtmm::model::nvtmm::Nvtmm;
-use nvtmm::model::ForceModel;
-use nvtmm::reduced::{basis_rows, DynamicsParams, ModalBasis, Refresher};
-use nvtmm::service::background::{rest_model, Background};
+use nvtmm::model::{BlockTangent, ForceModel};
+use nvtmm::reduced::{basis_rows, BasisParams, DynamicsParams, ModalBasis, Refresher};
+use nvtmm::service::background::{rest_model, Background, BasisPolicy};
 use nvtmm::solver::loads::{Loads, NodalLoad, TimeProfile};
 use nvtmm::solver::{ImplicitEuler, ImplicitEulerParams, NewtonParams, TissueState};
 use std::sync::Arc;
@@ -29,6 +31,7 @@ struct Plate {
     basis: ModalBasis,
     top: f64,
     center: Vec3,
+    contact: Vec<u32>,
 }
 
 fn plate() -> Plate {
@@ -42,6 +45,7 @@ fn plate() -> Plate {
         basis: p.basis,
         top: 0.004,
         center: p.center,
+        contact: p.contact,
     }
 }
 
@@ -175,6 +179,19 @@ fn the_force_ramps_to_zero_within_10_ms_when_the_device_goes_silent_or_sends_nan
 
 #[test]
 fn a_refreshed_model_swaps_in_mid_contact_without_a_force_jump() {
+    swap_mid_contact(false);
+}
+
+#[test]
+fn a_model_in_a_recomputed_basis_swaps_in_mid_contact_without_a_force_jump() {
+    swap_mid_contact(true);
+}
+
+/// Presses the plate for 1.5 s, runs the full model under the loop's contact
+/// forces, builds the refreshed model (in a basis recomputed at the full
+/// state, warm-started, if `new_basis`), swaps it in and bounds the force
+/// change per tick over the cross-fade.
+fn swap_mid_contact(new_basis: bool) {
     let p = plate();
     let mut s = servo(&p);
     let pos = Vec3::new(p.center.x, p.center.y, p.top + 3e-3 - 1.5e-3);
@@ -231,8 +248,35 @@ fn a_refreshed_model_swaps_in_mid_contact_without_a_force_jump() {
         dynamics: dynamics(),
         last_sent: (s.model().offset.clone(), nalgebra::SVector::zeros(), 0),
         dt_max: 0.05,
+        basis_policy: BasisPolicy::OFF,
     };
-    let m: Box<LoopModel<R>> = bg.build_model(&state.u, &fbar, 1).unwrap();
+    let m: Box<LoopModel<R>> = if new_basis {
+        // What the basis thread does: the modes of K at the full state,
+        // warm-started from the basis in use.
+        let mut k = BlockTangent::zeros(&p.mesh);
+        model.add_stiffness(&state.u, &mut k);
+        let nb = ModalBasis::compute_contact_from_tangent(
+            &k,
+            &p.mass,
+            &p.fixed,
+            R,
+            &p.contact,
+            R / 2,
+            Some(&p.basis),
+            &BasisParams::default(),
+        )
+        .unwrap();
+        bg.refresher = Refresher::new(&p.mesh, &nb, &p.mass);
+        bg.rows = basis_rows::<R>(&nb).unwrap();
+        let (m, _) = bg.build_model(&state.u, &fbar, 1, Some(&p.basis.phi)).unwrap();
+        let off_identity = (m.transfer - nalgebra::SMatrix::<f64, R, R>::identity()).norm();
+        assert!(off_identity > 1e-3, "the basis changed: ‖T − I‖ = {off_identity:e}");
+        m
+    } else {
+        let (m, _) = bg.build_model(&state.u, &fbar, 1, None).unwrap();
+        assert_eq!(m.transfer, nalgebra::SMatrix::<f64, R, R>::identity());
+        m
+    };
     let ubar_max = state.u.iter().map(|u| u.norm()).fold(0.0, f64::max);
     assert!(ubar_max > 2e-4, "the full solve moved: {ubar_max}");
     let old = s.swap(m).map(|o| o.epoch);
@@ -255,7 +299,7 @@ fn a_refreshed_model_swaps_in_mid_contact_without_a_force_jump() {
         }
     }
     eprintln!(
-        "force before {:.5} N, after the blend {:.5} N, largest change per tick {:.2e} N ({:.2} %)",
+        "new basis {new_basis}: force before {:.5} N, after the blend {:.5} N, largest change per tick {:.2e} N ({:.2} %)",
         f_before.norm(),
         prev.norm(),
         worst,

@@ -257,7 +257,36 @@ impl ModalBasis {
         warm: Option<&ModalBasis>,
         params: &BasisParams,
     ) -> Result<ModalBasis, ReducedError> {
-        let mut is_fixed = vec![false; mesh.num_nodes()];
+        let n = mesh.num_nodes();
+        if u.len() != n {
+            return Err(ReducedError::SizeMismatch {
+                what: "the displacement",
+                got: u.len(),
+                expected: n,
+            });
+        }
+        let mut k = BlockTangent::zeros(mesh);
+        model.add_stiffness(u, &mut k);
+        ModalBasis::compute_contact_from_tangent(&k, mass, fixed, r_total, contact, max_static, warm, params)
+    }
+
+    /// As [`ModalBasis::compute_contact`] on an already assembled tangent
+    /// `k` (e.g. the one the full implicit step just built), so a background
+    /// basis refresh needs neither the force model nor an assembly of its
+    /// own. Warm-start it from the previous basis.
+    #[allow(clippy::too_many_arguments)]
+    pub fn compute_contact_from_tangent(
+        k: &BlockTangent,
+        mass: &[f64],
+        fixed: &[u32],
+        r_total: usize,
+        contact: &[u32],
+        max_static: usize,
+        warm: Option<&ModalBasis>,
+        params: &BasisParams,
+    ) -> Result<ModalBasis, ReducedError> {
+        let n = k.num_nodes();
+        let mut is_fixed = vec![false; n];
         for &f in fixed {
             if let Some(x) = is_fixed.get_mut(f as usize) {
                 *x = true;
@@ -270,9 +299,9 @@ impl ModalBasis {
             .collect();
         free_contact.sort_unstable();
         free_contact.dedup();
-        let (modes, k) = static_split(r_total, free_contact.len(), max_static);
-        let contact_used: &[u32] = if k == 0 { &[] } else { contact };
-        compute_inner(mesh, model, u, mass, fixed, modes, contact_used, Some(k), warm, params)
+        let (modes, k_static) = static_split(r_total, free_contact.len(), max_static);
+        let contact_used: &[u32] = if k_static == 0 { &[] } else { contact };
+        compute_from_tangent(k, mass, fixed, modes, contact_used, Some(k_static), warm, params)
     }
 
     /// Number of basis vectors (columns).
@@ -349,13 +378,6 @@ fn compute_inner(
     warm: Option<&ModalBasis>,
     params: &BasisParams,
 ) -> Result<ModalBasis, ReducedError> {
-    if !(params.tol > 0.0 && params.tol < 1.0) {
-        return Err(ReducedError::BadParameter {
-            name: "tol",
-            value: params.tol,
-            allowed: "in (0, 1)",
-        });
-    }
     let n = mesh.num_nodes();
     if u.len() != n {
         return Err(ReducedError::SizeMismatch {
@@ -364,6 +386,31 @@ fn compute_inner(
             expected: n,
         });
     }
+    let mut k = BlockTangent::zeros(mesh);
+    model.add_stiffness(u, &mut k);
+    compute_from_tangent(&k, mass, fixed, r, contact, max_static, warm, params)
+}
+
+/// [`compute_inner`] on an assembled tangent.
+#[allow(clippy::too_many_arguments)]
+fn compute_from_tangent(
+    k: &BlockTangent,
+    mass: &[f64],
+    fixed: &[u32],
+    r: usize,
+    contact: &[u32],
+    max_static: Option<usize>,
+    warm: Option<&ModalBasis>,
+    params: &BasisParams,
+) -> Result<ModalBasis, ReducedError> {
+    if !(params.tol > 0.0 && params.tol < 1.0) {
+        return Err(ReducedError::BadParameter {
+            name: "tol",
+            value: params.tol,
+            allowed: "in (0, 1)",
+        });
+    }
+    let n = k.num_nodes();
     if let Some(w) = warm {
         if w.phi.nrows() != 3 * n {
             return Err(ReducedError::WarmStartMismatch {
@@ -372,9 +419,7 @@ fn compute_inner(
             });
         }
     }
-    let mut k = BlockTangent::zeros(mesh);
-    model.add_stiffness(u, &mut k);
-    let problem = FreeProblem::new(&k, mass, fixed)?;
+    let problem = FreeProblem::new(k, mass, fixed)?;
     let nf = problem.dofs();
     if r == 0 || r > nf {
         return Err(ReducedError::BadModeCount {

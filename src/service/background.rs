@@ -4,12 +4,23 @@
 //! through a ring. Models the loop hands back are freed here, off the RT
 //! thread. This thread may allocate; it never blocks the loop (every ring
 //! operation is a non-blocking push or pop).
+//!
+//! **Background basis refresh.** When the full solve has moved far enough
+//! from the state the basis was computed at, the background thread hands
+//! the tangent its last step assembled to a basis thread ([`basis_thread`]),
+//! which recomputes the modal basis there warm-started from the previous
+//! one ([`ModalBasis::compute_contact_from_tangent`]) and sends back a new
+//! [`Refresher`] and basis rows. The next model built carries the loop's
+//! state over to the new basis, δq₁ = Φ₁ᵀ M Φ₀ δq₀ + Φ₁ᵀ M (ū₀ − ū₁), and
+//! the loop cross-fades as at every swap.
 
 use crate::haptics::contact::NodeContact;
 use crate::haptics::servo::LoopModel;
+use crate::mesh::TetMesh;
 use crate::mesh::Vec3;
+use crate::model::BlockTangent;
 use crate::model::ForceModel;
-use crate::reduced::{BasisRows, DynamicsParams, ReducedDynamics, Refresher};
+use crate::reduced::{basis_rows, BasisParams, BasisRows, DynamicsParams, ModalBasis, ReducedDynamics, Refresher};
 use crate::rt::clock;
 use crate::rt::stats::Histogram;
 use crate::solver::loads::{Loads, NodalLoad, TimeProfile};
@@ -48,6 +59,133 @@ pub struct Background<const R: usize> {
     pub last_sent: (Arc<Vec<Vec3>>, SVector<f64, R>, u64),
     /// Largest background step (s) when following real time.
     pub dt_max: f64,
+    /// When to recompute the basis in the background.
+    pub basis_policy: BasisPolicy,
+}
+
+/// When the background thread asks for a new basis: at most every
+/// `every_s` seconds, and only once the full solve's displacement has
+/// changed by `min_change_m` somewhere since the basis in use was computed.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct BasisPolicy {
+    /// Shortest time between requests (s); 0 disables the basis refresh.
+    pub every_s: f64,
+    /// Smallest change of the displacement field (max over nodes, m).
+    pub min_change_m: f64,
+}
+
+impl BasisPolicy {
+    /// No background basis refresh.
+    pub const OFF: BasisPolicy = BasisPolicy {
+        every_s: 0.0,
+        min_change_m: 0.0,
+    };
+}
+
+/// A request to the basis thread: the tangent of the full solve's last step.
+#[derive(Debug)]
+pub struct BasisJob {
+    /// K at the full solve's state (fixed rows not projected).
+    pub tangent: BlockTangent,
+}
+
+/// A recomputed basis, ready to be installed by the background thread.
+pub struct NewBasis<const R: usize> {
+    /// Re-linearizes in the new basis.
+    pub refresher: Refresher,
+    /// Its per-node rows, shared with the loop's models.
+    pub rows: BasisRows<R>,
+    /// Wall time of the computation (s).
+    pub seconds: f64,
+    /// Subspace iterations it took.
+    pub iterations: usize,
+}
+
+/// What the basis thread needs.
+pub struct BasisWorker {
+    /// The mesh.
+    pub mesh: Arc<TetMesh>,
+    /// Lumped mass per node (kg).
+    pub mass: Vec<f64>,
+    /// Fixed nodes.
+    pub fixed: Vec<u32>,
+    /// Contact region of the static modes.
+    pub contact: Vec<u32>,
+    /// Basis size.
+    pub r: usize,
+    /// Static directions kept (as at start).
+    pub max_static: usize,
+    /// Stopping rule.
+    pub params: BasisParams,
+    /// The basis in use: the warm start of the next computation.
+    pub current: ModalBasis,
+}
+
+/// Statistics of the basis thread.
+#[derive(Debug, Clone, Default)]
+pub struct BasisStats {
+    /// Bases recomputed and sent.
+    pub recomputed: u64,
+    /// Recomputations that failed (the basis in use was kept).
+    pub failures: u64,
+    /// Wall time of each recomputation (s).
+    pub seconds: Vec<f64>,
+    /// Subspace iterations of each recomputation.
+    pub iterations: Vec<usize>,
+}
+
+/// The basis thread (normal priority): recomputes the basis for each job,
+/// warm-started from the last one, until `stop` is set. Jobs arrive one at
+/// a time (the background thread waits for the answer before asking again).
+pub fn basis_thread<const R: usize>(
+    mut w: BasisWorker,
+    mut jobs: rtrb::Consumer<BasisJob>,
+    mut out: rtrb::Producer<NewBasis<R>>,
+    stop: Arc<AtomicBool>,
+) -> BasisStats {
+    let mut stats = BasisStats::default();
+    while !stop.load(Ordering::Relaxed) {
+        let Ok(job) = jobs.pop() else {
+            std::thread::sleep(std::time::Duration::from_millis(5));
+            continue;
+        };
+        let t = std::time::Instant::now();
+        let basis = ModalBasis::compute_contact_from_tangent(
+            &job.tangent,
+            &w.mass,
+            &w.fixed,
+            w.r,
+            &w.contact,
+            w.max_static,
+            Some(&w.current),
+            &w.params,
+        );
+        let Ok(basis) = basis else {
+            stats.failures += 1;
+            continue;
+        };
+        let Ok(rows) = basis_rows::<R>(&basis) else {
+            stats.failures += 1;
+            continue;
+        };
+        let refresher = Refresher::new(&w.mesh, &basis, &w.mass);
+        let seconds = t.elapsed().as_secs_f64();
+        stats.seconds.push(seconds);
+        stats.iterations.push(basis.iterations);
+        let msg = NewBasis {
+            refresher,
+            rows,
+            seconds,
+            iterations: basis.iterations,
+        };
+        if out.push(msg).is_ok() {
+            stats.recomputed += 1;
+            w.current = basis;
+        } else {
+            stats.failures += 1;
+        }
+    }
+    stats
 }
 
 /// Statistics of the background thread.
@@ -78,6 +216,12 @@ pub struct BackgroundStats {
     pub wall_s: f64,
     /// Largest nodal displacement of the full solve (m).
     pub max_displacement_m: f64,
+    /// Basis refreshes requested from the basis thread.
+    pub basis_requests: u64,
+    /// New bases installed.
+    pub basis_installed: u64,
+    /// Models sent that changed the basis (their transfer is not I).
+    pub basis_swaps_sent: u64,
 }
 
 /// Rings and shared flags of the background thread.
@@ -88,47 +232,92 @@ pub struct BackgroundIo<const R: usize> {
     pub models: rtrb::Producer<Box<LoopModel<R>>>,
     /// Old models back from the loop.
     pub returned: rtrb::Consumer<Box<LoopModel<R>>>,
-    /// ū of each model sent, for the stream publisher (keep-latest: dropped
-    /// when full).
-    pub offsets: Option<rtrb::Producer<(u64, Arc<Vec<Vec3>>)>>,
     /// Set to stop.
     pub stop: Arc<AtomicBool>,
     /// The loop's tick counter.
     pub loop_ticks: Arc<AtomicU64>,
+    /// Jobs to the basis thread and its answers (None: no basis refresh).
+    pub basis: Option<(rtrb::Producer<BasisJob>, rtrb::Consumer<NewBasis<R>>)>,
+    /// ū and the basis rows of each model sent, for the stream publisher
+    /// (keep-latest: dropped when full).
+    pub offsets: Option<rtrb::Producer<OffsetMsg<R>>>,
 }
+
+/// ū and the basis rows of the model of one epoch (background → publisher).
+pub type OffsetMsg<const R: usize> = (u64, Arc<Vec<Vec3>>, BasisRows<R>);
 
 impl<const R: usize> Background<R> {
     /// Builds the model for displacement `u` under the contact force `fbar`
-    /// (per node), with the transfer from the last model sent.
-    pub fn build_model(&mut self, u: &[Vec3], fbar: &[Vec3], epoch: u64) -> Option<Box<LoopModel<R>>> {
+    /// (per node), with the transfer from the last model sent (whose basis
+    /// is `sent_phi` if it differs from the current one). Returns the model
+    /// and its Φᵀ M ū.
+    pub fn build_model(
+        &mut self,
+        u: &[Vec3],
+        fbar: &[Vec3],
+        epoch: u64,
+        sent_phi: Option<&DMatrix<f64>>,
+    ) -> Option<(Box<LoopModel<R>>, SVector<f64, R>)> {
         let kr = self.refresher.reduced_stiffness(self.model.as_ref(), u);
-        self.model_from(kr, u, fbar, epoch)
+        self.model_from(kr, u, fbar, epoch, sent_phi)
     }
 
     /// As [`Background::build_model`] with the tangent the last full step
     /// assembled (at its start state, one background step behind `u`),
     /// which saves the assembly.
-    pub fn build_model_from_step(&mut self, u: &[Vec3], fbar: &[Vec3], epoch: u64) -> Option<Box<LoopModel<R>>> {
+    pub fn build_model_from_step(
+        &mut self,
+        u: &[Vec3],
+        fbar: &[Vec3],
+        epoch: u64,
+        sent_phi: Option<&DMatrix<f64>>,
+    ) -> Option<(Box<LoopModel<R>>, SVector<f64, R>)> {
         let kr = self.refresher.project_tangent(self.solver.last_stiffness());
-        self.model_from(kr, u, fbar, epoch)
+        self.model_from(kr, u, fbar, epoch, sent_phi)
     }
 
-    fn model_from(&mut self, kr: DMatrix<f64>, u: &[Vec3], fbar: &[Vec3], epoch: u64) -> Option<Box<LoopModel<R>>> {
+    fn model_from(
+        &mut self,
+        kr: DMatrix<f64>,
+        u: &[Vec3],
+        fbar: &[Vec3],
+        epoch: u64,
+        sent_phi: Option<&DMatrix<f64>>,
+    ) -> Option<(Box<LoopModel<R>>, SVector<f64, R>)> {
         let r = self.refresher.len();
         let dynamics = ReducedDynamics::with_rows(self.rows.clone(), r, &kr, &self.dynamics).ok()?;
         let qbar = to_s::<R>(&self.refresher.project_mass(u).as_slice()[..r]);
         let fb = to_s::<R>(&self.refresher.project_force(fbar).as_slice()[..r]);
         let offset = Arc::new(u.to_vec());
-        Some(Box::new(LoopModel {
+        let (transfer, shift) = match sent_phi {
+            // Same basis: δq₁ = δq₀ + Φᵀ M (ū₀ − ū₁).
+            None => (SMatrix::identity(), self.last_sent.1 - qbar),
+            // New basis: δq₁ = Φ₁ᵀ M Φ₀ δq₀ + Φ₁ᵀ M ū₀ − Φ₁ᵀ M ū₁.
+            Some(phi0) => {
+                let t = self.refresher.transfer_from(phi0);
+                let mut tm = SMatrix::<f64, R, R>::zeros();
+                for i in 0..t.nrows().min(R) {
+                    for j in 0..t.ncols().min(R) {
+                        tm[(i, j)] = t[(i, j)];
+                    }
+                }
+                let q0 = to_s::<R>(&self.refresher.project_mass(&self.last_sent.0).as_slice()[..r]);
+                (tm, q0 - qbar)
+            }
+        };
+        if !(transfer.iter().all(|v| v.is_finite()) && shift.iter().all(|v| v.is_finite())) {
+            return None;
+        }
+        let model = Box::new(LoopModel {
             epoch,
             dynamics,
             offset,
             f_bar: fb,
-            transfer: SMatrix::identity(),
-            // Same basis: δq₁ = δq₀ + Φᵀ M (ū₀ − ū₁).
-            shift: self.last_sent.1 - qbar,
+            transfer,
+            shift,
             created_s: clock::now_s(),
-        }))
+        });
+        Some((model, qbar))
     }
 }
 
@@ -170,7 +359,16 @@ pub fn run<const R: usize>(mut bg: Background<R>, mut io: BackgroundIo<R>) -> Ba
     let mut fbar = vec![Vec3::zeros(); n];
     let mut last_tick = io.loop_ticks.load(Ordering::Relaxed);
     let mut epoch = bg.last_sent.2;
-    let mut pending: Option<Box<LoopModel<R>>> = None;
+    // A built model not sent yet, its Φᵀ M ū and its basis generation.
+    let mut pending: Option<(Box<LoopModel<R>>, SVector<f64, R>, u64)> = None;
+    // Basis refresh: generation of the basis in use, the basis of the last
+    // model sent when it differs, the displacement the basis in use was
+    // asked at, and whether a request is out.
+    let mut generation = 0u64;
+    let mut sent_phi: Option<DMatrix<f64>> = None;
+    let mut u_at_basis = vec![Vec3::zeros(); n];
+    let mut in_flight = false;
+    let mut last_request_ns = clock::now_ns();
     let dt_min = bg.solver.params().dt;
     let t_start = clock::now_ns();
     let mut last_t0 = t_start;
@@ -228,33 +426,78 @@ pub fn run<const R: usize>(mut bg: Background<R>, mut io: BackgroundIo<R>) -> Ba
         let t1 = clock::now_ns();
         stats.step_us.record((t1 - t0) as f64 * 1e-3);
 
+        // A new basis from the basis thread: install it; the next model
+        // carries the state over from the last sent model's basis.
+        if let Some((_, rx)) = io.basis.as_mut() {
+            if let Ok(nb) = rx.pop() {
+                let old = std::mem::replace(&mut bg.refresher, nb.refresher);
+                if sent_phi.is_none() {
+                    sent_phi = Some(old.phi().clone());
+                }
+                bg.rows = nb.rows;
+                generation += 1;
+                in_flight = false;
+                stats.basis_installed += 1;
+            }
+        }
+        // Ask for a new basis when the state has moved far enough.
+        if rep.ok() && !in_flight && bg.basis_policy.every_s > 0.0 {
+            let due = (t1 - last_request_ns) as f64 * 1e-9 >= bg.basis_policy.every_s;
+            if due {
+                let change = state
+                    .u
+                    .iter()
+                    .zip(&u_at_basis)
+                    .map(|(a, b)| (a - b).norm())
+                    .fold(0.0, f64::max);
+                if change >= bg.basis_policy.min_change_m {
+                    if let Some((tx, _)) = io.basis.as_mut() {
+                        let job = BasisJob {
+                            tangent: bg.solver.last_stiffness().clone(),
+                        };
+                        if tx.push(job).is_ok() {
+                            in_flight = true;
+                            last_request_ns = t1;
+                            u_at_basis.copy_from_slice(&state.u);
+                            stats.basis_requests += 1;
+                        }
+                    }
+                }
+            }
+        }
+
         // Re-linearize and send (keep-latest if the ring is full).
         epoch += 1;
         let built = if rep.ok() {
-            bg.build_model_from_step(&state.u, &fbar, epoch)
+            bg.build_model_from_step(&state.u, &fbar, epoch, sent_phi.as_ref())
         } else {
-            bg.build_model(&state.u, &fbar, epoch)
+            bg.build_model(&state.u, &fbar, epoch, sent_phi.as_ref())
         };
         match built {
-            Some(m) => pending = Some(m),
+            Some((m, qbar)) => pending = Some((m, qbar, generation)),
             None => stats.refresh_failures += 1,
         }
-        if let Some(m) = pending.take() {
+        if let Some((m, qbar, gen)) = pending.take() {
             // Built against the current last-sent model (nothing is sent in
-            // between), so its shift is right: recover its Φᵀ M ū.
-            let qbar = bg.last_sent.1 - m.shift;
+            // between), so its transfer and shift are right.
             let offset = m.offset.clone();
+            let new_basis = sent_phi.is_some() && gen == generation;
+            let rows = m.dynamics.rows().clone();
             match io.models.push(m) {
                 Ok(()) => {
                     stats.models_sent += 1;
                     bg.last_sent = (offset.clone(), qbar, epoch);
+                    if new_basis {
+                        sent_phi = None;
+                        stats.basis_swaps_sent += 1;
+                    }
                     if let Some(tx) = io.offsets.as_mut() {
-                        let _ = tx.push((epoch, offset));
+                        let _ = tx.push((epoch, offset, rows));
                     }
                 }
                 Err(rtrb::PushError::Full(m)) => {
                     stats.model_ring_full += 1;
-                    pending = Some(m);
+                    pending = Some((m, qbar, gen));
                 }
             }
         }

@@ -211,8 +211,16 @@ pub struct BackgroundConfig {
     /// Run the full solve and refresh the reduced model (false: the loop
     /// keeps the model linearized at rest, a linear reduced model).
     pub enabled: bool,
-    /// CPU of the background thread (-1: not pinned).
+    /// CPU of the background thread (-1: not pinned). The basis thread
+    /// runs there too.
     pub cpu: i32,
+    /// Background basis refresh: shortest time between recomputations of
+    /// the modal basis at the full solve's state (s); 0 turns it off.
+    pub basis_refresh_s: f64,
+    /// Background basis refresh: recompute only once the full solve's
+    /// displacement has changed by this much at some node since the basis
+    /// in use was computed (m).
+    pub basis_refresh_m: f64,
 }
 
 impl Default for BackgroundConfig {
@@ -222,6 +230,8 @@ impl Default for BackgroundConfig {
             dt_max: 0.01,
             enabled: true,
             cpu: -1,
+            basis_refresh_s: 5.0,
+            basis_refresh_m: 5e-4,
         }
     }
 }
@@ -323,6 +333,14 @@ impl ServiceConfig {
         c.f64_in("background.dt", b.dt, 1e-4, 0.1, "s")?;
         c.f64_in("background.dt_max", b.dt_max, b.dt, 1.0, "s (at least background.dt)")?;
         c.int_in("background.cpu", b.cpu, -1, 1023)?;
+        c.f64_in(
+            "background.basis_refresh_s",
+            b.basis_refresh_s,
+            0.0,
+            3600.0,
+            "s (0: off)",
+        )?;
+        c.f64_in("background.basis_refresh_m", b.basis_refresh_m, 0.0, 1.0, "m")?;
         let r = &self.rings;
         c.int_in("rings.pose", r.pose, 2, 65_536)?;
         c.int_in("rings.force", r.force, 2, 65_536)?;

@@ -58,6 +58,20 @@ pub struct BackgroundReport {
     pub real_time_factor: f64,
     /// Largest displacement of the full solve at the end (m).
     pub max_displacement_m: f64,
+    /// Whether the background basis refresh was on.
+    pub basis_refresh_on: bool,
+    /// Basis recomputations asked for.
+    pub basis_requests: u64,
+    /// Bases recomputed (warm-started) by the basis thread.
+    pub basis_recomputed: u64,
+    /// Recomputations that failed (the basis in use was kept).
+    pub basis_failures: u64,
+    /// Models sent to the loop that switched to a new basis.
+    pub basis_swaps: u64,
+    /// Wall time of the recomputations (s; p50, p99, p999, max).
+    pub basis_recompute_s: Percentiles,
+    /// Subspace iterations of each recomputation.
+    pub basis_iterations: Vec<usize>,
 }
 
 /// The whole report. Keys are a scripting contract.
@@ -203,6 +217,19 @@ impl Report {
                 "  background: {} full steps ({} failed), step p50 {:.1} ms, refresh p50 {:.2} ms, {:.1} models/s, real-time factor {:.2}, {} swaps\n",
                 b.steps, b.failed_steps, b.step_ms.p50, b.refresh_ms.p50, b.refresh_hz, b.real_time_factor, self.model_swaps
             );
+            if b.basis_refresh_on {
+                s += &format!(
+                    "  basis refresh: {} asked, {} recomputed (warm start, p50 {:.2} s, max {:.2} s), {} failed, {} models switched basis\n",
+                    b.basis_requests,
+                    b.basis_recomputed,
+                    b.basis_recompute_s.p50,
+                    b.basis_recompute_s.max,
+                    b.basis_failures,
+                    b.basis_swaps
+                );
+            } else {
+                s += "  basis refresh: off\n";
+            }
         } else {
             s += "  background: off (linear reduced model at rest)\n";
         }

@@ -14,7 +14,10 @@
 //! loop --state (drop newest)--> publisher
 //! ```
 
-use super::background::{self, Background, BackgroundIo, BackgroundStats, ContactMsg, CONTACT_MSG_NODES};
+use super::background::{
+    self, Background, BackgroundIo, BackgroundStats, BasisJob, BasisPolicy, BasisStats, BasisWorker, ContactMsg,
+    NewBasis, OffsetMsg, CONTACT_MSG_NODES,
+};
 use super::config::{Backend, ServiceConfig};
 use super::report::{BackgroundReport, QpReport, Report, RingReport};
 use crate::haptics::contact::{NodeContact, SurfaceIndex};
@@ -502,7 +505,7 @@ struct PublisherPlan<const R: usize> {
     publisher: crate::stream::Publisher,
     rows: crate::reduced::BasisRows<R>,
     state: rtrb::Consumer<StateSnapshot<R>>,
-    offsets: rtrb::Consumer<(u64, Arc<Vec<Vec3>>)>,
+    offsets: rtrb::Consumer<OffsetMsg<R>>,
     first_offset: Arc<Vec<Vec3>>,
     tool_radius: f64,
     simulated: bool,
@@ -516,8 +519,8 @@ fn publisher_thread<const R: usize>(mut p: PublisherPlan<R>) -> (u64, u64, Optio
     use crate::stream::{flags as sf, StateFrame};
     let topo = p.publisher.topology().clone();
     let mut positions = vec![[0f32; 3]; topo.node_ids.len()];
-    let mut offsets: std::collections::VecDeque<(u64, Arc<Vec<Vec3>>)> = std::collections::VecDeque::new();
-    offsets.push_back((0, p.first_offset.clone()));
+    let mut offsets: std::collections::VecDeque<OffsetMsg<R>> = std::collections::VecDeque::new();
+    offsets.push_back((0, p.first_offset.clone(), p.rows.clone()));
     let mut last_epoch = 0;
     let mut refreshed_at = f64::NEG_INFINITY;
     let mut times: std::collections::VecDeque<f64> = std::collections::VecDeque::new();
@@ -545,12 +548,15 @@ fn publisher_thread<const R: usize>(mut p: PublisherPlan<R>) -> (u64, u64, Optio
             times.pop_front();
             maxes.pop_front();
         }
-        let offset = offsets
+        let (offset, rows) = match offsets
             .iter()
             .rev()
-            .find(|(e, _)| *e == s.epoch)
+            .find(|(e, _, _)| *e == s.epoch)
             .or_else(|| offsets.back())
-            .map(|(_, o)| o.clone());
+        {
+            Some((_, o, r)) => (Some(o.clone()), r.clone()),
+            None => (None, p.rows.clone()),
+        };
         for (k, &node) in topo.node_ids.iter().enumerate() {
             let i = node as usize;
             let rest = Vec3::from(topo.rest_positions[k].map(f64::from));
@@ -558,7 +564,7 @@ fn publisher_thread<const R: usize>(mut p: PublisherPlan<R>) -> (u64, u64, Optio
                 .as_ref()
                 .and_then(|o| o.get(i).copied())
                 .unwrap_or_else(Vec3::zeros);
-            let d = p.rows.get(i).map(|row| row * s.q).unwrap_or_else(Vec3::zeros);
+            let d = rows.get(i).map(|row| row * s.q).unwrap_or_else(Vec3::zeros);
             let x = rest + ubar + d;
             positions[k] = [x.x as f32, x.y as f32, x.z as f32];
         }
@@ -646,6 +652,10 @@ pub struct Prepared {
     pub seconds: f64,
     /// Record the stream here.
     pub record: Option<PathBuf>,
+    /// Contact region of the basis's static modes.
+    pub contact: Vec<u32>,
+    /// Static directions the basis keeps.
+    pub max_static: usize,
 }
 
 /// Loads the configuration and the scene, computes (or loads) the basis and
@@ -689,6 +699,7 @@ pub fn prepare(opts: &RunOptions) -> Result<Prepared, ServiceError> {
         max_static: red.r / 2,
         params: BasisParams::default(),
     };
+    let max_static = red.r / 2;
     let dir = red.cache.then(|| scene.cache_dir());
     let (basis, outcome) = load_or_compute(&req, dir.as_deref(), false)?;
     let basis_cache = match &outcome.status {
@@ -718,6 +729,8 @@ pub fn prepare(opts: &RunOptions) -> Result<Prepared, ServiceError> {
         passivity,
         seconds,
         record: opts.record.clone(),
+        contact,
+        max_static,
         scene,
         cfg,
     })
@@ -790,6 +803,23 @@ fn ring_report(capacity: usize, policy: &'static str, overflows: u64) -> RingRep
     }
 }
 
+/// Median and maximum of a few durations (s); zeros when empty.
+fn seconds_summary(v: &[f64]) -> Percentiles {
+    let mut v = v.to_vec();
+    v.sort_by(f64::total_cmp);
+    let at = |q: f64| {
+        v.get(((v.len() as f64 - 1.0) * q).round() as usize)
+            .copied()
+            .unwrap_or(0.0)
+    };
+    Percentiles {
+        p50: at(0.5),
+        p99: at(0.99),
+        p999: at(0.999),
+        max: v.last().copied().unwrap_or(0.0),
+    }
+}
+
 fn ms(h: &Histogram) -> Percentiles {
     let p = h.percentiles();
     Percentiles {
@@ -816,7 +846,8 @@ fn run_with<const R: usize>(p: Prepared, progress: bool) -> Result<Report, Servi
         seconds,
         scene,
         record,
-        ..
+        contact,
+        max_static,
     } = p;
     let n = mesh.num_nodes();
     let rows = basis_rows::<R>(&basis)?;
@@ -853,7 +884,7 @@ fn run_with<const R: usize>(p: Prepared, progress: bool) -> Result<Report, Servi
     let ticks = Arc::new(AtomicU64::new(0));
     let stream_on = cfg.stream.enabled || record.is_some();
     let (state_tx, state_rx) = rtrb::RingBuffer::<StateSnapshot<R>>::new(rings.state);
-    let (offset_tx, offset_rx) = rtrb::RingBuffer::<(u64, Arc<Vec<Vec3>>)>::new(16);
+    let (offset_tx, offset_rx) = rtrb::RingBuffer::<OffsetMsg<R>>::new(16);
     let state_every = ((cfg.servo.rate_hz / cfg.stream.rate_hz).round() as u64).max(1);
 
     let memory_locked = cfg.servo.lock_memory && lock_memory().is_ok();
@@ -873,11 +904,16 @@ fn run_with<const R: usize>(p: Prepared, progress: bool) -> Result<Report, Servi
     let pool_bytes = 8 << 20;
 
     // Background.
+    let mut basis_handle: Option<std::thread::JoinHandle<BasisStats>> = None;
     let bg_handle = if cfg.background.enabled {
         let mut params = scene.integrator;
         params.dt = cfg.background.dt;
         let solver =
             ImplicitEuler::new(&mesh, mass.clone(), params).map_err(|e| ServiceError::Solver(e.to_string()))?;
+        let basis_policy = BasisPolicy {
+            every_s: cfg.background.basis_refresh_s,
+            min_change_m: cfg.background.basis_refresh_m,
+        };
         let bg = Background::<R> {
             model,
             solver,
@@ -887,6 +923,41 @@ fn run_with<const R: usize>(p: Prepared, progress: bool) -> Result<Report, Servi
             dynamics,
             last_sent: (first.offset.clone(), SVector::zeros(), 0),
             dt_max: cfg.background.dt_max,
+            basis_policy,
+        };
+        let bg_cpu = cpu(cfg.background.cpu);
+        // The basis thread, when the basis refresh is on.
+        let basis_io = if basis_policy.every_s > 0.0 {
+            let (job_tx, job_rx) = rtrb::RingBuffer::<BasisJob>::new(1);
+            let (new_tx, new_rx) = rtrb::RingBuffer::<NewBasis<R>>::new(1);
+            let worker = BasisWorker {
+                mesh: mesh.clone(),
+                mass: mass.clone(),
+                fixed: fixed.clone(),
+                contact: contact.clone(),
+                r: basis.len(),
+                max_static,
+                params: BasisParams::default(),
+                current: basis.clone(),
+            };
+            let stop_b = stop.clone();
+            let h = std::thread::Builder::new()
+                .name("nvtmm-basis".into())
+                .spawn(move || {
+                    if bg_cpu.is_some() {
+                        setup_current(&RtRequest {
+                            fifo_priority: None,
+                            cpu: bg_cpu,
+                            prefault_stack_bytes: 0,
+                        });
+                    }
+                    background::basis_thread::<R>(worker, job_rx, new_tx, stop_b)
+                })
+                .map_err(|e| ServiceError::Thread("basis", e.to_string()))?;
+            basis_handle = Some(h);
+            Some((job_tx, new_rx))
+        } else {
+            None
         };
         let bio = BackgroundIo {
             contact: contact_rx,
@@ -895,8 +966,8 @@ fn run_with<const R: usize>(p: Prepared, progress: bool) -> Result<Report, Servi
             offsets: stream_on.then_some(offset_tx),
             stop: stop.clone(),
             loop_ticks: ticks.clone(),
+            basis: basis_io,
         };
-        let bg_cpu = cpu(cfg.background.cpu);
         Some(
             std::thread::Builder::new()
                 .name("nvtmm-background".into())
@@ -1045,6 +1116,10 @@ fn run_with<const R: usize>(p: Prepared, progress: bool) -> Result<Report, Servi
         ),
         None => None,
     };
+    let basis_stats: BasisStats = match basis_handle {
+        Some(h) => h.join().map_err(|_| ServiceError::Thread("basis", "panicked".into()))?,
+        None => BasisStats::default(),
+    };
     let (stream_frames, stream_errors, stream_error) = match pub_handle {
         Some(h) => h
             .join()
@@ -1094,6 +1169,13 @@ fn run_with<const R: usize>(p: Prepared, progress: bool) -> Result<Report, Servi
             refresh_hz: b.models_sent as f64 / b.wall_s.max(1e-9),
             real_time_factor: b.sim_time_s / b.wall_s.max(1e-9),
             max_displacement_m: b.max_displacement_m,
+            basis_refresh_on: cfg.background.basis_refresh_s > 0.0,
+            basis_requests: b.basis_requests,
+            basis_recomputed: basis_stats.recomputed,
+            basis_failures: basis_stats.failures,
+            basis_swaps: b.basis_swaps_sent,
+            basis_recompute_s: seconds_summary(&basis_stats.seconds),
+            basis_iterations: basis_stats.iterations.clone(),
         },
         None => BackgroundReport::default(),
     };

@@ -236,6 +236,8 @@ pub struct ContactPlate {
     pub fixed: Vec<u32>,
     pub basis: nvtmm::reduced::ModalBasis,
     pub center: Vec3,
+    /// The top-face nodes within 5 mm of the centre (the static modes' region).
+    pub contact: Vec<u32>,
 }
 
 pub fn contact_plate(mat: &Material, fixed_sets: &[&str], r: usize) -> ContactPlate {
@@ -277,5 +279,6 @@ pub fn contact_plate(mat: &Material, fixed_sets: &[&str], r: usize) -> ContactPl
         fixed,
         basis,
         center,
+        contact,
     }
 }
