@@ -50,6 +50,62 @@ pub fn with_modal_derivatives(
     of: usize,
     r_total: usize,
 ) -> Result<ModalBasis, ReducedError> {
+    let of = of.min(basis.len());
+    // Pairs by Barbič–James's weight ω_i ω_j (smallest first).
+    let mut pairs: Vec<(usize, usize)> = (0..of).flat_map(|j| (0..=j).map(move |i| (i, j))).collect();
+    let w = |i: usize| basis.omega2.get(i).copied().unwrap_or(1.0).abs().sqrt();
+    pairs.sort_by(|a, b| (w(a.0) * w(a.1)).total_cmp(&(w(b.0) * w(b.1))));
+    enrich(mesh, model, mass, basis, &pairs, r_total)
+}
+
+/// As [`with_modal_derivatives`], with the pairs chosen for a load pattern
+/// instead of free vibration: with q = diag(ω²)⁻¹ Φᵀ `load` the basis'
+/// static response to it, the pairs (i ≤ j) of all columns in descending
+/// order of |q_i q_j| — the second-order terms that load actually excites
+/// (for a contact basis these are mostly the static, local directions,
+/// which the lowest-ω rule never picks).
+pub fn with_load_derivatives(
+    mesh: &TetMesh,
+    model: &dyn ForceModel,
+    mass: &[f64],
+    basis: &ModalBasis,
+    load: &[Vec3],
+    r_total: usize,
+) -> Result<ModalBasis, ReducedError> {
+    if load.len() != mesh.num_nodes() {
+        return Err(ReducedError::SizeMismatch {
+            what: "load",
+            got: load.len(),
+            expected: mesh.num_nodes(),
+        });
+    }
+    let fr = basis.project(load);
+    let q: Vec<f64> = (0..basis.len())
+        .map(|i| {
+            let w2 = basis.omega2.get(i).copied().unwrap_or(0.0);
+            if w2 > 0.0 {
+                fr[i] / w2
+            } else {
+                0.0
+            }
+        })
+        .collect();
+    let r0 = basis.len();
+    let mut pairs: Vec<(usize, usize)> = (0..r0).flat_map(|j| (0..=j).map(move |i| (i, j))).collect();
+    let w = |p: &(usize, usize)| (q[p.0] * q[p.1]).abs();
+    pairs.sort_by(|a, b| w(b).total_cmp(&w(a)));
+    enrich(mesh, model, mass, basis, &pairs, r_total)
+}
+
+/// Appends the derivatives of `pairs`, in order, until `r_total` columns.
+fn enrich(
+    mesh: &TetMesh,
+    model: &dyn ForceModel,
+    mass: &[f64],
+    basis: &ModalBasis,
+    pairs: &[(usize, usize)],
+    r_total: usize,
+) -> Result<ModalBasis, ReducedError> {
     let n = mesh.num_nodes();
     if basis.num_nodes() != n {
         return Err(ReducedError::SizeMismatch {
@@ -69,7 +125,12 @@ pub fn with_modal_derivatives(
         return Err(ReducedError::BadMass { node, mass: m });
     }
     let r0 = basis.len();
-    let of = of.min(r0);
+    if pairs.iter().any(|&(i, j)| i >= r0 || j >= r0) {
+        return Err(ReducedError::BadModeCount {
+            asked: pairs.iter().map(|&(i, j)| i.max(j) + 1).max().unwrap_or(0),
+            free_dofs: r0,
+        });
+    }
     let mut fixed_mask = vec![false; n];
     for &f in &basis.fixed {
         if let Some(x) = fixed_mask.get_mut(f as usize) {
@@ -93,10 +154,6 @@ pub fn with_modal_derivatives(
             .map(|c| Vec3::new(c[0], c[1], c[2]))
             .collect()
     };
-    // Pairs by Barbič–James's weight ω_i ω_j (smallest first).
-    let mut pairs: Vec<(usize, usize)> = (0..of).flat_map(|j| (0..=j).map(move |i| (i, j))).collect();
-    let w = |i: usize| basis.omega2.get(i).copied().unwrap_or(1.0).abs().sqrt();
-    pairs.sort_by(|a, b| (w(a.0) * w(a.1)).total_cmp(&(w(b.0) * w(b.1))));
     let wanted = r_total.saturating_sub(r0);
 
     // Columns: the basis, then derivatives (scaled to unit max entry).
