@@ -501,7 +501,10 @@ fn write_outputs(
     write("cubic_precompute.csv", &s)?;
     let mut s = String::from("t_s,full_top_z_m");
     for (name, _) in series {
-        s.push_str(&format!(",{}_top_z_m", name.replace(' ', "_").replace('+', "")));
+        let col = name
+            .replace("modes+static", "modes_static")
+            .replace("+derivatives", "derivatives");
+        s.push_str(&format!(",{}_top_z_m", col.replace(' ', "_")));
     }
     s.push('\n');
     for (i, z) in full_top.iter().enumerate() {
