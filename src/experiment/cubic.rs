@@ -131,12 +131,11 @@ struct Setup {
     top: u32,
 }
 
+/// Top-node z per step, sampled fields, mean ms per step.
+type FullRun = (Vec<f64>, Vec<Vec<Vec3>>, f64);
+
 /// The full reference: top z per step and the fields every SAMPLE_EVERY steps.
-fn full_reference(
-    s: &Setup,
-    params: &DynamicsParams,
-    steps: usize,
-) -> Result<(Vec<f64>, Vec<Vec<Vec3>>, f64), ExperimentError> {
+fn full_reference(s: &Setup, params: &DynamicsParams, steps: usize) -> Result<FullRun, ExperimentError> {
     let per = Vec3::new(0.0, 0.0, -LOAD_N / s.patch.len() as f64);
     let loads = Loads {
         nodal: vec![NodalLoad {
