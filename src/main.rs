@@ -10,6 +10,7 @@ use std::process::ExitCode;
 #[global_allocator]
 static ALLOCATOR: nvtmm::rt::alloc::RtAllocator = nvtmm::rt::alloc::RtAllocator;
 
+mod cli_cubic;
 mod cli_mesh;
 mod cli_reduced;
 mod cli_run;
@@ -99,6 +100,15 @@ enum Command {
 
 #[derive(Subcommand)]
 enum ExperimentCmd {
+    /// Linear vs exact cubic reduced StVK: precompute, µs per step, accuracy against the full NVTMM under a large load (docs/RESULTS.md).
+    Cubic {
+        /// Output directory.
+        #[arg(long, default_value = "out/cubic")]
+        out: PathBuf,
+        /// 1458 nodes, r = 8 and 16 only, no 23k-node precompute rows.
+        #[arg(long)]
+        quick: bool,
+    },
     /// Reduced vs full contact force and displacement over r, and the region-of-interest trade (docs/RESULTS.md).
     Reduced {
         /// Output directory.
@@ -310,6 +320,7 @@ fn main() -> ExitCode {
             BenchCmd::Extremes { quick, json } => cli_sim::bench_extremes(quick, json),
         },
         Command::Experiment(e) => match e {
+            ExperimentCmd::Cubic { out, quick } => cli_cubic::experiment_cubic(&out, quick),
             ExperimentCmd::Reduced { out, quick } => cli_reduced::experiment_reduced(&out, quick),
             ExperimentCmd::Fig5 { out, quick } => cli_sim::experiment_fig5(&out, quick),
             ExperimentCmd::Table { out, quick } => cli_sim::experiment_table(&out, quick),

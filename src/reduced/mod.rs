@@ -10,6 +10,11 @@
 //!   matrices (const-generic capacity), factored once, with a `step` that
 //!   never allocates, for the 1 kHz loop.
 //!
+//! - [`cubic`]: the exact reduced StVK force and tangent as a cubic
+//!   polynomial in q (Barbič & James 2005), precomputed per basis, and
+//!   nonlinear implicit-Euler dynamics on it: an option for small r.
+//! - [`derivatives`]: modal derivatives, the basis enrichment the cubic
+//!   model needs at large deformation.
 //! - [`refresh`]: re-linearizing the full model at the background solve's
 //!   displacement in a fixed basis (K_r = ΦᵀK(ū)Φ) and the state transfer
 //!   the loop applies when it swaps models.
@@ -18,9 +23,12 @@
 
 pub mod basis;
 pub mod cache;
+pub mod cubic;
+pub mod derivatives;
 pub mod dynamics;
 pub mod refresh;
 
 pub use basis::{static_split, BasisParams, ModalBasis, ReducedError};
+pub use cubic::{CubicReducedDynamics, CubicStepError, CubicStvk};
 pub use dynamics::{basis_rows, BasisRows, DynamicsParams, NodeOutOfRange, ReducedDynamics};
 pub use refresh::Refresher;
