@@ -32,6 +32,27 @@ pub struct Percentiles {
     pub max: f64,
 }
 
+impl Percentiles {
+    /// Exact percentiles of a set of samples (nearest rank), for threads
+    /// that may allocate and whose times can exceed the histogram's range
+    /// (e.g. the background solve); zeros when empty.
+    pub fn of(samples: &[f64]) -> Percentiles {
+        let mut v: Vec<f64> = samples.iter().copied().filter(|x| x.is_finite()).collect();
+        v.sort_by(f64::total_cmp);
+        let at = |q: f64| {
+            v.get(((v.len() as f64 - 1.0) * q).round() as usize)
+                .copied()
+                .unwrap_or(0.0)
+        };
+        Percentiles {
+            p50: at(0.5),
+            p99: at(0.99),
+            p999: at(0.999),
+            max: v.last().copied().unwrap_or(0.0),
+        }
+    }
+}
+
 impl Default for Histogram {
     fn default() -> Self {
         Histogram::new()
@@ -144,6 +165,16 @@ impl Histogram {
 
 #[cfg(test)]
 mod tests {
+
+    #[test]
+    fn exact_percentiles_of_samples() {
+        let v: Vec<f64> = (1..=1000).map(|i| i as f64).collect();
+        let p = Percentiles::of(&v);
+        assert_eq!((p.p50, p.p99, p.p999, p.max), (501.0, 990.0, 999.0, 1000.0));
+        assert_eq!(Percentiles::of(&[]), Percentiles::default());
+        assert_eq!(Percentiles::of(&[f64::NAN, 3.0]).max, 3.0);
+    }
+
     use super::*;
 
     #[test]

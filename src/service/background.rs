@@ -22,7 +22,6 @@ use crate::model::BlockTangent;
 use crate::model::ForceModel;
 use crate::reduced::{basis_rows, BasisParams, BasisRows, DynamicsParams, ModalBasis, ReducedDynamics, Refresher};
 use crate::rt::clock;
-use crate::rt::stats::Histogram;
 use crate::solver::loads::{Loads, NodalLoad, TimeProfile};
 use crate::solver::{ImplicitEuler, TissueState};
 use nalgebra::{DMatrix, SMatrix, SVector};
@@ -196,9 +195,9 @@ pub struct BackgroundStats {
     /// Full steps that failed (state kept).
     pub failed_steps: u64,
     /// Wall time per full step (µs).
-    pub step_us: Histogram,
+    pub step_us: Vec<f64>,
     /// Wall time per linearization refresh (µs).
-    pub refresh_us: Histogram,
+    pub refresh_us: Vec<f64>,
     /// Refreshes that could not build a model (e.g. K_r not positive definite).
     pub refresh_failures: u64,
     /// Models pushed to the loop.
@@ -424,7 +423,7 @@ pub fn run<const R: usize>(mut bg: Background<R>, mut io: BackgroundIo<R>) -> Ba
             stats.failed_steps += 1;
         }
         let t1 = clock::now_ns();
-        stats.step_us.record((t1 - t0) as f64 * 1e-3);
+        stats.step_us.push((t1 - t0) as f64 * 1e-3);
 
         // A new basis from the basis thread: install it; the next model
         // carries the state over from the last sent model's basis.
@@ -501,7 +500,7 @@ pub fn run<const R: usize>(mut bg: Background<R>, mut io: BackgroundIo<R>) -> Ba
                 }
             }
         }
-        stats.refresh_us.record((clock::now_ns() - t1) as f64 * 1e-3);
+        stats.refresh_us.push((clock::now_ns() - t1) as f64 * 1e-3);
         while let Ok(old) = io.returned.pop() {
             drop(old);
             stats.models_freed += 1;

@@ -803,25 +803,9 @@ fn ring_report(capacity: usize, policy: &'static str, overflows: u64) -> RingRep
     }
 }
 
-/// Median and maximum of a few durations (s); zeros when empty.
-fn seconds_summary(v: &[f64]) -> Percentiles {
-    let mut v = v.to_vec();
-    v.sort_by(f64::total_cmp);
-    let at = |q: f64| {
-        v.get(((v.len() as f64 - 1.0) * q).round() as usize)
-            .copied()
-            .unwrap_or(0.0)
-    };
-    Percentiles {
-        p50: at(0.5),
-        p99: at(0.99),
-        p999: at(0.999),
-        max: v.last().copied().unwrap_or(0.0),
-    }
-}
-
-fn ms(h: &Histogram) -> Percentiles {
-    let p = h.percentiles();
+/// Exact percentiles (ms) of samples in µs.
+fn ms_of(us: &[f64]) -> Percentiles {
+    let p = Percentiles::of(us);
     Percentiles {
         p50: p.p50 * 1e-3,
         p99: p.p99 * 1e-3,
@@ -1164,8 +1148,8 @@ fn run_with<const R: usize>(p: Prepared, progress: bool) -> Result<Report, Servi
             enabled: true,
             steps: b.steps,
             failed_steps: b.failed_steps,
-            step_ms: ms(&b.step_us),
-            refresh_ms: ms(&b.refresh_us),
+            step_ms: ms_of(&b.step_us),
+            refresh_ms: ms_of(&b.refresh_us),
             refresh_hz: b.models_sent as f64 / b.wall_s.max(1e-9),
             real_time_factor: b.sim_time_s / b.wall_s.max(1e-9),
             max_displacement_m: b.max_displacement_m,
@@ -1174,7 +1158,7 @@ fn run_with<const R: usize>(p: Prepared, progress: bool) -> Result<Report, Servi
             basis_recomputed: basis_stats.recomputed,
             basis_failures: basis_stats.failures,
             basis_swaps: b.basis_swaps_sent,
-            basis_recompute_s: seconds_summary(&basis_stats.seconds),
+            basis_recompute_s: Percentiles::of(&basis_stats.seconds),
             basis_iterations: basis_stats.iterations.clone(),
         },
         None => BackgroundReport::default(),
