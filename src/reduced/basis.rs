@@ -257,16 +257,7 @@ impl ModalBasis {
         warm: Option<&ModalBasis>,
         params: &BasisParams,
     ) -> Result<ModalBasis, ReducedError> {
-        let n = mesh.num_nodes();
-        if u.len() != n {
-            return Err(ReducedError::SizeMismatch {
-                what: "the displacement",
-                got: u.len(),
-                expected: n,
-            });
-        }
-        let mut k = BlockTangent::zeros(mesh);
-        model.add_stiffness(u, &mut k);
+        let k = tangent_at(mesh, model, u)?;
         ModalBasis::compute_contact_from_tangent(&k, mass, fixed, r_total, contact, max_static, warm, params)
     }
 
@@ -378,6 +369,12 @@ fn compute_inner(
     warm: Option<&ModalBasis>,
     params: &BasisParams,
 ) -> Result<ModalBasis, ReducedError> {
+    let k = tangent_at(mesh, model, u)?;
+    compute_from_tangent(&k, mass, fixed, r, contact, max_static, warm, params)
+}
+
+/// The tangent K(u) of `model`, after checking u's length.
+fn tangent_at(mesh: &TetMesh, model: &dyn ForceModel, u: &[Vec3]) -> Result<BlockTangent, ReducedError> {
     let n = mesh.num_nodes();
     if u.len() != n {
         return Err(ReducedError::SizeMismatch {
@@ -388,7 +385,7 @@ fn compute_inner(
     }
     let mut k = BlockTangent::zeros(mesh);
     model.add_stiffness(u, &mut k);
-    compute_from_tangent(&k, mass, fixed, r, contact, max_static, warm, params)
+    Ok(k)
 }
 
 /// [`compute_inner`] on an assembled tangent.
