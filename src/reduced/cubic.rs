@@ -725,22 +725,17 @@ impl<const R: usize> CubicReducedDynamics<R> {
 
     /// Φᵀ f for forces on a few nodes, from those nodes' rows of Φ only.
     pub fn project_nodal(&self, loads: &[(u32, Vec3)]) -> Result<SVector<f64, R>, NodeOutOfRange> {
-        let mut out = SVector::<f64, R>::zeros();
-        for &(node, f) in loads {
-            let row = self.rows.get(node as usize).ok_or(NodeOutOfRange(node))?;
-            out += row.tr_mul(&f);
-        }
-        Ok(out)
+        super::dynamics::project_on_rows(&self.rows, loads)
     }
 
     /// Displacement Φ q at one node (None if the node is not in the mesh).
     pub fn displacement_at(&self, node: u32) -> Option<Vec3> {
-        self.rows.get(node as usize).map(|row| row * self.q)
+        super::dynamics::rows_times(&self.rows, node, &self.q)
     }
 
     /// Velocity Φ q̇ at one node (None if the node is not in the mesh).
     pub fn velocity_at(&self, node: u32) -> Option<Vec3> {
-        self.rows.get(node as usize).map(|row| row * self.qd)
+        super::dynamics::rows_times(&self.rows, node, &self.qd)
     }
 
     /// Reduced coordinates q.

@@ -64,6 +64,24 @@ pub fn basis_rows<const R: usize>(basis: &ModalBasis) -> Result<BasisRows<R>, Re
     Ok(Arc::new(rows))
 }
 
+/// Φᵀ f for forces on a few nodes, from those nodes' rows of Φ only.
+pub(crate) fn project_on_rows<const R: usize>(
+    rows: &[SMatrix<f64, 3, R>],
+    loads: &[(u32, Vec3)],
+) -> Result<SVector<f64, R>, NodeOutOfRange> {
+    let mut out = SVector::<f64, R>::zeros();
+    for &(node, f) in loads {
+        let row = rows.get(node as usize).ok_or(NodeOutOfRange(node))?;
+        out += row.tr_mul(&f);
+    }
+    Ok(out)
+}
+
+/// Φ v at one node from its rows (None if the node is not in the mesh).
+pub(crate) fn rows_times<const R: usize>(rows: &[SMatrix<f64, 3, R>], node: u32, v: &SVector<f64, R>) -> Option<Vec3> {
+    rows.get(node as usize).map(|row| row * v)
+}
+
 /// Time step and Rayleigh damping of the reduced model.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct DynamicsParams {
@@ -361,22 +379,17 @@ impl<const R: usize> ReducedDynamics<R> {
 
     /// Φᵀ f for forces on a few nodes, from those nodes' rows of Φ only.
     pub fn project_nodal(&self, loads: &[(u32, Vec3)]) -> Result<SVector<f64, R>, NodeOutOfRange> {
-        let mut out = SVector::<f64, R>::zeros();
-        for &(node, f) in loads {
-            let row = self.rows.get(node as usize).ok_or(NodeOutOfRange(node))?;
-            out += row.tr_mul(&f);
-        }
-        Ok(out)
+        project_on_rows(&self.rows, loads)
     }
 
     /// Displacement Φ q at one node (None if the node is not in the mesh).
     pub fn displacement_at(&self, node: u32) -> Option<Vec3> {
-        self.rows.get(node as usize).map(|row| row * self.q)
+        rows_times(&self.rows, node, &self.q)
     }
 
     /// Velocity Φ q̇ at one node (None if the node is not in the mesh).
     pub fn velocity_at(&self, node: u32) -> Option<Vec3> {
-        self.rows.get(node as usize).map(|row| row * self.qd)
+        rows_times(&self.rows, node, &self.qd)
     }
 
     /// The static reduced response: q solving K_r q = f on the active
