@@ -564,8 +564,9 @@ fn precond_name(p: Preconditioner) -> &'static str {
     }
 }
 
-/// Parses `cholesky` or `cg-<precond>` (precond: none, jacobi, block_jacobi,
-/// block_ssor) into the standard benchmark's linear solver.
+/// Parses `cholesky`, `cholesky-pcg[:N]` or `cg-<precond>` (precond: none,
+/// jacobi, block_jacobi, block_ssor, block_ic0) into the standard
+/// benchmark's linear solver.
 pub fn parse_linear(s: &str) -> Result<LinearSolverKind, String> {
     let precond = match s {
         "cholesky" => return Ok(LinearSolverKind::Cholesky),
@@ -596,7 +597,7 @@ pub fn parse_linear(s: &str) -> Result<LinearSolverKind, String> {
         "cg-block_ic0" => Preconditioner::BlockIc0,
         _ => {
             return Err(format!(
-                "--linear {s}: allowed cholesky, cg-none, cg-jacobi, cg-block_jacobi, cg-block_ssor, cg-block_ic0"
+                "--linear {s}: allowed cholesky, cholesky-pcg[:N], cg-none, cg-jacobi, cg-block_jacobi, cg-block_ssor, cg-block_ic0"
             ))
         }
     };
