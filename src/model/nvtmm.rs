@@ -302,15 +302,10 @@ impl Nvtmm {
     /// w = 𝒞u + 2𝔇s, per pair.
     fn pair_weights(&self, u: &[Vec3], s: &[f64], w: &mut [f64]) {
         w.par_iter_mut().enumerate().for_each(|(p, w)| {
-            let mut acc = 0.0;
-            for i in self.c_ptr[p] as usize..self.c_ptr[p + 1] as usize {
-                acc += self.c_val[i].dot(&u[self.c_col[i] as usize]);
-            }
-            let mut lam = 0.0;
-            for i in self.d_ptr[p] as usize..self.d_ptr[p + 1] as usize {
-                lam += self.d_val[i] * s[self.d_col[i] as usize];
-            }
-            *w = acc + 2.0 * lam;
+            let (cs, ce) = (self.c_ptr[p] as usize, self.c_ptr[p + 1] as usize);
+            let (ds, de) = (self.d_ptr[p] as usize, self.d_ptr[p + 1] as usize);
+            *w = dot3_gather(&self.c_val[cs..ce], &self.c_col[cs..ce], u)
+                + 2.0 * dot_gather(&self.d_val[ds..de], &self.d_col[ds..de], s);
         });
     }
 
@@ -328,12 +323,8 @@ impl Nvtmm {
     /// (also used with δ-quantities by linearity, see `add_df`).
     fn gradient_from(&self, u: &[Vec3], s: &[f64], w: &[f64], grad: &mut [Vec3]) {
         grad.par_iter_mut().enumerate().for_each(|(r, g)| {
-            let mut acc = Vec3::zeros();
-            for i in self.ct_ptr[r] as usize..self.ct_ptr[r + 1] as usize {
-                acc += self.ct_val[i] * s[self.ct_pair[i] as usize];
-            }
-            acc += u[r] * (2.0 * w[r]);
-            *g = acc;
+            let (a, b) = (self.ct_ptr[r] as usize, self.ct_ptr[r + 1] as usize);
+            *g = axpy3_gather(&self.ct_val[a..b], &self.ct_pair[a..b], s) + u[r] * (2.0 * w[r]);
         });
         // Edge terms and K₀u: scatter (cheap, sequential).
         self.k0.mul_add(u, grad);
@@ -344,6 +335,64 @@ impl Nvtmm {
             grad[b] += u[a] * we;
         }
     }
+}
+
+// The sparse rows below are short (≈ 20 entries); one accumulator would make
+// each product wait for the previous one (a 4-cycle FMA latency chain), so
+// they keep four independent partial sums. The summation order is fixed, so
+// results stay deterministic.
+
+/// Σ_i v_i x[c_i].
+#[inline]
+fn dot_gather(v: &[f64], c: &[u32], x: &[f64]) -> f64 {
+    let mut a = [0.0f64; 4];
+    let (vc, cc) = (v.chunks_exact(4), c.chunks_exact(4));
+    let (vr, cr) = (vc.remainder(), cc.remainder());
+    for (v, c) in vc.zip(cc) {
+        for k in 0..4 {
+            a[k] += v[k] * x[c[k] as usize];
+        }
+    }
+    let mut r = (a[0] + a[1]) + (a[2] + a[3]);
+    for (v, c) in vr.iter().zip(cr) {
+        r += v * x[*c as usize];
+    }
+    r
+}
+
+/// Σ_i v_i · x[c_i] (3-vectors).
+#[inline]
+fn dot3_gather(v: &[Vec3], c: &[u32], x: &[Vec3]) -> f64 {
+    let mut a = [0.0f64; 4];
+    let (vc, cc) = (v.chunks_exact(4), c.chunks_exact(4));
+    let (vr, cr) = (vc.remainder(), cc.remainder());
+    for (v, c) in vc.zip(cc) {
+        for k in 0..4 {
+            a[k] += v[k].dot(&x[c[k] as usize]);
+        }
+    }
+    let mut r = (a[0] + a[1]) + (a[2] + a[3]);
+    for (v, c) in vr.iter().zip(cr) {
+        r += v.dot(&x[*c as usize]);
+    }
+    r
+}
+
+/// Σ_i v_i x[c_i] (3-vectors scaled by scalars).
+#[inline]
+fn axpy3_gather(v: &[Vec3], c: &[u32], x: &[f64]) -> Vec3 {
+    let mut a = [Vec3::zeros(); 2];
+    let (vc, cc) = (v.chunks_exact(2), c.chunks_exact(2));
+    let (vr, cr) = (vc.remainder(), cc.remainder());
+    for (v, c) in vc.zip(cc) {
+        a[0] += v[0] * x[c[0] as usize];
+        a[1] += v[1] * x[c[1] as usize];
+    }
+    let mut r = a[0] + a[1];
+    for (v, c) in vr.iter().zip(cr) {
+        r += v * x[*c as usize];
+    }
+    r
 }
 
 /// Merges sorted (row, col, value) triplets into CSR, summing duplicates.
@@ -398,12 +447,10 @@ impl ForceModel for Nvtmm {
         // counted twice; assemble directly instead.
         let mut dgrad = vec![Vec3::zeros(); self.n];
         dgrad.par_iter_mut().enumerate().for_each(|(r, g)| {
-            let mut acc = Vec3::zeros();
-            for i in self.ct_ptr[r] as usize..self.ct_ptr[r + 1] as usize {
-                acc += self.ct_val[i] * ds[self.ct_pair[i] as usize];
-            }
-            acc += u[r] * (2.0 * dw[r]) + du[r] * (2.0 * w[r]);
-            *g = acc;
+            let (a, b) = (self.ct_ptr[r] as usize, self.ct_ptr[r + 1] as usize);
+            *g = axpy3_gather(&self.ct_val[a..b], &self.ct_pair[a..b], &ds)
+                + u[r] * (2.0 * dw[r])
+                + du[r] * (2.0 * w[r]);
         });
         self.k0.mul_add(du, &mut dgrad);
         for (e, &[a, b]) in self.edges.iter().enumerate() {
