@@ -550,7 +550,11 @@ pub fn linear_name(l: &LinearSolverKind) -> String {
     match l {
         LinearSolverKind::Cg { precond, .. } => format!("cg-{}", precond_name(*precond)),
         LinearSolverKind::Cholesky => "cholesky".into(),
-        LinearSolverKind::CholeskyPcg { refactor_every, .. } => format!("cholesky-pcg:{refactor_every}"),
+        LinearSolverKind::CholeskyPcg {
+            refactor_every,
+            factor_f32,
+            ..
+        } => format!("cholesky-pcg{}:{refactor_every}", if *factor_f32 { "32" } else { "" }),
     }
 }
 
@@ -564,19 +568,23 @@ fn precond_name(p: Preconditioner) -> &'static str {
     }
 }
 
-/// Parses `cholesky`, `cholesky-pcg[:N]` or `cg-<precond>` (precond: none,
-/// jacobi, block_jacobi, block_ssor, block_ic0) into the standard
-/// benchmark's linear solver.
+/// Parses `cholesky`, `cholesky-pcg[:N]`, `cholesky-pcg32[:N]` (factor in
+/// `f32`) or `cg-<precond>` (precond: none, jacobi, block_jacobi,
+/// block_ssor, block_ic0) into the standard benchmark's linear solver.
 pub fn parse_linear(s: &str) -> Result<LinearSolverKind, String> {
     let precond = match s {
         "cholesky" => return Ok(LinearSolverKind::Cholesky),
         s if s.starts_with("cholesky-pcg") => {
-            let every = match s.strip_prefix("cholesky-pcg").unwrap_or("") {
+            let rest = s.strip_prefix("cholesky-pcg").unwrap_or("");
+            let (factor_f32, rest) = match rest.strip_prefix("32") {
+                Some(r) => (true, r),
+                None => (false, rest),
+            };
+            let every = match rest {
                 "" => 10,
-                k => k
-                    .strip_prefix(':')
-                    .and_then(|k| k.parse().ok())
-                    .ok_or_else(|| format!("--linear {s}: expected cholesky-pcg or cholesky-pcg:N"))?,
+                k => k.strip_prefix(':').and_then(|k| k.parse().ok()).ok_or_else(|| {
+                    format!("--linear {s}: expected cholesky-pcg[32] or cholesky-pcg[32]:N (N ≥ 1)")
+                })?,
             };
             let tol = match standard_params().linear {
                 LinearSolverKind::Cg { tol, .. } => tol,
@@ -586,6 +594,7 @@ pub fn parse_linear(s: &str) -> Result<LinearSolverKind, String> {
                 tol,
                 max_iter: 30,
                 refactor_every: every,
+                factor_f32,
             };
             kind.validate()?;
             return Ok(kind);
@@ -597,7 +606,7 @@ pub fn parse_linear(s: &str) -> Result<LinearSolverKind, String> {
         "cg-block_ic0" => Preconditioner::BlockIc0,
         _ => {
             return Err(format!(
-                "--linear {s}: allowed cholesky, cholesky-pcg[:N], cg-none, cg-jacobi, cg-block_jacobi, cg-block_ssor, cg-block_ic0"
+                "--linear {s}: allowed cholesky, cholesky-pcg[:N], cholesky-pcg32[:N], cg-none, cg-jacobi, cg-block_jacobi, cg-block_ssor, cg-block_ic0"
             ))
         }
     };

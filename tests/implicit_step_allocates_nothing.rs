@@ -47,11 +47,14 @@ fn implicit_step_allocates_nothing() {
     })
     .collect();
     kinds.push(LinearSolverKind::Cholesky);
-    kinds.push(LinearSolverKind::CholeskyPcg {
-        tol: 1e-10,
-        max_iter: 30,
-        refactor_every: 3,
-    });
+    for factor_f32 in [false, true] {
+        kinds.push(LinearSolverKind::CholeskyPcg {
+            tol: 1e-10,
+            max_iter: 30,
+            refactor_every: 3,
+            factor_f32,
+        });
+    }
     // Each solver with exact Newton and with the lagged tangent.
     let cases: Vec<(LinearSolverKind, usize)> = kinds.iter().flat_map(|&l| [(l, 1), (l, 3)]).collect();
     for (linear, stiffness_every) in cases {

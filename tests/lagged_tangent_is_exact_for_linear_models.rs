@@ -66,8 +66,20 @@ fn lagged_tangent_is_exact_for_linear_models() {
         tol: 1e-12,
         max_iter: 30,
         refactor_every: 4,
+        factor_f32: false,
     };
-    for (linear, tol) in [(LinearSolverKind::Cholesky, 1e-10), (cg, 1e-8), (cpcg, 1e-8)] {
+    let cpcg32 = LinearSolverKind::CholeskyPcg {
+        tol: 1e-12,
+        max_iter: 30,
+        refactor_every: 4,
+        factor_f32: true,
+    };
+    for (linear, tol) in [
+        (LinearSolverKind::Cholesky, 1e-10),
+        (cg, 1e-8),
+        (cpcg, 1e-8),
+        (cpcg32, 1e-8),
+    ] {
         let exact = run(linear, 1);
         for every in [2, 7, 1000] {
             let lagged = run(linear, every);

@@ -3,7 +3,7 @@
 # of 10 ms (the service's background step) of the 5832-node arch with the
 # service scene's material, Prony term and supports, and a 0.12 N force at
 # the arch top varying as a 2 Hz sine. Prints ms/step and median CG
-# iterations per solver. Usage: tools/bench_background_solver.sh [NODES]
+# iterations per solver. Usage: [SOLVERS="a b"] tools/bench_background_solver.sh [NODES]
 set -euo pipefail
 nodes="${1:-5832}"
 cd "$(dirname "$0")/.."
@@ -15,11 +15,12 @@ declare -A solvers=(
   [cg_block_ic0]='kind = "cg", precond = "block_ic0", tol = 1e-6, max_iter = 500'
   [cholesky]='kind = "cholesky"'
   [cholesky_pcg_k3]='kind = "cholesky_pcg", tol = 1e-6, max_iter = 15, refactor_every = 3'
+  [cholesky_pcg32_k3]='kind = "cholesky_pcg", tol = 1e-6, max_iter = 15, refactor_every = 3, factor_f32 = true'
   [cholesky_pcg_k8]='kind = "cholesky_pcg", tol = 1e-6, max_iter = 15, refactor_every = 8'
   [cholesky_pcg_lagged]='kind = "cholesky_pcg", tol = 1e-6, max_iter = 15, refactor_every = 100000'
 )
 echo "nodes=$nodes $(date -u +%FT%TZ) $(uptime | sed 's/.*load/load/')"
-for name in cg_block_ic0 cholesky cholesky_pcg_k3 cholesky_pcg_k8 cholesky_pcg_lagged; do
+for name in ${SOLVERS:-cg_block_ic0 cholesky cholesky_pcg_k3 cholesky_pcg32_k3 cholesky_pcg_k8 cholesky_pcg_lagged}; do
   cat > "$dir/$name.toml" <<TOML
 model = "nvtmm"
 duration = 1.0

@@ -110,6 +110,12 @@ pub enum LinearSolverKind {
         /// followed by a residual check).
         #[serde(default = "default_refactor_every")]
         refactor_every: usize,
+        /// Keep the factor in single precision (`f32`): it only
+        /// preconditions, so the solve still reaches `tol` in `f64`, and
+        /// the factorization and triangular solves move half the memory
+        /// (1.3–1.5× faster at 23k nodes; `docs/SOLVERS.md`).
+        #[serde(default)]
+        factor_f32: bool,
     },
 }
 
@@ -128,6 +134,7 @@ impl LinearSolverKind {
             tol,
             max_iter,
             refactor_every,
+            ..
         } = *self
         {
             if !(tol.is_finite() && tol > 0.0 && tol < 1.0) {
@@ -605,21 +612,53 @@ impl Cg {
 /// factor values and all scratch memory are built once for the pattern;
 /// [`CholeskySolver::solve`] refills the values, refactors and solves
 /// without allocating.
-pub struct CholeskySolver {
+pub struct CholeskySolver<T: FactorScalar = f64> {
     rows: BlockRows,
     col_ptr: Vec<usize>,
     row_idx: Vec<usize>,
-    values: Vec<f64>,
+    values: Vec<T>,
     symbolic: SymbolicCholesky<usize>,
-    l_values: Vec<f64>,
-    rhs: Vec<f64>,
+    l_values: Vec<T>,
+    rhs: Vec<T>,
     scratch: MemBuffer,
     par: Par,
     /// Whether `l_values` holds a valid factor.
     factored: bool,
 }
 
-impl std::fmt::Debug for CholeskySolver {
+/// Scalar of a Cholesky factor: `f64`, or `f32` for a factor used only as
+/// a preconditioner (half the memory traffic; the CG around it still
+/// iterates in `f64`).
+pub trait FactorScalar: faer::traits::RealField + Copy + Send + Sync + 'static {
+    /// Rounds an `f64` to this type.
+    fn of_f64(x: f64) -> Self;
+    /// Widens to `f64`.
+    fn to_f64(self) -> f64;
+    /// Whether the value is finite.
+    fn finite(self) -> bool {
+        self.to_f64().is_finite()
+    }
+}
+
+impl FactorScalar for f64 {
+    fn of_f64(x: f64) -> f64 {
+        x
+    }
+    fn to_f64(self) -> f64 {
+        self
+    }
+}
+
+impl FactorScalar for f32 {
+    fn of_f64(x: f64) -> f32 {
+        x as f32
+    }
+    fn to_f64(self) -> f64 {
+        self as f64
+    }
+}
+
+impl<T: FactorScalar> std::fmt::Debug for CholeskySolver<T> {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         f.debug_struct("CholeskySolver")
             .field("dofs", &self.rhs.len())
@@ -629,9 +668,17 @@ impl std::fmt::Debug for CholeskySolver {
     }
 }
 
-impl CholeskySolver {
+impl CholeskySolver<f64> {
+    /// Symbolic analysis for matrices with the pattern of `pattern`, for an
+    /// `f64` factor ([`CholeskySolver::for_pattern`] picks the scalar).
+    pub fn new(pattern: &BlockTangent) -> Result<CholeskySolver<f64>, String> {
+        CholeskySolver::for_pattern(pattern)
+    }
+}
+
+impl<T: FactorScalar> CholeskySolver<T> {
     /// Symbolic analysis for matrices with the pattern of `pattern`.
-    pub fn new(pattern: &BlockTangent) -> Result<CholeskySolver, String> {
+    pub fn for_pattern(pattern: &BlockTangent) -> Result<CholeskySolver<T>, String> {
         let n = pattern.num_nodes();
         let rows = BlockRows::new(n, &pattern.edges);
         let dofs = 3 * n;
@@ -654,7 +701,7 @@ impl CholeskySolver {
                 col_ptr.push(row_idx.len());
             }
         }
-        let values = vec![0.0; row_idx.len()];
+        let values = vec![T::of_f64(0.0); row_idx.len()];
         let sym = SymbolicSparseColMatRef::new_checked(dofs, dofs, &col_ptr, None, &row_idx);
         let symbolic = factorize_symbolic_cholesky(
             sym,
@@ -667,13 +714,13 @@ impl CholeskySolver {
         // Sized for both the sequential and the rayon path (`set_par`).
         let rayon = Par::rayon(0);
         let req = StackReq::any_of(&[
-            symbolic.factorize_numeric_llt_scratch::<f64>(par, Default::default()),
-            symbolic.solve_in_place_scratch::<f64>(1, par),
-            symbolic.factorize_numeric_llt_scratch::<f64>(rayon, Default::default()),
-            symbolic.solve_in_place_scratch::<f64>(1, rayon),
+            symbolic.factorize_numeric_llt_scratch::<T>(par, Default::default()),
+            symbolic.solve_in_place_scratch::<T>(1, par),
+            symbolic.factorize_numeric_llt_scratch::<T>(rayon, Default::default()),
+            symbolic.solve_in_place_scratch::<T>(1, rayon),
         ]);
         let scratch = MemBuffer::try_new(req).map_err(|_| "sparse Cholesky: out of memory for scratch".to_string())?;
-        let l_values = vec![0.0; symbolic.len_val()];
+        let l_values = vec![T::of_f64(0.0); symbolic.len_val()];
         Ok(CholeskySolver {
             rows,
             col_ptr,
@@ -681,7 +728,7 @@ impl CholeskySolver {
             values,
             symbolic,
             l_values,
-            rhs: vec![0.0; dofs],
+            rhs: vec![T::of_f64(0.0); dofs],
             scratch,
             par,
             factored: false,
@@ -706,14 +753,14 @@ impl CholeskySolver {
             let (_, hi) = self.rows.split(i);
             for c in 0..3 {
                 for r in c..3 {
-                    self.values[k] = d[(r, c)];
+                    self.values[k] = T::of_f64(d[(r, c)]);
                     k += 1;
                 }
                 for &(_, e) in hi {
                     // Block (b, a) = off[e]ᵀ, so entry (r, c) is off[e][(c, r)].
                     let o = &a.off[e as usize];
                     for r in 0..3 {
-                        self.values[k] = o[(c, r)];
+                        self.values[k] = T::of_f64(o[(c, r)]);
                         k += 1;
                     }
                 }
@@ -731,7 +778,7 @@ impl CholeskySolver {
     pub fn factor(&mut self, a: &BlockTangent) -> Result<(), LinearFailure> {
         self.factored = false;
         self.fill(a);
-        if self.values.iter().any(|v| !v.is_finite()) {
+        if self.values.iter().any(|v| !v.finite()) {
             return Err(LinearFailure::NonFinite);
         }
         let dofs = self.rhs.len();
@@ -739,7 +786,7 @@ impl CholeskySolver {
         let mat = SparseColMatRef::new(sym, &self.values);
         let stack = MemStack::new(&mut self.scratch);
         self.symbolic
-            .factorize_numeric_llt::<f64>(
+            .factorize_numeric_llt::<T>(
                 &mut self.l_values,
                 mat,
                 Side::Lower,
@@ -761,16 +808,22 @@ impl CholeskySolver {
         }
         let dofs = self.rhs.len();
         for (i, bi) in b.iter().enumerate() {
-            self.rhs[3 * i..3 * i + 3].copy_from_slice(bi.as_slice());
+            for c in 0..3 {
+                self.rhs[3 * i + c] = T::of_f64(bi[c]);
+            }
         }
         let llt = LltRef::new(&self.symbolic, &self.l_values);
         let rhs = MatMut::from_column_major_slice_mut(&mut self.rhs, dofs, 1);
         llt.solve_in_place_with_conj(Conj::No, rhs, self.par, MemStack::new(&mut self.scratch));
-        if self.rhs.iter().any(|v| !v.is_finite()) {
+        if self.rhs.iter().any(|v| !v.finite()) {
             return Err(LinearFailure::NonFinite);
         }
         for (i, xi) in x.iter_mut().enumerate() {
-            *xi = Vec3::new(self.rhs[3 * i], self.rhs[3 * i + 1], self.rhs[3 * i + 2]);
+            *xi = Vec3::new(
+                self.rhs[3 * i].to_f64(),
+                self.rhs[3 * i + 1].to_f64(),
+                self.rhs[3 * i + 2].to_f64(),
+            );
         }
         Ok(SolveStats {
             iters: 0,
@@ -784,7 +837,7 @@ impl CholeskySolver {
 /// ([`LinearSolverKind::CholeskyPcg`]).
 #[derive(Debug)]
 pub struct CholeskyPcg {
-    chol: CholeskySolver,
+    chol: PcgFactor,
     tol: f64,
     max_iter: usize,
     refactor_every: usize,
@@ -796,17 +849,63 @@ pub struct CholeskyPcg {
     q: Vec<Vec3>,
 }
 
+/// The preconditioning factor of [`CholeskyPcg`], in either precision.
+#[derive(Debug)]
+enum PcgFactor {
+    F64(CholeskySolver<f64>),
+    F32(CholeskySolver<f32>),
+}
+
+impl PcgFactor {
+    /// Factors `a`. An `f32` factorization that meets a non-positive pivot
+    /// (A too ill-conditioned for single precision) switches this solver to
+    /// `f64` for good — one allocation, on the solver's own thread — so it
+    /// fails only where the `f64` factor fails too.
+    fn factor(&mut self, a: &BlockTangent) -> Result<(), LinearFailure> {
+        match self {
+            PcgFactor::F64(c) => c.factor(a),
+            PcgFactor::F32(c) => match c.factor(a) {
+                Err(LinearFailure::NotPositiveDefinite) => {
+                    let mut wide = CholeskySolver::new(a).map_err(|_| LinearFailure::NotPositiveDefinite)?;
+                    let out = wide.factor(a);
+                    *self = PcgFactor::F64(wide);
+                    out
+                }
+                other => other,
+            },
+        }
+    }
+
+    fn is_f32(&self) -> bool {
+        matches!(self, PcgFactor::F32(_))
+    }
+
+    fn solve_factored(&mut self, b: &[Vec3], x: &mut [Vec3]) -> Result<SolveStats, LinearFailure> {
+        match self {
+            PcgFactor::F64(c) => c.solve_factored(b, x),
+            PcgFactor::F32(c) => c.solve_factored(b, x),
+        }
+    }
+}
+
 impl CholeskyPcg {
-    /// Symbolic analysis for matrices with the pattern of `pattern`.
+    /// Symbolic analysis for matrices with the pattern of `pattern`; the
+    /// factor is kept in `f32` when `factor_f32`.
     pub fn new(
         pattern: &BlockTangent,
         tol: f64,
         max_iter: usize,
         refactor_every: usize,
+        factor_f32: bool,
     ) -> Result<CholeskyPcg, String> {
         let n = pattern.num_nodes();
+        let chol = if factor_f32 {
+            PcgFactor::F32(CholeskySolver::for_pattern(pattern)?)
+        } else {
+            PcgFactor::F64(CholeskySolver::new(pattern)?)
+        };
         Ok(CholeskyPcg {
-            chol: CholeskySolver::new(pattern)?,
+            chol,
             tol,
             max_iter,
             refactor_every,
@@ -816,6 +915,11 @@ impl CholeskyPcg {
             p: vec![Vec3::zeros(); n],
             q: vec![Vec3::zeros(); n],
         })
+    }
+
+    /// Whether the factor is held in `f32` (false after a fallback to `f64`).
+    pub fn factor_is_f32(&self) -> bool {
+        self.chol.is_f32()
     }
 
     /// Factors `a` now (the next solves use this factor).
@@ -951,7 +1055,14 @@ impl LinearSolver {
                 tol,
                 max_iter,
                 refactor_every,
-            } => LinearSolver::CholeskyPcg(Box::new(CholeskyPcg::new(pattern, tol, max_iter, refactor_every)?)),
+                factor_f32,
+            } => LinearSolver::CholeskyPcg(Box::new(CholeskyPcg::new(
+                pattern,
+                tol,
+                max_iter,
+                refactor_every,
+                factor_f32,
+            )?)),
         })
     }
 
@@ -1014,6 +1125,29 @@ fn rhs_norm(b: &[Vec3], x: &mut [Vec3]) -> Result<f64, Result<SolveStats, Linear
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn f32_factor_falls_back_to_f64_when_single_precision_is_singular() {
+        // Two nodes coupled by 1 − 1e-10: SPD in f64 (smallest eigenvalue
+        // 1e-10), exactly singular once rounded to f32.
+        let c = 1.0 - 1e-10;
+        let a = BlockTangent {
+            diag: vec![Mat3::identity(); 2],
+            off: vec![Mat3::identity() * c],
+            edges: vec![[0, 1]],
+        };
+        let mut pcg = CholeskyPcg::new(&a, 1e-10, 30, 3, true).unwrap();
+        assert!(pcg.factor_is_f32());
+        let b = vec![Vec3::new(1.0, 2.0, 3.0), Vec3::new(1.0, 2.0, 3.0 + 1e-6)];
+        let mut x = vec![Vec3::zeros(); 2];
+        let stats = pcg.solve(&a, &b, &mut x).unwrap();
+        assert!(!pcg.factor_is_f32());
+        assert!(stats.converged);
+        let mut ax = vec![Vec3::zeros(); 2];
+        a.mul(&x, &mut ax);
+        let err: f64 = ax.iter().zip(&b).map(|(p, q)| (p - q).norm()).sum();
+        assert!(err < 1e-8, "residual {err:e}");
+    }
 
     /// A symmetric, diagonally dominant block matrix on an irregular pattern
     /// over more nodes than one rayon chunk.
