@@ -1,9 +1,10 @@
 #!/usr/bin/env bash
 # The full implicit step table of docs/BENCHMARKS.md: `nvtmm bench step` for
 # MSM, TMM, NVTMM and FEM (StVK) on the 1458 / 5832 / 23328-node arch under
-# the standard load, with three solver settings each:
+# the standard load, with four solver settings each:
 #   exact    --linear cholesky         --stiffness-every 1   (sparse Cholesky every step)
 #   pcg3     --linear cholesky-pcg:3   --stiffness-every 1   (exact; CG on a factor refreshed every 3 solves)
+#   pcg32_3  --linear cholesky-pcg32:3 --stiffness-every 1   (exact; the same with the factor in f32)
 #   lag10    --linear cholesky         --stiffness-every 10  (approximate: lagged tangent)
 # Prints one JSON line per run, then a Markdown table.
 # Usage: tools/bench_step.sh [SIZES...]   (default: 1458 5832 23328)
@@ -23,10 +24,11 @@ for n in "${sizes[@]}"; do
     *) steps=10 ;;
   esac
   for model in msm tmm nvtmm fem; do
-    for setting in exact pcg3 lag10; do
+    for setting in exact pcg3 pcg32_3 lag10; do
       case $setting in
         exact) args=(--linear cholesky --stiffness-every 1) ;;
         pcg3) args=(--linear cholesky-pcg:3 --stiffness-every 1) ;;
+        pcg32_3) args=(--linear cholesky-pcg32:3 --stiffness-every 1) ;;
         lag10) args=(--linear cholesky --stiffness-every 10) ;;
       esac
       if line=$("$bin" bench step --model "$model" --nodes "$n" --steps "$steps" "${args[@]}" --json 2>&1 | tr -d '\n '); then
