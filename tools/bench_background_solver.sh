@@ -23,7 +23,7 @@ echo "nodes=$nodes $(date -u +%FT%TZ) $(uptime | sed 's/.*load/load/')"
 for name in ${SOLVERS:-cg_block_ic0 cholesky cholesky_pcg_k3 cholesky_pcg32_k3 cholesky_pcg_k8 cholesky_pcg_lagged}; do
   cat > "$dir/$name.toml" <<TOML
 model = "nvtmm"
-duration = 1.0
+duration = $(python3 -c "print(100 * ${DT:-1e-2})")
 [mesh]
 arch_nodes = $nodes
 [material]
@@ -41,7 +41,7 @@ near = [0.0065, -0.031, 0.177]
 force_n = [0.0, 0.0, -0.12]
 profile = { kind = "sine", freq_hz = 2.0, phase = 0.0 }
 [integrator]
-dt = 1e-2
+dt = ${DT:-1e-2}
 rayleigh_alpha = 0.0
 rayleigh_beta = 1e-3
 newton = { max_iters = 1 }
