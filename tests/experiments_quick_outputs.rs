@@ -69,6 +69,15 @@ fn table_quick_has_the_paper_columns() {
         nv.failure.is_none() && nv.visual_fps.is_finite() && nv.haptic_fps.is_finite(),
         "{nv:?}"
     );
+    // The reduced model's rate is on the NVTMM row only.
+    assert!(
+        nv.reduced_haptic_fps.is_finite() && nv.reduced_haptic_fps > 0.0,
+        "{nv:?}"
+    );
+    assert!(rows
+        .iter()
+        .filter(|r| r.model != "nvtmm")
+        .all(|r| r.reduced_haptic_fps.is_nan()));
     let md = std::fs::read_to_string(dir.path().join("table.md")).unwrap();
     assert!(md.contains("paper") && md.contains("nvtmm") && md.contains("cores"));
     assert_eq!(csv_rows(&dir.path().join("table.csv")).len(), 4);

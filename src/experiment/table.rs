@@ -10,12 +10,17 @@
 //! - **haptic rate (full model)**: steps per second when each haptic frame
 //!   advances the full model by one implicit step of 1 ms and reads the
 //!   reaction force at the contact node (the internal force there);
-//! - **haptic rate (reduced model)**: this project's reduced model in the 1
-//!   kHz loop; not built yet, reported as "–".
+//! - **haptic rate (reduced model)**: steps per second of this project's
+//!   reduced model (r = 32, half of them contact modes of the probe patch)
+//!   taking its implicit step with the probe's contact stiffness, as the 1
+//!   kHz loop does: 10⁶ / `us_per_step` of [`crate::bench_reduced`]. The
+//!   reduced model is built from the NVTMM tangent, so it is reported on the
+//!   NVTMM rows.
 //!
-//! All use the benchmark's standard load ([`crate::bench::standard_load`]),
-//! the StVK law, 1 Newton iteration and the benchmark's linear solver, and
-//! report the median over the timed frames.
+//! All full-model rates use the benchmark's standard load
+//! ([`crate::bench::standard_load`]), the StVK law, 1 Newton iteration and
+//! the fastest exact linear solver measured ([`TABLE_LINEAR`]), and report
+//! the median over the timed frames.
 
 use super::ExperimentError;
 use crate::bench::{arch_top_node, standard_load, standard_params, STANDARD_FORCE_N};
@@ -24,10 +29,23 @@ use crate::mesh::arch::{generate, ArchParams};
 use crate::mesh::Vec3;
 use crate::model::ModelKind;
 use crate::scene::build_model;
-use crate::solver::{ImplicitEuler, ImplicitEulerParams, TissueState};
+use crate::solver::{ImplicitEuler, ImplicitEulerParams, LinearSolverKind, TissueState};
 use std::io::Write;
 use std::path::Path;
 use std::time::Instant;
+
+/// The table's linear solver: CG to 1e-6 preconditioned by an f32 Cholesky
+/// factor refreshed every 3 solves, the fastest exact setting at every size
+/// in `tools/bench_step.sh` (docs/BENCHMARKS.md).
+pub const TABLE_LINEAR: LinearSolverKind = LinearSolverKind::CholeskyPcg {
+    tol: 1e-6,
+    max_iter: 30,
+    refactor_every: 3,
+    factor_f32: true,
+};
+
+/// Reduced-model columns r (contact modes: r / 2) and timed steps.
+const REDUCED_R: usize = 32;
 
 /// The paper's figures: (nodes, model, visual FPS, haptic FPS).
 pub const PAPER: [(usize, &str, f64, f64); 9] = [
@@ -59,6 +77,9 @@ pub struct TableRow {
     pub haptic_fps: f64,
     /// The paper's haptic rate (FPS).
     pub paper_haptic_fps: f64,
+    /// Steps per second of the reduced model's contact step (NaN where not
+    /// applicable: the MSM and FEM rows).
+    pub reduced_haptic_fps: f64,
     /// Median CG iterations per haptic step.
     pub cg_iters: usize,
     /// Why a measurement failed (the rate is then NaN), if it did.
@@ -80,6 +101,7 @@ fn time_frames(
     let node = arch_top_node(&arch) as usize;
     let params = ImplicitEulerParams {
         dt,
+        linear: TABLE_LINEAR,
         ..standard_params()
     };
     let mut euler = ImplicitEuler::new(mesh, mesh.lumped_mass(mat.density), params)
@@ -135,6 +157,8 @@ fn time_frames(
 pub fn run(out: &Path, quick: bool) -> Result<Vec<TableRow>, ExperimentError> {
     std::fs::create_dir_all(out).map_err(|e| ExperimentError::io(out, e))?;
     let frames = if quick { 4 } else { 15 };
+    let reduced_steps = if quick { 2000 } else { 20000 };
+    let mut reduced: Vec<(usize, f64)> = Vec::new();
     let mut rows = Vec::new();
     for &(nodes, model, pv, ph) in PAPER.iter().filter(|r| !quick || r.0 == 1458) {
         let kind: ModelKind = model.parse().map_err(ExperimentError::Setup)?;
@@ -155,6 +179,24 @@ pub fn run(out: &Path, quick: bool) -> Result<Vec<TableRow>, ExperimentError> {
         let our_nodes = generate(&ArchParams::default(), nodes)
             .map(|a| a.mesh.num_nodes())
             .unwrap_or(0);
+        let reduced_haptic_fps = if kind == ModelKind::Nvtmm {
+            match reduced.iter().find(|(n, _)| *n == nodes) {
+                Some(&(_, fps)) => fps,
+                None => {
+                    let fps = match crate::bench_reduced::bench_reduced(REDUCED_R, nodes, reduced_steps) {
+                        Ok(b) => 1e6 / b.us_per_step,
+                        Err(e) => {
+                            failures.push(format!("reduced model: {e}"));
+                            f64::NAN
+                        }
+                    };
+                    reduced.push((nodes, fps));
+                    fps
+                }
+            }
+        } else {
+            f64::NAN
+        };
         let failure = if failures.is_empty() {
             None
         } else {
@@ -168,6 +210,7 @@ pub fn run(out: &Path, quick: bool) -> Result<Vec<TableRow>, ExperimentError> {
             paper_visual_fps: pv,
             haptic_fps: haptic,
             paper_haptic_fps: ph,
+            reduced_haptic_fps,
             cg_iters: cg,
             failure,
         });
@@ -182,7 +225,7 @@ pub fn run(out: &Path, quick: bool) -> Result<Vec<TableRow>, ExperimentError> {
     for r in &rows {
         writeln!(
             w,
-            "{},{},{},{:.2},{},{:.2},{},,{}",
+            "{},{},{},{:.2},{},{:.2},{},{},{}",
             r.nodes,
             r.our_nodes,
             r.model,
@@ -190,6 +233,11 @@ pub fn run(out: &Path, quick: bool) -> Result<Vec<TableRow>, ExperimentError> {
             r.paper_visual_fps,
             r.haptic_fps,
             r.paper_haptic_fps,
+            if r.reduced_haptic_fps.is_finite() {
+                format!("{:.0}", r.reduced_haptic_fps)
+            } else {
+                String::new()
+            },
             r.cg_iters
         )
         .map_err(|e| ExperimentError::io(&csv, e))?;
@@ -224,7 +272,7 @@ pub fn machine() -> String {
 pub fn markdown(rows: &[TableRow]) -> String {
     let mut s = format!(
         "Ours: {}. Paper: Intel i7-10750H laptop (6 cores), SOFA 20.06.\n\n\
-         | nodes (ours) | model | visual FPS, ours | visual FPS, paper | haptic FPS (full model), ours | haptic FPS, paper | haptic FPS (reduced model), ours | CG iters |\n\
+         | nodes (ours) | model | visual FPS, ours | visual FPS, paper | haptic FPS (full model), ours | haptic FPS, paper | haptic FPS (reduced model, r = 32), ours | PCG iters |\n\
          |---|---|---|---|---|---|---|---|\n",
         machine()
     );
@@ -237,7 +285,7 @@ pub fn markdown(rows: &[TableRow]) -> String {
     };
     for r in rows {
         s.push_str(&format!(
-            "| {} ({}) | {} | {} | {} | {} | {} | – (not built yet) | {} |\n",
+            "| {} ({}) | {} | {} | {} | {} | {} | {} | {} |\n",
             r.nodes,
             r.our_nodes,
             r.model,
@@ -245,6 +293,11 @@ pub fn markdown(rows: &[TableRow]) -> String {
             r.paper_visual_fps,
             fps(r.haptic_fps),
             r.paper_haptic_fps,
+            if r.model == "nvtmm" {
+                format!("{:.0}", r.reduced_haptic_fps)
+            } else {
+                "–".into()
+            },
             r.cg_iters
         ));
     }
