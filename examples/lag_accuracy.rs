@@ -27,6 +27,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             let params = ImplicitEulerParams {
                 linear,
                 stiffness_every: k,
+                max_halvings: 0,
                 ..standard_params()
             };
             let euler = ImplicitEuler::new(mesh, mesh.lumped_mass(mat.density), params).expect("integrator");

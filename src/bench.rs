@@ -108,6 +108,7 @@ pub fn standard_params() -> ImplicitEulerParams {
             strict: false,
         },
         stiffness_every: 1,
+        max_halvings: 0,
     }
 }
 
@@ -299,6 +300,8 @@ pub struct ExtremeResult {
     pub unconverged: usize,
     /// First failure, if any (the state was kept unchanged).
     pub failure: Option<String>,
+    /// Steps that were covered by halved sub-steps (`max_halvings` > 0).
+    pub split_steps: usize,
     /// Whether any non-finite value was ever seen in the state (must be false).
     pub non_finite: bool,
     /// Largest displacement over the run relative to the bar length.
@@ -395,6 +398,12 @@ fn law_name(l: Law) -> &'static str {
 /// Runs one case for `steps` steps (or 50 ms of simulated time, whichever
 /// is shorter, at least 5 steps).
 pub fn run_extreme(case: &ExtremeCase, steps: usize) -> ExtremeResult {
+    run_extreme_with(case, steps, 0)
+}
+
+/// [`run_extreme`] with the integrator's step halving on failure
+/// (`ImplicitEulerParams::max_halvings`).
+pub fn run_extreme_with(case: &ExtremeCase, steps: usize, max_halvings: usize) -> ExtremeResult {
     let mesh: TetMesh = match block([4, 2, 2], [0.04, 0.01, 0.01]) {
         Ok(m) => m,
         Err(e) => {
@@ -404,6 +413,7 @@ pub fn run_extreme(case: &ExtremeCase, steps: usize) -> ExtremeResult {
                 ok_steps: 0,
                 unconverged: 0,
                 failure: Some(e.to_string()),
+                split_steps: 0,
                 non_finite: false,
                 max_rel_displacement: 0.0,
                 min_det_f: f64::NAN,
@@ -453,6 +463,7 @@ pub fn run_extreme(case: &ExtremeCase, steps: usize) -> ExtremeResult {
             ..NewtonParams::default()
         },
         linear: LinearSolverKind::Cholesky,
+        max_halvings,
         ..ImplicitEulerParams::default()
     };
     let mut res = ExtremeResult {
@@ -461,6 +472,7 @@ pub fn run_extreme(case: &ExtremeCase, steps: usize) -> ExtremeResult {
         ok_steps: 0,
         unconverged: 0,
         failure: None,
+        split_steps: 0,
         non_finite: false,
         max_rel_displacement: 0.0,
         min_det_f: f64::NAN,
@@ -489,6 +501,9 @@ pub fn run_extreme(case: &ExtremeCase, steps: usize) -> ExtremeResult {
             break;
         }
         res.ok_steps += 1;
+        if rep.substeps > 1 {
+            res.split_steps += 1;
+        }
         if !rep.converged {
             res.unconverged += 1;
         }
@@ -512,7 +527,7 @@ pub fn run_extreme(case: &ExtremeCase, steps: usize) -> ExtremeResult {
 
 /// The sweep as a Markdown table.
 pub fn extremes_markdown(results: &[ExtremeResult]) -> String {
-    let mut s = String::from("| model | law | E (Pa) | ν | dt (s) | Prony (α, τ) | load × | steps ok | unconverged | failure | NaN | max |u|/L | min det F |\n|---|---|---|---|---|---|---|---|---|---|---|---|---|\n");
+    let mut s = String::from("| model | law | E (Pa) | ν | dt (s) | Prony (α, τ) | load × | steps ok | split steps | unconverged | failure | NaN | max |u|/L | min det F |\n|---|---|---|---|---|---|---|---|---|---|---|---|---|---|\n");
     for r in results {
         let c = &r.case;
         let prony = if c.prony.is_empty() {
@@ -525,7 +540,7 @@ pub fn extremes_markdown(results: &[ExtremeResult]) -> String {
                 .join(" ")
         };
         s.push_str(&format!(
-            "| {} | {} | {:e} | {} | {:e} | {} | {} | {}/{} | {} | {} | {} | {:.3} | {:.3} |\n",
+            "| {} | {} | {:e} | {} | {:e} | {} | {} | {}/{} | {} | {} | {} | {} | {:.3} | {:.3} |\n",
             c.model,
             c.law,
             c.youngs_pa,
@@ -535,6 +550,7 @@ pub fn extremes_markdown(results: &[ExtremeResult]) -> String {
             c.load_factor,
             r.ok_steps,
             r.steps,
+            r.split_steps,
             r.unconverged,
             r.failure.as_deref().unwrap_or("–"),
             if r.non_finite { "**yes**" } else { "no" },

@@ -1,6 +1,8 @@
 //! `nvtmm simulate …` and `nvtmm bench …` subcommands.
 
-use nvtmm::bench::{bench_step_params, extremes_cases, extremes_markdown, parse_linear, run_extreme, standard_params};
+use nvtmm::bench::{
+    bench_step_params, extremes_cases, extremes_markdown, parse_linear, run_extreme_with, standard_params,
+};
 use nvtmm::material::{Law, PronyTerm};
 use nvtmm::model::ModelKind;
 use nvtmm::scene::Scene;
@@ -102,13 +104,16 @@ pub fn bench_step_cmd(
     Ok(())
 }
 
-pub fn bench_extremes(quick: bool, json: bool) -> Result<()> {
+pub fn bench_extremes(quick: bool, halvings: usize, json: bool) -> Result<()> {
+    if halvings > nvtmm::solver::MAX_HALVINGS {
+        return Err(format!("--halvings {halvings}: allowed 0..={}", nvtmm::solver::MAX_HALVINGS).into());
+    }
     let cases = extremes_cases(quick);
     let bar = indicatif::ProgressBar::new(cases.len() as u64);
     let results: Vec<_> = cases
         .iter()
         .map(|c| {
-            let r = run_extreme(c, 500);
+            let r = run_extreme_with(c, 500, halvings);
             bar.inc(1);
             r
         })

@@ -201,6 +201,10 @@ enum BenchCmd {
         /// A representative subset.
         #[arg(long)]
         quick: bool,
+        /// Retry a failed step with up to this many halvings of dt
+        /// (`[integrator] max_halvings`; 0: off).
+        #[arg(long, default_value_t = 0)]
+        halvings: usize,
         /// Print JSON.
         #[arg(long)]
         json: bool,
@@ -317,7 +321,7 @@ fn main() -> ExitCode {
                 no_final_residual,
                 json,
             ),
-            BenchCmd::Extremes { quick, json } => cli_sim::bench_extremes(quick, json),
+            BenchCmd::Extremes { quick, halvings, json } => cli_sim::bench_extremes(quick, halvings, json),
         },
         Command::Experiment(e) => match e {
             ExperimentCmd::Cubic { out, quick } => cli_cubic::experiment_cubic(&out, quick),

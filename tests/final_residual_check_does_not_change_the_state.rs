@@ -38,6 +38,7 @@ fn final_residual_check_does_not_change_the_state() {
                     },
                     linear: LinearSolverKind::Cholesky,
                     stiffness_every,
+                    max_halvings: 0,
                 };
                 let mut euler = ImplicitEuler::new(&mesh, mesh.lumped_mass(1100.0), params).unwrap();
                 let mut state = TissueState::at_rest(mesh.num_nodes());

@@ -69,6 +69,7 @@ fn implicit_step_allocates_nothing() {
             },
             linear,
             stiffness_every,
+            max_halvings: 0,
         };
         let mut euler = ImplicitEuler::new(&mesh, mesh.lumped_mass(1100.0), params).unwrap();
         let mut state = TissueState::at_rest(mesh.num_nodes());

@@ -35,6 +35,7 @@ fn run(linear: LinearSolverKind, stiffness_every: usize) -> Vec<TissueState> {
         newton: NewtonParams::linearized(),
         linear,
         stiffness_every,
+        max_halvings: 0,
     };
     let mut euler = ImplicitEuler::new(&mesh, mesh.lumped_mass(model_mat.density), params).unwrap();
     let mut state = TissueState::at_rest(mesh.num_nodes());

@@ -156,6 +156,7 @@ fn tip_histories(b: &Beam, basis: &ModalBasis, force: f64) -> (Vec<f64>, Vec<f64
         },
         linear: LinearSolverKind::Cholesky,
         stiffness_every: 1,
+        max_halvings: 0,
     };
     let mut ie = ImplicitEuler::new(&b.mesh, b.mass.clone(), full_params).expect("integrator");
     let mut state = TissueState::at_rest(b.mesh.num_nodes());

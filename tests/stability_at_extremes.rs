@@ -5,7 +5,7 @@
 //! (`run_extreme` marks a changed state on failure as non-finite too).
 //! The full sweep's table is in docs/EXTREMES.md (`nvtmm bench extremes`).
 
-use nvtmm::bench::{extremes_cases, run_extreme};
+use nvtmm::bench::{extremes_cases, run_extreme, run_extreme_with};
 
 #[test]
 fn no_nan_and_failures_are_safe_over_the_sweep() {
@@ -28,6 +28,32 @@ fn no_nan_and_failures_are_safe_over_the_sweep() {
     assert!(
         completed * 4 >= cases.len() * 3,
         "only {completed} of {} cases completed",
+        cases.len()
+    );
+}
+
+#[test]
+fn step_halving_keeps_the_guarantees_and_never_completes_fewer_cases() {
+    let cases = extremes_cases(true);
+    let (mut plain, mut halved, mut split) = (0, 0, 0);
+    for c in &cases {
+        let a = run_extreme(c, 60);
+        let b = run_extreme_with(c, 60, 4);
+        assert!(!b.non_finite, "non-finite or changed state on failure: {c:?} -> {b:?}");
+        assert!(b.min_det_f.is_finite(), "{c:?}");
+        // A case that never fails never splits a step: the same run.
+        if a.failure.is_none() {
+            assert!(b.failure.is_none() && b.split_steps == 0, "{c:?}: {b:?}");
+            plain += 1;
+        }
+        if b.failure.is_none() {
+            halved += 1;
+        }
+        split += b.split_steps;
+    }
+    assert!(halved >= plain);
+    eprintln!(
+        "completed without halving {plain}, with up to 4 halvings {halved} of {}; split steps {split}",
         cases.len()
     );
 }

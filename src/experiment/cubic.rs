@@ -160,6 +160,7 @@ fn full_reference(s: &Setup, params: &DynamicsParams, steps: usize) -> Result<Fu
         },
         linear: LinearSolverKind::Cholesky,
         stiffness_every: 1,
+        max_halvings: 0,
     };
     let mut ie = ImplicitEuler::new(&s.mesh, s.mass.clone(), ip).map_err(|e| ExperimentError::Setup(e.to_string()))?;
     let mut state = TissueState::at_rest(s.mesh.num_nodes());

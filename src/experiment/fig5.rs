@@ -148,6 +148,7 @@ fn simulate(kind: ModelKind, p: &Fig5Params, prony: &[PronyTerm]) -> Result<(Tra
             strict: false,
         },
         stiffness_every: 1,
+        max_halvings: 0,
     };
     let mut euler = ImplicitEuler::new(mesh, mesh.lumped_mass(p.material.density), params)
         .map_err(|e| ExperimentError::Setup(e.to_string()))?;

@@ -97,6 +97,16 @@ pub trait ForceModel: Send + Sync {
     /// Forgets any viscoelastic history (back to a relaxed state).
     fn reset_history(&mut self) {}
 
+    /// Saves the internal state that `end_step` advances (the Prony history)
+    /// into memory allocated at construction, so that [`ForceModel::restore_state`]
+    /// can undo the steps taken since: the integrator's step halving
+    /// (`ImplicitEulerParams::max_halvings`) rolls back a step whose
+    /// sub-steps did not all succeed. Elastic models have no such state.
+    fn save_state(&mut self) {}
+
+    /// Returns to the state of the last [`ForceModel::save_state`].
+    fn restore_state(&mut self) {}
+
     /// Whether the model carries viscoelastic history.
     fn is_viscoelastic(&self) -> bool {
         false

@@ -36,6 +36,9 @@ pub struct Prony {
     volumes: Vec<f64>,
     /// γ_i per element: index `e * terms + i`.
     gamma: Vec<Mat3>,
+    /// γ and the skipped-update count at the last `save`.
+    saved_gamma: Vec<Mat3>,
+    saved_skipped: usize,
     /// H = Σ B_i γ_i per element for the current step.
     history: Vec<Mat3>,
     a: Vec<f64>,
@@ -57,6 +60,8 @@ impl Prony {
             grads: mesh.grads().to_vec(),
             volumes: mesh.volumes().to_vec(),
             gamma: vec![Mat3::zeros(); ne * terms.len()],
+            saved_gamma: vec![Mat3::zeros(); ne * terms.len()],
+            saved_skipped: 0,
             history: vec![Mat3::zeros(); ne],
             a: vec![0.0; terms.len()],
             b: vec![0.0; terms.len()],
@@ -172,6 +177,19 @@ impl Prony {
         self.skipped_updates
     }
 
+    /// Saves the history γ (see [`ForceModel::save_state`]); no allocation.
+    pub fn save(&mut self) {
+        self.saved_gamma.copy_from_slice(&self.gamma);
+        self.saved_skipped = self.skipped_updates;
+    }
+
+    /// Returns γ to the last [`Prony::save`]. The history stress H is
+    /// recomputed by the next `begin_step`.
+    pub fn restore(&mut self) {
+        self.gamma.copy_from_slice(&self.saved_gamma);
+        self.skipped_updates = self.saved_skipped;
+    }
+
     /// Forgets all history.
     pub fn reset(&mut self) {
         self.gamma.iter_mut().for_each(|g| *g = Mat3::zeros());
@@ -270,6 +288,16 @@ impl<M: ForceModel> ForceModel for Viscoelastic<M> {
         self.prony.reset();
         self.scale = 1.0;
         self.elastic.reset_history();
+    }
+
+    fn save_state(&mut self) {
+        self.prony.save();
+        self.elastic.save_state();
+    }
+
+    fn restore_state(&mut self) {
+        self.prony.restore();
+        self.elastic.restore_state();
     }
 
     fn is_viscoelastic(&self) -> bool {

@@ -151,7 +151,22 @@ pub struct ImplicitEulerParams {
     /// `docs/SOLVERS.md`.
     #[serde(default = "default_stiffness_every")]
     pub stiffness_every: usize,
+    /// Step halving on failure, 0..=[`MAX_HALVINGS`]. With 0 (the default) a
+    /// failed step is reported as it is. With m > 0 a step that fails for a
+    /// numerical reason (indefinite or singular Newton matrix, non-finite
+    /// force, residual growth, no convergence, blow-up) is retried over the
+    /// same interval with steps of h/2; a sub-step that fails again is
+    /// halved again, down to h/2^m. The loads are evaluated at each
+    /// sub-step's end time and the Prony history advances per sub-step. If
+    /// a sub-step fails at h/2^m the whole step is rolled back (state and
+    /// model history) and reported with the last failure.
+    /// `StepReport::substeps` tells how many sub-steps a step took.
+    #[serde(default)]
+    pub max_halvings: usize,
 }
+
+/// Largest `max_halvings`: sub-steps of h/4096.
+pub const MAX_HALVINGS: usize = 12;
 
 impl Default for ImplicitEulerParams {
     fn default() -> Self {
@@ -162,6 +177,7 @@ impl Default for ImplicitEulerParams {
             newton: NewtonParams::default(),
             linear: LinearSolverKind::default(),
             stiffness_every: default_stiffness_every(),
+            max_halvings: 0,
         }
     }
 }
@@ -212,6 +228,12 @@ impl ImplicitEulerParams {
         if self.stiffness_every == 0 {
             return Err("stiffness_every = 0: must be at least 1".into());
         }
+        if self.max_halvings > MAX_HALVINGS {
+            return Err(format!(
+                "max_halvings = {}: must be in 0..={MAX_HALVINGS}",
+                self.max_halvings
+            ));
+        }
         self.linear.validate()
     }
 }
@@ -261,6 +283,13 @@ pub enum StepFailure {
     },
 }
 
+impl StepFailure {
+    /// Whether a smaller step might succeed (everything but bad input).
+    pub fn retryable(&self) -> bool {
+        !matches!(self, StepFailure::BadState | StepFailure::BadLoads(_))
+    }
+}
+
 /// A step whose largest displacement exceeds this many bounding-box
 /// diagonals of the rest mesh is rejected as a blow-up.
 pub const MAX_DISPLACEMENT_DIAGONALS: f64 = 10.0;
@@ -303,10 +332,13 @@ pub struct StepReport {
     pub linear_iters: usize,
     residuals: [f64; MAX_NEWTON_ITERS + 1],
     num_residuals: usize,
-    /// Whether the Newton tolerance was met.
+    /// Whether the Newton tolerance was met (by every sub-step).
     pub converged: bool,
     /// Why the step failed; `None` when the state was advanced.
     pub failure: Option<StepFailure>,
+    /// Sub-steps the step was covered with: 1 without halving, more when
+    /// `max_halvings` split it; 0 when it failed.
+    pub substeps: usize,
 }
 
 impl StepReport {
@@ -318,6 +350,7 @@ impl StepReport {
             num_residuals: 0,
             converged: false,
             failure: None,
+            substeps: 1,
         }
     }
 
@@ -392,6 +425,9 @@ pub struct ImplicitEuler {
     k: BlockTangent,
     k0: BlockTangent,
     a: BlockTangent,
+    /// The state at the start of a step being split (`max_halvings`).
+    saved_u: Vec<Vec3>,
+    saved_v: Vec<Vec3>,
 }
 
 fn all_finite(x: &[Vec3]) -> bool {
@@ -435,7 +471,9 @@ impl ImplicitEuler {
             fext: zeros.clone(),
             r: zeros.clone(),
             dv: zeros.clone(),
-            k0v: zeros,
+            k0v: zeros.clone(),
+            saved_u: zeros.clone(),
+            saved_v: zeros,
             k0: k.clone(),
             a: k.clone(),
             k,
@@ -509,12 +547,81 @@ impl ImplicitEuler {
         loads: &Loads,
         fixed: &[u32],
     ) -> StepReport {
-        let rep = self.step_inner(state, model, loads, fixed);
+        let mut rep = self.step_inner(state, model, loads, fixed);
         if !rep.ok() {
             // A, K or the prepared solver may be half-updated.
             self.tangent_age = None;
+            rep.substeps = 0;
+            if self.params.max_halvings > 0 && rep.failure.is_some_and(|f| f.retryable()) {
+                return self.split_step(state, model, loads, fixed, rep);
+            }
         }
         rep
+    }
+
+    /// Covers the step that just failed with halved sub-steps (see
+    /// [`ImplicitEulerParams::max_halvings`]); rolls everything back if a
+    /// sub-step fails at the finest level.
+    fn split_step(
+        &mut self,
+        state: &mut TissueState,
+        model: &mut dyn ForceModel,
+        loads: &Loads,
+        fixed: &[u32],
+        first: StepReport,
+    ) -> StepReport {
+        let h = self.params.dt;
+        let t0 = state.t;
+        let max = self.params.max_halvings;
+        self.saved_u.copy_from_slice(&state.u);
+        self.saved_v.copy_from_slice(&state.v);
+        model.save_state();
+        let mut out = first;
+        out.converged = true;
+        out.substeps = 0;
+        // The interval in units of h / 2^max; a sub-step at `level` covers
+        // 2^(max − level) of them, so the remainder stays a multiple.
+        let mut remaining: u64 = 1 << max;
+        let mut level = 1;
+        let mut failure = None;
+        self.params.dt = h / 2.0;
+        self.tangent_age = None;
+        while remaining > 0 {
+            let rep = self.step_inner(state, model, loads, fixed);
+            out.newton_iters += rep.newton_iters;
+            out.linear_iters += rep.linear_iters;
+            if rep.ok() {
+                remaining -= 1 << (max - level);
+                out.substeps += 1;
+                out.converged &= rep.converged;
+                out.residuals = rep.residuals;
+                out.num_residuals = rep.num_residuals;
+                continue;
+            }
+            self.tangent_age = None;
+            if level == max || !rep.failure.is_some_and(|f| f.retryable()) {
+                failure = rep.failure;
+                break;
+            }
+            level += 1;
+            self.params.dt = h / (1u64 << level) as f64;
+        }
+        self.params.dt = h;
+        self.tangent_age = None;
+        if let Some(f) = failure {
+            state.u.copy_from_slice(&self.saved_u);
+            state.v.copy_from_slice(&self.saved_v);
+            state.t = t0;
+            model.restore_state();
+            out.failure = Some(f);
+            out.converged = false;
+            out.substeps = 0;
+        } else {
+            // Exact end time (the sub-steps' sum may differ in the last bit).
+            state.t = t0 + h;
+            out.failure = None;
+        }
+        out
     }
 
     fn step_inner(

@@ -43,7 +43,8 @@ pub mod linear;
 pub mod loads;
 
 pub use implicit_euler::{
-    ImplicitEuler, ImplicitEulerParams, NewtonParams, SolverError, StepFailure, StepReport, MAX_NEWTON_ITERS,
+    ImplicitEuler, ImplicitEulerParams, NewtonParams, SolverError, StepFailure, StepReport, MAX_HALVINGS,
+    MAX_NEWTON_ITERS,
 };
 pub use linear::{LinearSolverKind, Preconditioner};
 

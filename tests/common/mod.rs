@@ -204,6 +204,15 @@ impl<M: ForceModel> ForceModel for NanAfter<M> {
     fn end_step(&mut self, u: &[Vec3]) {
         self.inner.end_step(u)
     }
+    fn begin_step(&mut self, dt: f64) {
+        self.inner.begin_step(dt)
+    }
+    fn save_state(&mut self) {
+        self.inner.save_state()
+    }
+    fn restore_state(&mut self) {
+        self.inner.restore_state()
+    }
 }
 
 /// A deterministic pseudo-random field in [-1, 1]³ per node (no rand crate).
