@@ -17,7 +17,7 @@ pub fn simulate(scene_path: &Path, out: Option<&Path>, quiet: bool) -> Result<()
     let out = out.unwrap_or(&default_out);
     let summary = nvtmm::simulate::run(&scene, out, !quiet)?;
     println!(
-        "{} on {} nodes / {} tets: {} steps, {:.4} s simulated in {:.2} s wall ({:.3} ms/step median, {} CG iterations median, {} unconverged steps)",
+        "{} on {} nodes / {} tets: {} steps, {:.4} s simulated in {:.2} s wall ({:.3} ms/step median, {} CG iterations median, {} unconverged steps, {} split steps)",
         summary.model,
         summary.nodes,
         summary.tets,
@@ -26,7 +26,8 @@ pub fn simulate(scene_path: &Path, out: Option<&Path>, quiet: bool) -> Result<()
         summary.wall_s,
         summary.ms_per_step,
         summary.cg_iters_median,
-        summary.unconverged_steps
+        summary.unconverged_steps,
+        summary.split_steps
     );
     println!(
         "max displacement {:.3} mm, elastic energy {:.3e} J",

@@ -62,6 +62,9 @@ pub struct RunSummary {
     pub ms_per_step: f64,
     /// Steps whose Newton iteration did not reach its tolerance.
     pub unconverged_steps: usize,
+    /// Steps that failed at full length and were covered by halved
+    /// sub-steps (`[integrator] max_halvings`).
+    pub split_steps: usize,
     /// Median CG iterations per step.
     pub cg_iters_median: usize,
     /// Largest nodal displacement at the end (m).
@@ -140,6 +143,7 @@ pub fn run(scene: &Scene, out_dir: &Path, progress: bool) -> Result<RunSummary, 
     let mut times = Vec::with_capacity(steps);
     let mut cg = Vec::with_capacity(steps);
     let mut unconverged = 0;
+    let mut split = 0;
     let mut force = vec![Vec3::zeros(); n];
     let t_start = Instant::now();
     for step in 1..=steps {
@@ -158,6 +162,9 @@ pub fn run(scene: &Scene, out_dir: &Path, progress: bool) -> Result<RunSummary, 
         }
         if !rep.converged {
             unconverged += 1;
+        }
+        if rep.substeps > 1 {
+            split += 1;
         }
         cg.push(rep.linear_iters);
         let want_csv = csv.is_some() && step % csv_every.max(1) == 0;
@@ -223,6 +230,7 @@ pub fn run(scene: &Scene, out_dir: &Path, progress: bool) -> Result<RunSummary, 
         wall_s,
         ms_per_step: median(&mut times).unwrap_or(0.0),
         unconverged_steps: unconverged,
+        split_steps: split,
         cg_iters_median: median(&mut cg).unwrap_or(0),
         max_displacement_m: state.u.iter().map(|u| u.norm()).fold(0.0, f64::max),
         final_energy_j: built.model.energy(&state.u),
