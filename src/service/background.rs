@@ -194,6 +194,8 @@ pub struct BackgroundStats {
     pub steps: u64,
     /// Full steps that failed (state kept).
     pub failed_steps: u64,
+    /// Full steps covered by halved sub-steps (`[integrator] max_halvings`).
+    pub split_steps: u64,
     /// Wall time per full step (µs).
     pub step_us: Vec<f64>,
     /// Wall time per linearization refresh (µs).
@@ -421,6 +423,9 @@ pub fn run<const R: usize>(mut bg: Background<R>, mut io: BackgroundIo<R>) -> Ba
         }
         if !rep.ok() {
             stats.failed_steps += 1;
+        }
+        if rep.substeps > 1 {
+            stats.split_steps += 1;
         }
         let t1 = clock::now_ns();
         stats.step_us.push((t1 - t0) as f64 * 1e-3);

@@ -48,6 +48,8 @@ pub struct BackgroundReport {
     pub steps: u64,
     /// Failed steps (state kept).
     pub failed_steps: u64,
+    /// Steps covered by halved sub-steps after a failure at full length.
+    pub split_steps: u64,
     /// Full step wall time (ms).
     pub step_ms: Percentiles,
     /// Linearization refresh time (ms).

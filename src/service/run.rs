@@ -1148,6 +1148,7 @@ fn run_with<const R: usize>(p: Prepared, progress: bool) -> Result<Report, Servi
             enabled: true,
             steps: b.steps,
             failed_steps: b.failed_steps,
+            split_steps: b.split_steps,
             step_ms: ms_of(&b.step_us),
             refresh_ms: ms_of(&b.refresh_us),
             refresh_hz: b.models_sent as f64 / b.wall_s.max(1e-9),
