@@ -1,7 +1,7 @@
 //! Accuracy cost of `integrator.stiffness_every` (tangent refresh interval)
 //! on the standard load: the loaded node's displacement over N steps with
 //! refresh every k steps against k = 1 (exact linearised step), run side by
-//! side. `cargo run --release --example lag_accuracy -- [model] [nodes] [steps] [linear]`.
+//! side. `[HALVINGS=m] cargo run --release --example lag_accuracy -- [model] [nodes] [steps] [linear]`.
 
 use nvtmm::bench::{parse_linear, standard_load, standard_params};
 use nvtmm::material::{Law, Material};
@@ -21,13 +21,15 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let mat = Material::aorta();
     let load = standard_load(&arch, 0.3);
     let everies = [1usize, 2, 5, 10, 20, 50, 1_000_000];
+    // HALVINGS=m retries failed steps with dt/2 … dt/2^m (docs/SOLVERS.md).
+    let max_halvings: usize = std::env::var("HALVINGS").ok().and_then(|s| s.parse().ok()).unwrap_or(0);
     let mut runs: Vec<_> = everies
         .iter()
         .map(|&k| {
             let params = ImplicitEulerParams {
                 linear,
                 stiffness_every: k,
-                max_halvings: 0,
+                max_halvings,
                 ..standard_params()
             };
             let euler = ImplicitEuler::new(mesh, mesh.lumped_mass(mat.density), params).expect("integrator");
