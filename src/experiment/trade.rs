@@ -17,9 +17,10 @@
 //!   every mesh; RMS is not compared across meshes).
 //!
 //! Knobs: model (msm, tmm, nvtmm, fem), dt, Newton iterations, CG tolerance,
-//! preconditioner, and mesh resolution. Each row reports the median wall
-//! time per step. The reduced model's knobs (r, contact modes) join when the
-//! reduced model exists.
+//! preconditioner or linear solver, and mesh resolution. Each row reports
+//! the median wall time per step. The reduced model's knobs (r, contact
+//! modes, region of interest) are measured by `nvtmm experiment reduced`
+//! ([`super::reduced`]).
 
 use super::plot::{line_plot, Series};
 use super::ExperimentError;
@@ -229,6 +230,24 @@ pub fn run(out: &Path, quick: bool) -> Result<(Vec<TradeRow>, usize), Experiment
         ("block_ssor", cg(Preconditioner::BlockSsor, 1e-6)),
         ("block_ic0", cg(Preconditioner::BlockIc0, 1e-6)),
         ("cholesky", LinearSolverKind::Cholesky),
+        (
+            "cholesky_pcg_3",
+            LinearSolverKind::CholeskyPcg {
+                tol: 1e-6,
+                max_iter: 30,
+                refactor_every: 3,
+                factor_f32: false,
+            },
+        ),
+        (
+            "cholesky_pcg32_3",
+            LinearSolverKind::CholeskyPcg {
+                tol: 1e-6,
+                max_iter: 30,
+                refactor_every: 3,
+                factor_f32: true,
+            },
+        ),
     ] {
         record(
             &mut rows,
