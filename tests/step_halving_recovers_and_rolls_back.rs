@@ -25,6 +25,18 @@ struct Picky {
     ended: usize,
 }
 
+impl Picky {
+    fn new(inner: &Visco, dt_limit: f64, poison_after: usize) -> Picky {
+        Picky {
+            inner: inner.clone(),
+            dt_limit,
+            poison_after,
+            dt: 0.0,
+            ended: 0,
+        }
+    }
+}
+
 impl ForceModel for Picky {
     fn name(&self) -> &'static str {
         "picky"
@@ -135,13 +147,7 @@ fn a_failed_step_is_covered_by_the_sub_steps_a_user_would_take() {
     let s = setup();
     // Steps longer than H/4 fail: the step is retried at H/2 (fails), then
     // covered by four steps of H/4.
-    let mut picky = Picky {
-        inner: s.model.clone(),
-        dt_limit: H / 4.0 * 1.0001,
-        poison_after: usize::MAX,
-        dt: 0.0,
-        ended: 0,
-    };
+    let mut picky = Picky::new(&s.model, H / 4.0 * 1.0001, usize::MAX);
     let mut state = s.state.clone();
     let t0 = state.t;
     let mut euler = ImplicitEuler::new(&s.mesh, s.mesh.lumped_mass(1000.0), params(H, 3)).unwrap();
@@ -169,13 +175,7 @@ fn a_failed_step_is_covered_by_the_sub_steps_a_user_would_take() {
 
     // Without halving the same step fails and changes nothing.
     let mut state = s.state.clone();
-    let mut picky = Picky {
-        inner: s.model.clone(),
-        dt_limit: H / 4.0 * 1.0001,
-        poison_after: usize::MAX,
-        dt: 0.0,
-        ended: 0,
-    };
+    let mut picky = Picky::new(&s.model, H / 4.0 * 1.0001, usize::MAX);
     let mut plain = ImplicitEuler::new(&s.mesh, s.mesh.lumped_mass(1000.0), params(H, 0)).unwrap();
     let rep = plain.step(&mut state, &mut picky, &s.loads, &s.fixed);
     assert!(matches!(rep.failure, Some(StepFailure::NonFiniteForce { .. })));
@@ -188,13 +188,7 @@ fn a_step_that_fails_at_the_finest_level_rolls_back_state_and_history() {
     let s = setup();
     // H fails; the first H/2 succeeds and advances the history; then every
     // step fails, down to H/4: the whole step must be undone.
-    let mut picky = Picky {
-        inner: s.model.clone(),
-        dt_limit: H / 2.0 * 1.0001,
-        poison_after: 1,
-        dt: 0.0,
-        ended: 0,
-    };
+    let mut picky = Picky::new(&s.model, H / 2.0 * 1.0001, 1);
     let mut state = s.state.clone();
     let mut euler = ImplicitEuler::new(&s.mesh, s.mesh.lumped_mass(1000.0), params(H, 2)).unwrap();
     let rep = euler.step(&mut state, &mut picky, &s.loads, &s.fixed);
