@@ -181,8 +181,8 @@ enum BenchCmd {
         /// Add one Prony term (α = 0.5, τ = 0.58 s).
         #[arg(long)]
         prony: bool,
-        /// Linear solver: cholesky, cholesky-pcg[:N] (CG on a Cholesky factor refreshed every N solves, default 10), cholesky-pcg32[:N] (the same with an f32 factor), cg-none, cg-jacobi, cg-block_jacobi, cg-block_ssor, cg-block_ic0.
-        #[arg(long, default_value = "cg-block_ic0")]
+        /// Linear solver: cholesky, cholesky-pcg[:N] (CG on a Cholesky factor refreshed every N solves, default 10), cholesky-pcg32[:N] (the same with an f32 factor), cg-none, cg-jacobi, cg-block_jacobi, cg-block_ssor, cg-block_ic0. The default is the fastest exact setting measured (docs/BENCHMARKS.md).
+        #[arg(long, default_value = "cholesky-pcg32:3")]
         linear: String,
         /// Re-assemble the tangent and rebuild the preconditioner/factor
         /// every K steps (1: exact Newton; see docs/SOLVERS.md).
