@@ -216,8 +216,8 @@ impl Report {
         let b = &self.background;
         if b.enabled {
             s += &format!(
-                "  background: {} full steps ({} failed), step p50 {:.1} ms, refresh p50 {:.2} ms, {:.1} models/s, real-time factor {:.2}, {} swaps\n",
-                b.steps, b.failed_steps, b.step_ms.p50, b.refresh_ms.p50, b.refresh_hz, b.real_time_factor, self.model_swaps
+                "  background: {} full steps ({} failed, {} split), step p50 {:.1} ms, refresh p50 {:.2} ms, {:.1} models/s, real-time factor {:.2}, {} swaps\n",
+                b.steps, b.failed_steps, b.split_steps, b.step_ms.p50, b.refresh_ms.p50, b.refresh_hz, b.real_time_factor, self.model_swaps
             );
             if b.basis_refresh_on {
                 s += &format!(
