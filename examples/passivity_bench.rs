@@ -4,7 +4,7 @@
 //! `cargo run --release --example passivity_bench -- [ticks]`
 
 use nvtmm::haptics::passivity::{PassivityFilter, PassivityParams};
-use nvtmm::mesh::Vec3;
+use nvtmm::math::Vec3;
 use nvtmm::rt::alloc::{self, RtAllocator};
 use nvtmm::rt::clock::now_ns;
 

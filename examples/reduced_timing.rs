@@ -6,8 +6,8 @@
 
 use nalgebra::SVector;
 use nvtmm::material::Material;
+use nvtmm::math::Vec3;
 use nvtmm::mesh::arch::{generate, ArchParams};
-use nvtmm::mesh::Vec3;
 use nvtmm::model::nvtmm::Nvtmm;
 use nvtmm::model::{BlockTangent, ForceModel};
 use nvtmm::reduced::{BasisParams, DynamicsParams, ModalBasis, ReducedDynamics};

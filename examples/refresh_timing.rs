@@ -2,8 +2,8 @@
 //! `cargo run --release --example refresh_timing -- [nodes] [r]`.
 use nvtmm::bench::standard_load;
 use nvtmm::material::Material;
+use nvtmm::math::Vec3;
 use nvtmm::mesh::arch::{generate, ArchParams};
-use nvtmm::mesh::Vec3;
 use nvtmm::model::nvtmm::Nvtmm;
 use nvtmm::model::{BlockTangent, ForceModel};
 use nvtmm::reduced::{ModalBasis, Refresher};

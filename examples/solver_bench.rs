@@ -5,10 +5,12 @@
 //!
 //! `cargo run --release --example solver_bench [nodes] [E_Pa]`
 
+use nvtmm::bench::timing::time_steps;
+use nvtmm::math::Mat3;
+use nvtmm::math::Vec3;
 use nvtmm::mesh::arch::{generate, ArchParams};
-use nvtmm::mesh::{TetMesh, Vec3};
-use nvtmm::model::{tet_pair_edges, BlockTangent, ForceModel, Mat3};
-use nvtmm::solver::bench::time_steps;
+use nvtmm::mesh::TetMesh;
+use nvtmm::model::{tet_pair_edges, BlockTangent, ForceModel};
 use nvtmm::solver::linear::{project_fixed, BlockRows, Cg, CholeskySolver};
 use nvtmm::solver::loads::{Loads, NodalLoad, TimeProfile};
 use nvtmm::solver::{ImplicitEuler, ImplicitEulerParams, LinearSolverKind, NewtonParams, Preconditioner, TissueState};

@@ -4,9 +4,10 @@
 
 use nvtmm::bench::standard_load;
 use nvtmm::material::{Law, Material};
+use nvtmm::math::Mat3;
+use nvtmm::math::Vec3;
 use nvtmm::mesh::arch::{generate, ArchParams};
-use nvtmm::mesh::Vec3;
-use nvtmm::model::{BlockTangent, Mat3, ModelKind};
+use nvtmm::model::{BlockTangent, ModelKind};
 use nvtmm::scene::build_model;
 use nvtmm::solver::linear::{project_fixed, CholeskySolver};
 use std::time::Instant;

@@ -29,11 +29,11 @@
 #![warn(missing_docs)]
 
 pub mod bench;
-pub mod bench_reduced;
 pub mod config;
 pub mod experiment;
 pub mod haptics;
 pub mod material;
+pub mod math;
 pub mod mesh;
 pub mod model;
 pub mod reduced;

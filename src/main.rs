@@ -10,12 +10,7 @@ use std::process::ExitCode;
 #[global_allocator]
 static ALLOCATOR: nvtmm::rt::alloc::RtAllocator = nvtmm::rt::alloc::RtAllocator;
 
-mod cli_cubic;
-mod cli_mesh;
-mod cli_reduced;
-mod cli_run;
-mod cli_sim;
-mod cli_stream;
+mod cli;
 
 #[derive(Parser)]
 #[command(
@@ -91,11 +86,11 @@ enum Command {
         force: bool,
     },
     /// Replay a stream recording to UDP, or export it for ParaView (--vtu DIR).
-    Replay(cli_stream::ReplayArgs),
+    Replay(cli::stream::ReplayArgs),
     /// Serve the stream viewer (a web page on localhost) fed by the UDP stream.
-    View(cli_stream::ViewArgs),
+    View(cli::stream::ViewArgs),
     /// Publish a synthetic stream (a dent pressed into the arch) for trying the viewer.
-    StreamDemo(cli_stream::DemoArgs),
+    StreamDemo(cli::stream::DemoArgs),
 }
 
 #[derive(Subcommand)]
@@ -281,12 +276,12 @@ fn main() -> ExitCode {
             report_json,
             record,
             quiet,
-        } => cli_run::run(&config, seconds, report_json.as_deref(), record, quiet),
-        Command::CheckRt { config, json } => cli_run::check_rt(config.as_ref(), json),
+        } => cli::run::run(&config, seconds, report_json.as_deref(), record, quiet),
+        Command::CheckRt { config, json } => cli::run::check_rt(config.as_ref(), json),
         Command::Mesh(cmd) => match cmd {
-            MeshCmd::Arch { nodes, out } => cli_mesh::arch(nodes, &out),
-            MeshCmd::Info { file, json, scale } => cli_mesh::info(&file, json, scale),
-            MeshCmd::Convert { input, output, scale } => cli_mesh::convert(&input, &output, scale),
+            MeshCmd::Arch { nodes, out } => cli::mesh::arch(nodes, &out),
+            MeshCmd::Info { file, json, scale } => cli::mesh::info(&file, json, scale),
+            MeshCmd::Convert { input, output, scale } => cli::mesh::convert(&input, &output, scale),
             MeshCmd::Render {
                 input,
                 out,
@@ -294,12 +289,12 @@ fn main() -> ExitCode {
                 height,
                 azimuth,
                 elevation,
-            } => cli_mesh::render(&input, &out, width, height, azimuth, elevation),
+            } => cli::mesh::render(&input, &out, width, height, azimuth, elevation),
         },
-        Command::Simulate { scene, out, quiet } => cli_sim::simulate(&scene, out.as_deref(), quiet),
-        Command::Basis { scene, r, force } => cli_reduced::basis(&scene, r, force),
+        Command::Simulate { scene, out, quiet } => cli::sim::simulate(&scene, out.as_deref(), quiet),
+        Command::Basis { scene, r, force } => cli::reduced::basis(&scene, r, force),
         Command::Bench(b) => match b {
-            BenchCmd::Reduced { r, nodes, steps, json } => cli_reduced::bench_reduced_cmd(r, nodes, steps, json),
+            BenchCmd::Reduced { r, nodes, steps, json } => cli::reduced::bench_reduced_cmd(r, nodes, steps, json),
             BenchCmd::Step {
                 model,
                 law,
@@ -310,7 +305,7 @@ fn main() -> ExitCode {
                 stiffness_every,
                 no_final_residual,
                 json,
-            } => cli_sim::bench_step_cmd(
+            } => cli::sim::bench_step_cmd(
                 &model,
                 &law,
                 nodes,
@@ -321,18 +316,18 @@ fn main() -> ExitCode {
                 no_final_residual,
                 json,
             ),
-            BenchCmd::Extremes { quick, halvings, json } => cli_sim::bench_extremes(quick, halvings, json),
+            BenchCmd::Extremes { quick, halvings, json } => cli::sim::bench_extremes(quick, halvings, json),
         },
         Command::Experiment(e) => match e {
-            ExperimentCmd::Cubic { out, quick } => cli_cubic::experiment_cubic(&out, quick),
-            ExperimentCmd::Reduced { out, quick } => cli_reduced::experiment_reduced(&out, quick),
-            ExperimentCmd::Fig5 { out, quick } => cli_sim::experiment_fig5(&out, quick),
-            ExperimentCmd::Table { out, quick } => cli_sim::experiment_table(&out, quick),
-            ExperimentCmd::Trade { out, quick } => cli_sim::experiment_trade(&out, quick),
+            ExperimentCmd::Cubic { out, quick } => cli::cubic::experiment_cubic(&out, quick),
+            ExperimentCmd::Reduced { out, quick } => cli::reduced::experiment_reduced(&out, quick),
+            ExperimentCmd::Fig5 { out, quick } => cli::sim::experiment_fig5(&out, quick),
+            ExperimentCmd::Table { out, quick } => cli::sim::experiment_table(&out, quick),
+            ExperimentCmd::Trade { out, quick } => cli::sim::experiment_trade(&out, quick),
         },
-        Command::Replay(a) => cli_stream::replay(a),
-        Command::View(a) => cli_stream::view(a),
-        Command::StreamDemo(a) => cli_stream::demo(a),
+        Command::Replay(a) => cli::stream::replay(a),
+        Command::View(a) => cli::stream::view(a),
+        Command::StreamDemo(a) => cli::stream::demo(a),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -14,7 +14,7 @@
 //! Functions here are per-element kernels of the deformation gradient F; the
 //! models assemble them. Nothing here knows about meshes.
 
-use crate::model::Mat3;
+use crate::math::Mat3;
 
 /// Threshold below which the Neo-Hookean log J is replaced by its quadratic
 /// extension (see the module docs).

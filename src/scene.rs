@@ -10,11 +10,12 @@
 //! and the loads the solver needs; running it lives in [`crate::simulate`].
 
 use crate::material::{Law, Material, PronyTerm};
+use crate::math::Vec3;
 use crate::mesh::arch::{generate, ArchParams};
 use crate::mesh::block::block;
 use crate::mesh::io::read_mesh_scaled;
 use crate::mesh::roi::{extract, Region, CUT_SET};
-use crate::mesh::{TetMesh, Vec3};
+use crate::mesh::TetMesh;
 use crate::model::fem::Fem;
 use crate::model::msm::Msm;
 use crate::model::nvtmm::Nvtmm;

@@ -7,7 +7,7 @@
 //! [`RunSummary`]. A failed step stops the run with an error that says which
 //! step and why; the state is never advanced with a non-finite value.
 
-use crate::mesh::Vec3;
+use crate::math::Vec3;
 use crate::scene::{Scene, SceneError};
 use crate::solver::{ImplicitEuler, StepReport, TissueState};
 use std::io::Write;

@@ -4,8 +4,9 @@
 mod common;
 
 use common::{block, pseudo_random, Springs};
-use nvtmm::mesh::Vec3;
-use nvtmm::model::{BlockTangent, ForceModel, Mat3};
+use nvtmm::math::Mat3;
+use nvtmm::math::Vec3;
+use nvtmm::model::{BlockTangent, ForceModel};
 use nvtmm::solver::linear::{project_fixed, LinearSolver};
 use nvtmm::solver::loads::{Loads, NodalLoad, TimeProfile};
 use nvtmm::solver::{ImplicitEuler, ImplicitEulerParams, LinearSolverKind, NewtonParams, Preconditioner, TissueState};

@@ -14,7 +14,7 @@ use nvtmm::haptics::passivity::{PassivityFilter, PassivityParams};
 use nvtmm::haptics::servo::{Servo, ServoParams};
 use nvtmm::haptics::touchx::{TouchXParams, TouchXSim, Waypoint};
 use nvtmm::material::Material;
-use nvtmm::mesh::Vec3;
+use nvtmm::math::Vec3;
 use nvtmm::reduced::{basis_rows, DynamicsParams, Refresher};
 use nvtmm::service::background::rest_model;
 use std::sync::Arc;

@@ -4,7 +4,7 @@
 mod common;
 
 use common::{bits, block, pseudo_random, NanAfter, Springs};
-use nvtmm::mesh::Vec3;
+use nvtmm::math::Vec3;
 use nvtmm::model::ForceModel;
 use nvtmm::solver::linear::LinearFailure;
 use nvtmm::solver::loads::{LoadError, Loads, NodalLoad, TimeProfile};

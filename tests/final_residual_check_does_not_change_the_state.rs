@@ -6,7 +6,7 @@
 mod common;
 
 use common::{block, Springs};
-use nvtmm::mesh::Vec3;
+use nvtmm::math::Vec3;
 use nvtmm::solver::loads::{Loads, NodalLoad, TimeProfile};
 use nvtmm::solver::{ImplicitEuler, ImplicitEulerParams, LinearSolverKind, NewtonParams, TissueState};
 

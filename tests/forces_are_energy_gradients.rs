@@ -6,14 +6,15 @@
 mod common;
 
 use common::*;
+use nvtmm::math::Vec3;
 use nvtmm::mesh::arch::{generate, ArchParams};
-use nvtmm::mesh::{TetMesh, Vec3};
+use nvtmm::mesh::TetMesh;
 use nvtmm::model::{BlockTangent, ForceModel};
 
 /// Random displacement: a random affine part (up to ~10% strain) plus
 /// per-node noise of `noise` edge lengths.
 fn random_u(mesh: &TetMesh, rng: &mut Rng, noise: f64) -> Vec<Vec3> {
-    let g = nvtmm::model::Mat3::from_fn(|_, _| 0.2 * rng.next());
+    let g = nvtmm::math::Mat3::from_fn(|_, _| 0.2 * rng.next());
     let h = mean_edge(mesh);
     mesh.rest().iter().map(|x| g * x + rng.vec3() * (noise * h)).collect()
 }

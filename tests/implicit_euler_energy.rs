@@ -10,7 +10,7 @@
 mod common;
 
 use common::{block, pseudo_random, Springs};
-use nvtmm::mesh::Vec3;
+use nvtmm::math::Vec3;
 use nvtmm::model::ForceModel;
 use nvtmm::solver::loads::Loads;
 use nvtmm::solver::{ImplicitEuler, ImplicitEulerParams, LinearSolverKind, NewtonParams, TissueState};

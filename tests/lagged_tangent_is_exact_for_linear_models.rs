@@ -7,7 +7,7 @@
 mod common;
 
 use common::{block, material};
-use nvtmm::mesh::Vec3;
+use nvtmm::math::Vec3;
 use nvtmm::model::tmm::Tmm;
 use nvtmm::solver::loads::{Loads, NodalLoad, TimeProfile};
 use nvtmm::solver::{ImplicitEuler, ImplicitEulerParams, LinearSolverKind, NewtonParams, Preconditioner, TissueState};

@@ -3,11 +3,12 @@
 //! formats we only read are checked on small fixtures built here by hand
 //! from the format specifications; surface writers give the right counts.
 
+use nvtmm::math::Vec3;
 use nvtmm::mesh::arch::{generate, ArchParams};
 use nvtmm::mesh::io::{
     read_mesh, read_mesh_bytes, read_mesh_scaled, write_mesh, write_tetgen, write_vtu_with_data, Format, PvdSeries,
 };
-use nvtmm::mesh::{TetMesh, Vec3};
+use nvtmm::mesh::TetMesh;
 use std::path::Path;
 
 fn arch() -> TetMesh {

@@ -8,8 +8,8 @@
 
 use nalgebra::{DMatrix, SymmetricEigen};
 use nvtmm::material::Material;
+use nvtmm::math::Vec3;
 use nvtmm::mesh::arch::{generate, Arch, ArchParams};
-use nvtmm::mesh::Vec3;
 use nvtmm::model::{tmm::Tmm, BlockTangent, ForceModel};
 use nvtmm::reduced::ModalBasis;
 

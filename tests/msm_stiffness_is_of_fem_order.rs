@@ -28,7 +28,7 @@ fn uniaxial(model: &dyn ForceModel, mesh: &TetMesh) -> (f64, f64) {
     let len = N as f64 * H;
     let on = |v: f64, w: f64| (v - w).abs() < 1e-9 * len;
     let mut k = BlockTangent::zeros(mesh);
-    model.add_stiffness(&vec![nvtmm::mesh::Vec3::zeros(); n], &mut k);
+    model.add_stiffness(&vec![nvtmm::math::Vec3::zeros(); n], &mut k);
     let kd = k.to_dense();
     // Prescribed dofs and their values.
     let mut fixed: Vec<Option<f64>> = vec![None; 3 * n];

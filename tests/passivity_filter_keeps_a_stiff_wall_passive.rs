@@ -8,7 +8,7 @@
 //! integrated at 100 sub-steps per tick.
 
 use nvtmm::haptics::passivity::{NormBound, PassivityFilter, PassivityParams};
-use nvtmm::mesh::Vec3;
+use nvtmm::math::Vec3;
 
 const T: f64 = 1e-3;
 const SUB: usize = 100;

@@ -8,8 +8,9 @@ mod common;
 
 use common::*;
 use nvtmm::material::{pk1, Law};
-use nvtmm::mesh::Vec3;
-use nvtmm::model::{fem::Fem, tmm::Tmm, ForceModel, Mat3};
+use nvtmm::math::Mat3;
+use nvtmm::math::Vec3;
+use nvtmm::model::{fem::Fem, tmm::Tmm, ForceModel};
 
 const N: usize = 3;
 const H: f64 = 0.01;

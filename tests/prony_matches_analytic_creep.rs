@@ -10,8 +10,9 @@
 
 use nalgebra::{DMatrix, DVector, Rotation3};
 use nvtmm::material::{relaxation, Law, Material, PronyTerm};
+use nvtmm::math::Vec3;
 use nvtmm::mesh::block::block;
-use nvtmm::mesh::{TetMesh, Vec3};
+use nvtmm::mesh::TetMesh;
 use nvtmm::model::nvtmm::Nvtmm;
 use nvtmm::model::viscoelastic::Viscoelastic;
 use nvtmm::model::{BlockTangent, ForceModel};

@@ -5,7 +5,7 @@
 //! allocator.)
 
 use nvtmm::haptics::passivity::{PassivityFilter, PassivityParams};
-use nvtmm::mesh::Vec3;
+use nvtmm::math::Vec3;
 use nvtmm::rt::alloc::{self, RtAllocator};
 
 #[global_allocator]

@@ -5,8 +5,8 @@
 //! damped under the same constant load, settle to that static solution.
 
 use nvtmm::material::Material;
+use nvtmm::math::Vec3;
 use nvtmm::mesh::arch::{generate, Arch, ArchParams};
-use nvtmm::mesh::Vec3;
 use nvtmm::model::{tmm::Tmm, BlockTangent, ForceModel};
 use nvtmm::reduced::{DynamicsParams, ModalBasis, ReducedDynamics};
 use nvtmm::solver::linear::{project_fixed, CholeskySolver};

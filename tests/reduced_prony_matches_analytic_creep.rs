@@ -4,8 +4,8 @@
 //! same curve the full model follows (tests/prony_matches_analytic_creep.rs).
 
 use nvtmm::material::{Material, PronyTerm};
+use nvtmm::math::Vec3;
 use nvtmm::mesh::block::block;
-use nvtmm::mesh::Vec3;
 use nvtmm::model::tmm::Tmm;
 use nvtmm::reduced::{DynamicsParams, ModalBasis, ReducedDynamics};
 

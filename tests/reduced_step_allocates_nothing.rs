@@ -8,8 +8,8 @@ mod common;
 use common::counting::count_allocations;
 use nalgebra::SMatrix;
 use nvtmm::material::{Material, PronyTerm};
+use nvtmm::math::Vec3;
 use nvtmm::mesh::arch::{generate, ArchParams};
-use nvtmm::mesh::Vec3;
 use nvtmm::model::tmm::Tmm;
 use nvtmm::reduced::{DynamicsParams, ModalBasis, ReducedDynamics};
 

@@ -7,11 +7,12 @@
 mod common;
 
 use common::*;
+use nvtmm::math::Vec3;
 use nvtmm::mesh::arch::{generate, ArchParams};
-use nvtmm::mesh::{TetMesh, Vec3};
+use nvtmm::mesh::TetMesh;
 use nvtmm::model::ForceModel;
 
-fn rotation(axis: Vec3, angle: f64) -> nvtmm::model::Mat3 {
+fn rotation(axis: Vec3, angle: f64) -> nvtmm::math::Mat3 {
     *nalgebra::Rotation3::from_axis_angle(&nalgebra::Unit::new_normalize(axis), angle).matrix()
 }
 
@@ -27,7 +28,7 @@ fn rigid(mesh: &TetMesh, angle: f64) -> Vec<Vec3> {
     let t = Vec3::new(0.3, -0.2, 0.1) * mean_edge(mesh);
     mesh.rest()
         .iter()
-        .map(|x| (r - nvtmm::model::Mat3::identity()) * (x - c) + t)
+        .map(|x| (r - nvtmm::math::Mat3::identity()) * (x - c) + t)
         .collect()
 }
 

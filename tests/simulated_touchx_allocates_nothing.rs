@@ -8,7 +8,7 @@ mod common;
 use common::counting::count_allocations;
 use nvtmm::haptics::touchx::{TouchXParams, TouchXSim, Waypoint};
 use nvtmm::haptics::HapticDevice;
-use nvtmm::mesh::Vec3;
+use nvtmm::math::Vec3;
 
 #[global_allocator]
 static GLOBAL: common::counting::Counting = common::counting::Counting;

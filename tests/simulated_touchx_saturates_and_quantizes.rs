@@ -7,7 +7,7 @@
 
 use nvtmm::haptics::touchx::{TouchXParams, TouchXSim, Waypoint};
 use nvtmm::haptics::{DeviceError, HapticDevice};
-use nvtmm::mesh::Vec3;
+use nvtmm::math::Vec3;
 
 const DT: f64 = 1e-3;
 

@@ -6,7 +6,8 @@ mod common;
 
 use common::{bits, block, pseudo_random};
 use nvtmm::material::{Law, Material, PronyTerm};
-use nvtmm::mesh::{TetMesh, Vec3};
+use nvtmm::math::Vec3;
+use nvtmm::mesh::TetMesh;
 use nvtmm::model::nvtmm::Nvtmm;
 use nvtmm::model::viscoelastic::Viscoelastic;
 use nvtmm::model::{BlockTangent, ForceModel};

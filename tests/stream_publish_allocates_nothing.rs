@@ -5,8 +5,8 @@
 mod common;
 
 use common::counting::count_allocations;
+use nvtmm::math::Vec3;
 use nvtmm::mesh::arch::{generate, ArchParams};
-use nvtmm::mesh::Vec3;
 use nvtmm::stream::{decimate, flags, Publisher, StateFrame, StreamConfig};
 use std::net::UdpSocket;
 

@@ -8,15 +8,16 @@ mod common;
 
 use common::*;
 use nvtmm::material::Law;
+use nvtmm::math::Vec3;
 use nvtmm::mesh::arch::{generate, ArchParams};
-use nvtmm::mesh::{TetMesh, Vec3};
+use nvtmm::mesh::TetMesh;
 use nvtmm::model::{fem::Fem, nvtmm::Nvtmm, tmm::Tmm, BlockTangent, ForceModel};
 
 fn compare(mesh: &TetMesh, seed: u64, strain: f64) {
     let m = material();
     let (tm, fem) = (Nvtmm::new(mesh, &m), Fem::new(mesh, &m, Law::Stvk));
     let mut rng = Rng::new(seed);
-    let g = nvtmm::model::Mat3::from_fn(|_, _| 2.0 * strain * rng.next());
+    let g = nvtmm::math::Mat3::from_fn(|_, _| 2.0 * strain * rng.next());
     let h = mean_edge(mesh);
     let u: Vec<Vec3> = mesh.rest().iter().map(|x| g * x + rng.vec3() * (strain * h)).collect();
     let du = rng.vecs(mesh.num_nodes(), h);

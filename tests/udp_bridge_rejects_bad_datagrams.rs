@@ -7,7 +7,7 @@ use nvtmm::haptics::udp::{
     FLAG_SATURATED, FLAG_STOP, FORCE_LEN, POSE_LEN, STATUS_FAULT,
 };
 use nvtmm::haptics::{DeviceError, HapticDevice};
-use nvtmm::mesh::Vec3;
+use nvtmm::math::Vec3;
 use proptest::prelude::*;
 use std::net::{SocketAddr, UdpSocket};
 use std::time::Duration;

@@ -27,11 +27,12 @@
 //!   precomputation (`CubicStvk::new`) and the basis time.
 
 use super::ExperimentError;
+use crate::bench::reduced::bench_dynamics_params;
 use crate::bench::{arch_top_node, probe_region, standard_load, STANDARD_FORCE_N};
-use crate::bench_reduced::bench_dynamics_params;
 use crate::material::Material;
+use crate::math::Vec3;
 use crate::mesh::arch::{generate, ArchParams};
-use crate::mesh::{TetMesh, Vec3};
+use crate::mesh::TetMesh;
 use crate::model::nvtmm::Nvtmm;
 use crate::reduced::cubic::{CubicReducedDynamics, CubicStvk, DEFAULT_NEWTON_ITERS};
 use crate::reduced::derivatives::with_load_derivatives;

@@ -5,7 +5,7 @@
 //!
 //! - Arch with both ends fixed, NVTMM StVK linearized at rest (K(0)), aorta
 //!   material. Probe patch: the outer-wall nodes within 5 mm of the arch top
-//!   ([`crate::bench_reduced::probe_region`]). Load shape: equal −z forces on
+//!   ([`crate::bench::reduced::probe_region`]). Load shape: equal −z forces on
 //!   the patch nodes.
 //! - Full: the static linear solution K u = f (sparse Cholesky); δ_full is
 //!   the −z displacement of the top node per newton of total force.
@@ -20,12 +20,13 @@
 //!   (r = 16, contact modes) and the top-node displacement error.
 
 use super::ExperimentError;
+use crate::bench::reduced::probe_region;
 use crate::bench::{arch_top_node, standard_load, STANDARD_FORCE_N};
-use crate::bench_reduced::probe_region;
 use crate::material::Material;
+use crate::math::Vec3;
 use crate::mesh::arch::{generate, ArchParams};
 use crate::mesh::roi::{arch_node_arclength, extract, Region, CUT_SET};
-use crate::mesh::{TetMesh, Vec3};
+use crate::mesh::TetMesh;
 use crate::model::nvtmm::Nvtmm;
 use crate::model::{BlockTangent, ForceModel};
 use crate::reduced::{BasisParams, ModalBasis};

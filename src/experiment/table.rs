@@ -13,7 +13,7 @@
 //! - **haptic rate (reduced model)**: steps per second of this project's
 //!   reduced model (r = 32, half of them contact modes of the probe patch)
 //!   taking its implicit step with the probe's contact stiffness, as the 1
-//!   kHz loop does: 10⁶ / `us_per_step` of [`crate::bench_reduced`]. The
+//!   kHz loop does: 10⁶ / `us_per_step` of [`crate::bench::reduced`]. The
 //!   reduced model is built from the NVTMM tangent, so it is reported on the
 //!   NVTMM rows.
 //!
@@ -25,8 +25,8 @@
 use super::ExperimentError;
 use crate::bench::{arch_top_node, standard_load, standard_params, STANDARD_FORCE_N};
 use crate::material::{Law, Material};
+use crate::math::Vec3;
 use crate::mesh::arch::{generate, ArchParams};
-use crate::mesh::Vec3;
 use crate::model::ModelKind;
 use crate::scene::build_model;
 use crate::solver::{ImplicitEuler, ImplicitEulerParams, LinearSolverKind, TissueState};
@@ -183,7 +183,7 @@ pub fn run(out: &Path, quick: bool) -> Result<Vec<TableRow>, ExperimentError> {
             match reduced.iter().find(|(n, _)| *n == nodes) {
                 Some(&(_, fps)) => fps,
                 None => {
-                    let fps = match crate::bench_reduced::bench_reduced(REDUCED_R, nodes, reduced_steps) {
+                    let fps = match crate::bench::reduced::bench_reduced(REDUCED_R, nodes, reduced_steps) {
                         Ok(b) => 1e6 / b.us_per_step,
                         Err(e) => {
                             failures.push(format!("reduced model: {e}"));

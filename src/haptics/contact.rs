@@ -20,7 +20,8 @@
 //! K_c = Σ k_p Aᵢ (Φᵢᵀnᵢ)(Φᵢᵀnᵢ)ᵀ (the normal part of −∂f/∂q, positive
 //! semi-definite); see [`crate::reduced::ReducedDynamics::step_with_contact`].
 
-use crate::mesh::{TetMesh, Vec3};
+use crate::math::Vec3;
+use crate::mesh::TetMesh;
 use nalgebra::{SMatrix, SVector};
 
 /// Candidate capacity of one query (a larger patch is truncated and counted).

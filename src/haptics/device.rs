@@ -8,7 +8,7 @@
 //! [`HapticDevice::start`]. A force the device cannot render is saturated by
 //! the backend, never passed through.
 
-use crate::mesh::Vec3;
+use crate::math::Vec3;
 
 /// One pose sample from the device, in the service's frame (SI units).
 #[derive(Debug, Clone, Copy, PartialEq)]

@@ -33,7 +33,7 @@
 //! openhaptics` works (nothing is linked).
 
 use crate::haptics::device::{DeviceError, DeviceSample, HapticDevice};
-use crate::mesh::Vec3;
+use crate::math::Vec3;
 use std::ffi::{c_char, c_int, c_uint, c_ulong, c_ushort, c_void};
 use std::sync::atomic::{fence, AtomicBool, AtomicU32, AtomicU64, Ordering};
 

@@ -83,7 +83,7 @@
 //! pool.
 
 use crate::config::{Checker, ConfigError};
-use crate::mesh::Vec3;
+use crate::math::Vec3;
 use clarabel::algebra::CscMatrix;
 use clarabel::solver::{
     DefaultSettings, DefaultSettingsBuilder, DefaultSolver, IPSolver, SolverStatus, SupportedConeT,

@@ -11,7 +11,7 @@
 
 use super::contact::{self, Candidates, ContactOutput, ContactParams, SurfaceIndex};
 use super::device::DeviceSample;
-use crate::mesh::Vec3;
+use crate::math::Vec3;
 use crate::reduced::ReducedDynamics;
 use nalgebra::{SMatrix, SVector};
 use std::sync::Arc;

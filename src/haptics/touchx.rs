@@ -37,7 +37,7 @@
 
 use crate::config::{load_toml, parse_toml, Checker, ConfigError};
 use crate::haptics::device::{DeviceError, DeviceSample, HapticDevice, PortEnergy};
-use crate::mesh::Vec3;
+use crate::math::Vec3;
 use std::path::Path;
 
 /// The simulated device's parameters, as in `rt-config/touchx.toml` (SI

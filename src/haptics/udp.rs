@@ -49,7 +49,7 @@
 
 use crate::config::{load_toml, parse_toml, Checker, ConfigError};
 use crate::haptics::device::{DeviceError, DeviceSample, HapticDevice};
-use crate::mesh::Vec3;
+use crate::math::Vec3;
 use std::io::ErrorKind;
 use std::net::{SocketAddr, UdpSocket};
 use std::path::Path;

@@ -25,7 +25,8 @@
 //! Node sets: `inlet` (aortic root ring, all layers), `outlet_descending`
 //! (descending end ring), `inner_wall` (lumen surface), `outer_wall`.
 
-use super::{signed_volume, TetMesh, TopologyError, Vec3};
+use super::{signed_volume, TetMesh, TopologyError};
+use crate::math::Vec3;
 use std::collections::BTreeMap;
 
 /// Geometry parameters of the arch (millimetres, as anatomy is quoted).

@@ -4,7 +4,8 @@
 //! tets by the Kuhn subdivision (conforming). Node sets name the six faces:
 //! `x_min`, `x_max`, `y_min`, `y_max`, `z_min`, `z_max`.
 
-use super::{signed_volume, TetMesh, TopologyError, Vec3};
+use super::{signed_volume, TetMesh, TopologyError};
+use crate::math::Vec3;
 use std::collections::BTreeMap;
 
 /// Builds a box of `cells[0] × cells[1] × cells[2]` cells spanning [0, size] (m).

@@ -19,11 +19,10 @@ pub mod quality;
 pub mod render;
 pub mod roi;
 
-use nalgebra::{Matrix3, Vector3};
+use nalgebra::Matrix3;
 use std::collections::{BTreeMap, HashMap};
 
-/// A 3-vector of f64 (positions, displacements, forces: SI units).
-pub type Vec3 = Vector3<f64>;
+use crate::math::Vec3;
 
 /// What is wrong with a mesh's content (independent of the file it came from).
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]

@@ -3,7 +3,8 @@
 //! The aspect ratio is the longest edge over 2√6 times the inradius, which is
 //! 1 for a regular tet and grows without bound as a tet flattens.
 
-use super::{TetMesh, Vec3, TET_EDGE_LOCAL};
+use super::{TetMesh, TET_EDGE_LOCAL};
+use crate::math::Vec3;
 
 /// Quality summary of a mesh.
 #[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]

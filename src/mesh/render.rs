@@ -5,7 +5,8 @@
 //! a z-buffer and 2×2 supersampling. Optionally colours by a per-node scalar
 //! (e.g. displacement magnitude) with a blue→red map.
 
-use super::{TetMesh, Vec3};
+use super::TetMesh;
+use crate::math::Vec3;
 use nalgebra::Rotation3;
 use std::io::BufWriter;
 use std::path::Path;

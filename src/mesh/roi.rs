@@ -9,7 +9,8 @@
 //! to the kept nodes (possibly empty), plus a set `roi_cut` of the cut nodes.
 
 use super::arch::Arch;
-use super::{TetMesh, TopologyError, Vec3};
+use super::{TetMesh, TopologyError};
+use crate::math::Vec3;
 use std::collections::{BTreeMap, HashSet};
 
 /// Name of the node set of the cut nodes in a sub-mesh.

@@ -11,9 +11,11 @@
 //! per-element buffer and then scattered serially into the nodes, so results
 //! are bit-for-bit reproducible whatever the thread schedule.
 
-use super::{tet_pair_edges, BlockTangent, ForceModel, Mat3};
+use super::{tet_pair_edges, BlockTangent, ForceModel};
 use crate::material::{dpk1, energy_density, pk1, Lame, Law, Material};
-use crate::mesh::{TetMesh, Vec3};
+use crate::math::Mat3;
+use crate::math::Vec3;
+use crate::mesh::TetMesh;
 use rayon::prelude::*;
 use std::sync::{Mutex, TryLockError};
 

@@ -19,11 +19,9 @@ pub mod nvtmm;
 pub mod tmm;
 pub mod viscoelastic;
 
-use crate::mesh::{TetMesh, Vec3};
-use nalgebra::Matrix3;
-
-/// A 3×3 f64 matrix (tensors, tangent blocks).
-pub type Mat3 = Matrix3<f64>;
+use crate::math::Mat3;
+use crate::math::Vec3;
+use crate::mesh::TetMesh;
 
 /// Which force model a scene uses.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, serde::Serialize, serde::Deserialize)]

@@ -24,9 +24,11 @@
 //! and keeps only the axial stiffness k n nᵀ: forces and tangents stay finite
 //! (no NaN) and push the two nodes apart along the rest edge.
 
-use super::{BlockTangent, ForceModel, Mat3};
+use super::{BlockTangent, ForceModel};
 use crate::material::Material;
-use crate::mesh::{TetMesh, Vec3};
+use crate::math::Mat3;
+use crate::math::Vec3;
+use crate::mesh::TetMesh;
 
 /// Below this fraction of its rest length a spring counts as collapsed (see
 /// the module docs).

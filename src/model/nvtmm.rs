@@ -38,9 +38,11 @@
 //! [`Fem`]: super::fem::Fem
 //! [`Viscoelastic`]: super::viscoelastic::Viscoelastic
 
-use super::{BlockTangent, ForceModel, Mat3};
+use super::{BlockTangent, ForceModel};
 use crate::material::Material;
-use crate::mesh::{TetMesh, Vec3, TET_EDGE_LOCAL};
+use crate::math::Mat3;
+use crate::math::Vec3;
+use crate::mesh::{TetMesh, TET_EDGE_LOCAL};
 use rayon::prelude::*;
 
 /// One tet's contributions: 𝒞 triplets, 𝔇 triplets and K₀ blocks.

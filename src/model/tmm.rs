@@ -13,9 +13,11 @@
 //! produces spurious forces. That is the known limit the nonlinear model
 //! (`nvtmm`, which reuses `k0` as its quadratic part) removes.
 
-use super::{tet_pair_edges, BlockTangent, ForceModel, Mat3};
+use super::{tet_pair_edges, BlockTangent, ForceModel};
 use crate::material::{Lame, Material};
-use crate::mesh::{TetMesh, Vec3};
+use crate::math::Mat3;
+use crate::math::Vec3;
+use crate::mesh::TetMesh;
 
 /// One tet's linear stiffness block between its local nodes with gradients
 /// `dp` and `dq`: V [λ D_p ⊗ D_q + μ D_q ⊗ D_p + μ (D_p·D_q) I].

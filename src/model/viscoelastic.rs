@@ -19,9 +19,11 @@
 //! [`Viscoelastic`] wraps any elastic [`ForceModel`] (NVTMM's tensor-mass
 //! StVK, or element FEM with StVK or Neo-Hookean) with this history.
 
-use super::{BlockTangent, ForceModel, Mat3};
+use super::{BlockTangent, ForceModel};
 use crate::material::{pk2, Lame, Law, Material, PronyTerm};
-use crate::mesh::{TetMesh, Vec3, TET_EDGE_LOCAL};
+use crate::math::Mat3;
+use crate::math::Vec3;
+use crate::mesh::{TetMesh, TET_EDGE_LOCAL};
 use rayon::prelude::*;
 
 /// Per-element Prony history on the second Piola–Kirchhoff stress.

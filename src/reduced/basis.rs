@@ -22,7 +22,8 @@
 //! be added ([`ModalBasis::compute_augmented`]): they make the reduced model's
 //! stiffness at those nodes exact, which a few vibration modes alone cannot.
 
-use crate::mesh::{TetMesh, Vec3};
+use crate::math::Vec3;
+use crate::mesh::TetMesh;
 use crate::model::{BlockTangent, ForceModel};
 use faer::dyn_stack::{MemBuffer, MemStack};
 use faer::linalg::cholesky::llt::factor::LltRegularization;
@@ -504,7 +505,7 @@ impl FreeProblem {
             sqrt_m.extend([m.sqrt(); 3]);
         }
         let mut entries = Vec::new();
-        let mut push_block = |a: usize, b: usize, m: &crate::model::Mat3| {
+        let mut push_block = |a: usize, b: usize, m: &crate::math::Mat3| {
             for r in 0..3 {
                 for c in 0..3 {
                     if m[(r, c)] != 0.0 {

@@ -33,7 +33,8 @@
 
 use super::basis::{BasisParams, ModalBasis, ReducedError};
 use crate::material::{Law, Material};
-use crate::mesh::{TetMesh, Vec3};
+use crate::math::Vec3;
+use crate::mesh::TetMesh;
 use crate::model::ForceModel;
 use nalgebra::DMatrix;
 use std::io::Write;

@@ -61,8 +61,9 @@
 use super::basis::{ModalBasis, ReducedError};
 use super::dynamics::{basis_rows, BasisRows, DynamicsParams, NodeOutOfRange};
 use crate::material::Material;
-use crate::mesh::{TetMesh, Vec3};
-use crate::model::Mat3;
+use crate::math::Mat3;
+use crate::math::Vec3;
+use crate::mesh::TetMesh;
 use faer::linalg::matmul::triangular::{matmul as triangular_matmul, BlockStructure};
 use faer::{Accum, Mat, Par};
 use nalgebra::{Cholesky, DMatrix, DVector, SMatrix, SVector};

@@ -27,7 +27,8 @@
 //! accepts.
 
 use super::basis::{ModalBasis, ReducedError};
-use crate::mesh::{TetMesh, Vec3};
+use crate::math::Vec3;
+use crate::mesh::TetMesh;
 use crate::model::{BlockTangent, ForceModel};
 use crate::solver::linear::{project_fixed, CholeskySolver};
 use nalgebra::{DMatrix, SymmetricEigen};

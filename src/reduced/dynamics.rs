@@ -37,7 +37,7 @@
 
 use super::basis::{ModalBasis, ReducedError};
 use crate::material::PronyTerm;
-use crate::mesh::Vec3;
+use crate::math::Vec3;
 use nalgebra::{Cholesky, Const, DMatrix, SMatrix, SVector};
 use std::sync::Arc;
 

@@ -22,7 +22,8 @@
 //! swap and no per-node work.
 
 use super::basis::ModalBasis;
-use crate::mesh::{TetMesh, Vec3};
+use crate::math::Vec3;
+use crate::mesh::TetMesh;
 use crate::model::{BlockTangent, ForceModel};
 use faer::linalg::matmul::matmul;
 use faer::{Accum, MatMut, MatRef, Par};

@@ -16,8 +16,8 @@
 
 use crate::haptics::contact::NodeContact;
 use crate::haptics::servo::LoopModel;
+use crate::math::Vec3;
 use crate::mesh::TetMesh;
-use crate::mesh::Vec3;
 use crate::model::BlockTangent;
 use crate::model::ForceModel;
 use crate::reduced::{basis_rows, BasisParams, BasisRows, DynamicsParams, ModalBasis, ReducedDynamics, Refresher};

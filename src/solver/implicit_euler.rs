@@ -39,8 +39,10 @@
 use super::linear::{project_fixed, LinearFailure, LinearSolver, LinearSolverKind};
 use super::loads::{validate_fixed, LoadError, Loads};
 use super::TissueState;
-use crate::mesh::{TetMesh, Vec3};
-use crate::model::{BlockTangent, ForceModel, Mat3};
+use crate::math::Mat3;
+use crate::math::Vec3;
+use crate::mesh::TetMesh;
+use crate::model::{BlockTangent, ForceModel};
 
 /// Largest allowed `newton.max_iters` (the report stores one residual per
 /// iteration in a fixed array).

@@ -16,8 +16,9 @@
 //!
 //! Nothing here knows about time or force models.
 
-use crate::mesh::Vec3;
-use crate::model::{BlockTangent, Mat3};
+use crate::math::Mat3;
+use crate::math::Vec3;
+use crate::model::BlockTangent;
 use faer::dyn_stack::{MemBuffer, MemStack, StackReq};
 use faer::linalg::cholesky::llt::factor::LltRegularization;
 use faer::sparse::linalg::cholesky::{

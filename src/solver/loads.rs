@@ -7,7 +7,8 @@
 //!   by a [`TimeProfile`].
 //! - Gravity: f_i = m_i g with the lumped mass of the integrator.
 
-use crate::mesh::{TetMesh, Vec3};
+use crate::math::Vec3;
+use crate::mesh::TetMesh;
 
 /// How a nodal load's force vector is scaled in time: f(t) = s(t) · F.
 #[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]

@@ -37,7 +37,6 @@
 //! # let _ = (euler, state, loads, fixed);
 //! ```
 
-pub mod bench;
 pub mod implicit_euler;
 pub mod linear;
 pub mod loads;
@@ -48,7 +47,7 @@ pub use implicit_euler::{
 };
 pub use linear::{LinearSolverKind, Preconditioner};
 
-use crate::mesh::Vec3;
+use crate::math::Vec3;
 
 /// The dynamic state of the tissue (SI units).
 #[derive(Debug, Clone, PartialEq)]

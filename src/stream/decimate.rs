@@ -11,7 +11,8 @@
 //! most the target and as close to it as the grid allows.
 
 use super::Topology;
-use crate::mesh::{TetMesh, Vec3};
+use crate::math::Vec3;
+use crate::mesh::TetMesh;
 use std::collections::HashMap;
 
 /// The full surface (`target_vertices == 0`, or a target at least the

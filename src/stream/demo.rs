@@ -4,7 +4,8 @@
 //! and the tools without the haptic service (`nvtmm stream-demo`, tests).
 
 use super::{flags, StateFrame, Topology};
-use crate::mesh::{TetMesh, Vec3};
+use crate::math::Vec3;
+use crate::mesh::TetMesh;
 
 /// The dent generator; see the module doc.
 #[derive(Debug, Clone)]

@@ -111,7 +111,7 @@ impl Topology {
     /// Current stream positions from mesh displacements `u` (per mesh node,
     /// metres): `rest[node] + u[node]` for each stream vertex, written into
     /// `out` (resized to the vertex count, no allocation once sized).
-    pub fn positions_from_displacement(&self, mesh: &TetMesh, u: &[crate::mesh::Vec3], out: &mut Vec<[f32; 3]>) {
+    pub fn positions_from_displacement(&self, mesh: &TetMesh, u: &[crate::math::Vec3], out: &mut Vec<[f32; 3]>) {
         out.resize(self.node_ids.len(), [0.0; 3]);
         let rest = mesh.rest();
         for (o, &id) in out.iter_mut().zip(&self.node_ids) {

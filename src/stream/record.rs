@@ -4,8 +4,8 @@
 
 use super::format::{self, MAX_DATAGRAM};
 use super::{flags, Decoded, Decoder, DecoderStats, StreamError};
+use crate::math::Vec3;
 use crate::mesh::io::{write_vtu_cells, PvdSeries};
-use crate::mesh::Vec3;
 use crate::rt::clock;
 use std::fs::File;
 use std::io::{BufReader, BufWriter, ErrorKind, Read, Write};

@@ -6,8 +6,10 @@
 pub mod counting;
 
 use nvtmm::material::{Law, Material};
-use nvtmm::mesh::{TetMesh, Vec3};
-use nvtmm::model::{fem::Fem, msm::Msm, tmm::Tmm, BlockTangent, ForceModel, Mat3};
+use nvtmm::math::Mat3;
+use nvtmm::math::Vec3;
+use nvtmm::mesh::TetMesh;
+use nvtmm::model::{fem::Fem, msm::Msm, tmm::Tmm, BlockTangent, ForceModel};
 
 /// A block of nx × ny × nz cubes of side `h` (m), Kuhn-subdivided
 /// (`mesh::block`).

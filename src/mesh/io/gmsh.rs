@@ -13,7 +13,8 @@
 
 use super::scan::{quote, Endian, Scan};
 use super::{write_file, MeshError, RawMesh};
-use crate::mesh::{TetMesh, Vec3};
+use crate::math::Vec3;
+use crate::mesh::TetMesh;
 use std::collections::{BTreeMap, HashMap};
 use std::io::Write;
 use std::path::Path;

@@ -42,7 +42,8 @@ pub use tetgen::{read_tetgen_bytes, write_tetgen};
 pub use vtk::write_vtk;
 pub use vtu::{write_vtu, write_vtu_cells, write_vtu_with_data, PvdSeries};
 
-use super::{TetMesh, TopologyError, Vec3};
+use super::{TetMesh, TopologyError};
+use crate::math::Vec3;
 use std::collections::BTreeMap;
 use std::fs::File;
 use std::io::{BufWriter, Write};

@@ -3,7 +3,8 @@
 //! in increasing order of their mesh index.
 
 use super::{write_file, MeshError};
-use crate::mesh::{TetMesh, Vec3};
+use crate::math::Vec3;
+use crate::mesh::TetMesh;
 use std::io::Write;
 use std::path::Path;
 

@@ -8,7 +8,8 @@
 
 use super::scan::{quote, Endian, Scan};
 use super::{write_file, MeshError, RawMesh};
-use crate::mesh::{TetMesh, Vec3};
+use crate::math::Vec3;
+use crate::mesh::TetMesh;
 use std::collections::BTreeMap;
 use std::io::Write;
 use std::path::Path;

@@ -13,7 +13,8 @@ use super::scan::{quote, Endian, Scan};
 use super::vtk::{cells_to_tets, members, membership, SET_PREFIX};
 use super::vtkdata::{decode, to_f64, to_i64, type_size, Encoding, Source};
 use super::{write_file, MeshError, RawMesh};
-use crate::mesh::{TetMesh, Vec3};
+use crate::math::Vec3;
+use crate::mesh::TetMesh;
 use std::collections::{BTreeMap, HashMap};
 use std::io::Write;
 use std::path::{Path, PathBuf};
@@ -732,7 +733,7 @@ fn write_ascii(
 /// # let mesh = generate(&ArchParams::default(), 1458).unwrap().mesh;
 /// let mut series = PvdSeries::create(std::path::Path::new("out"), "arch")?;
 /// for step in 0..3 {
-///     let u = vec![nvtmm::mesh::Vec3::zeros(); mesh.num_nodes()];
+///     let u = vec![nvtmm::math::Vec3::zeros(); mesh.num_nodes()];
 ///     series.add_step(step as f64 * 1e-3, &mesh, None, &[("displacement", &u)], &[])?;
 /// }
 /// let pvd = series.finish()?; // out/arch.pvd, out/arch_000000.vtu …

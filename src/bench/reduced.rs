@@ -29,8 +29,8 @@
 
 use crate::bench::{standard_load, STANDARD_FORCE_N};
 use crate::material::Material;
+use crate::math::Vec3;
 use crate::mesh::arch::{generate, ArchParams};
-use crate::mesh::Vec3;
 use crate::model::nvtmm::Nvtmm;
 use crate::model::{BlockTangent, ForceModel};
 use crate::reduced::refresh::Refresher;

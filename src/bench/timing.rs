@@ -1,9 +1,9 @@
-//! A timing harness for implicit steps (what `nvtmm bench step` will call).
+//! A timing harness for implicit steps.
 //! Not a test: it measures wall-clock time on whatever machine it runs.
 
-use super::loads::Loads;
-use super::{ImplicitEuler, StepFailure, TissueState};
 use crate::model::ForceModel;
+use crate::solver::loads::Loads;
+use crate::solver::{ImplicitEuler, StepFailure, TissueState};
 use std::time::Instant;
 
 /// Timing and work statistics over a run of steps.

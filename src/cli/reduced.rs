@@ -1,7 +1,7 @@
 //! `nvtmm basis …` and `nvtmm bench reduced …` subcommands.
 
 use indicatif::{ProgressBar, ProgressStyle};
-use nvtmm::bench_reduced::bench_reduced;
+use nvtmm::bench::reduced::bench_reduced;
 use nvtmm::reduced::cache::{basis_for_scene, CacheStatus};
 use nvtmm::scene::Scene;
 use std::path::Path;
