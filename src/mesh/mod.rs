@@ -18,6 +18,8 @@ pub mod io;
 pub mod quality;
 pub mod render;
 pub mod roi;
+pub mod surface;
+pub mod vessel;
 
 use nalgebra::Matrix3;
 use std::collections::{BTreeMap, HashMap};
