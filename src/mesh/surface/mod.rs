@@ -18,3 +18,43 @@ pub struct SurfaceMesh {
     /// Triangles as vertex indices.
     pub triangles: Vec<[u32; 3]>,
 }
+
+use std::path::{Path, PathBuf};
+
+/// Why a surface file could not be read or used.
+#[derive(Debug, thiserror::Error)]
+pub enum SurfaceError {
+    /// The file could not be read.
+    #[error("{path}: {source}")]
+    Io {
+        /// The file.
+        path: PathBuf,
+        /// The I/O error.
+        source: std::io::Error,
+    },
+    /// The file's extension names no surface format this crate reads.
+    #[error("{path}: unknown surface format (expected .stl, .obj, .ply, .vtk or .vtp)")]
+    UnknownFormat {
+        /// The file.
+        path: PathBuf,
+    },
+    /// The content is malformed or the surface is unusable: `what` says
+    /// what is wrong and where (line, element, vertices).
+    #[error("{path}: {what}")]
+    Invalid {
+        /// The file (or a label for an in-memory surface).
+        path: PathBuf,
+        /// What is wrong and where.
+        what: String,
+    },
+}
+
+/// Reads a surface file (STL ASCII or binary, OBJ, PLY, VTK legacy
+/// polydata, VTP), multiplying coordinates by `scale` (0.001 for a file in
+/// millimetres).
+pub fn read_surface(path: &Path, scale: f64) -> Result<SurfaceMesh, SurfaceError> {
+    let _ = scale;
+    Err(SurfaceError::UnknownFormat {
+        path: path.to_path_buf(),
+    })
+}
