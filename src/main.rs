@@ -28,11 +28,11 @@ enum Command {
     /// Run the haptic service: the 1 kHz loop on the reduced NVTMM model, the
     /// background full solve, the device; ends with a report.
     Run {
-        /// Service configuration.
-        #[arg(default_value = "rt-config/nvtmm.toml")]
-        config: PathBuf,
+        /// Service configuration [default: rt-config/nvtmm.toml of the
+        /// working directory, else of the source tree the binary was built from].
+        config: Option<PathBuf>,
         /// Run length (s); default: the configuration's `seconds`.
-        #[arg(long)]
+        #[arg(long, allow_negative_numbers = true)]
         seconds: Option<f64>,
         /// Also write the report as JSON here.
         #[arg(long)]
@@ -276,7 +276,7 @@ fn main() -> ExitCode {
             report_json,
             record,
             quiet,
-        } => cli::run::run(&config, seconds, report_json.as_deref(), record, quiet),
+        } => cli::run::run(config.as_deref(), seconds, report_json.as_deref(), record, quiet),
         Command::CheckRt { config, json } => cli::run::check_rt(config.as_ref(), json),
         Command::Mesh(cmd) => match cmd {
             MeshCmd::Arch { nodes, out } => cli::mesh::arch(nodes, &out),

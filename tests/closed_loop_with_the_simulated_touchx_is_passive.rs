@@ -12,6 +12,7 @@ use nvtmm::haptics::contact::{ContactParams, SurfaceIndex};
 use nvtmm::haptics::device::HapticDevice;
 use nvtmm::haptics::passivity::{PassivityFilter, PassivityParams};
 use nvtmm::haptics::servo::{Servo, ServoParams};
+use nvtmm::haptics::tick::{HapticTick, TickInput};
 use nvtmm::haptics::touchx::{TouchXParams, TouchXSim, Waypoint};
 use nvtmm::material::Material;
 use nvtmm::math::Vec3;
@@ -23,7 +24,7 @@ const R: usize = 16;
 const DT: f64 = 1e-3;
 
 /// Runs one press at `speed` (m/s); returns (delivered, absorbed, max force, max depth).
-fn press(speed: f64, with_filter: bool) -> (f64, f64, f64, f64) {
+fn press(speed: f64) -> (f64, f64, f64, f64) {
     let mat = Material {
         youngs_pa: 10e6,
         ..Material::aorta()
@@ -62,9 +63,11 @@ fn press(speed: f64, with_filter: bool) -> (f64, f64, f64, f64) {
         ramp_in_s: 0.0,
         swap_blend_s: 0.02,
     };
-    let mut servo = Servo::new(first, index, sp, 0.0);
+    let servo = Servo::new(first, index, sp, 0.0);
     let qp = PassivityParams::default();
-    let mut filter = PassivityFilter::new(&qp).unwrap();
+    let filter = PassivityFilter::new(&qp).unwrap();
+    // The service's own tick: contact -> reduced step -> QP -> watchdog gain.
+    let mut tick = HapticTick::new(servo, filter);
     // Device frame = scene frame shifted by `center` (the wall top there).
     let above = Vec3::new(0.0, 0.0, 3e-3 + 5e-3);
     let inside = Vec3::new(0.0, 0.0, 3e-3 - 4e-3);
@@ -99,21 +102,15 @@ fn press(speed: f64, with_filter: bool) -> (f64, f64, f64, f64) {
     dev.start().unwrap();
     let (mut max_f, mut max_depth) = (0.0f64, 0.0f64);
     let steps = ((1.2 + 2.0 * travel) / DT) as usize;
-    let mut v_prev = Vec3::zeros();
     for k in 1..=steps {
         let t = k as f64 * DT;
         let s = dev.read(t).unwrap();
-        let v_pred = nvtmm::haptics::passivity::predict_velocity(s.velocity, v_prev);
-        v_prev = s.velocity;
-        let out = servo.tick(Some(&s), t, 0);
-        let mut fl = out.flags;
-        let f = if with_filter {
-            filter.filter(out.desired, s.position, v_pred).force
-        } else {
-            out.desired
-        };
-        let f = servo.apply_gain(f, &mut fl);
-        let applied = dev.write_force(f).unwrap();
+        let out = tick.run(TickInput {
+            sample: Some(&s),
+            now_s: t,
+            overrun_streak: 0,
+        });
+        let applied = dev.write_force(out.force).unwrap();
         max_f = max_f.max(applied.norm());
         max_depth = max_depth.max(out.depth);
         assert!(applied.iter().all(|v| v.is_finite()));
@@ -126,7 +123,7 @@ fn press(speed: f64, with_filter: bool) -> (f64, f64, f64, f64) {
 fn energy_delivered_never_exceeds_energy_absorbed_plus_the_tank() {
     let tank = PassivityParams::default().tank_initial_j;
     for speed in [0.02, 0.1, 0.3, 0.5] {
-        let (out, inn, max_f, depth) = press(speed, true);
+        let (out, inn, max_f, depth) = press(speed);
         eprintln!(
             "speed {speed} m/s: delivered {out:.5} J, absorbed {inn:.5} J, net {:.5} J, max force {max_f:.3} N, max depth {:.3} mm",
             out - inn,

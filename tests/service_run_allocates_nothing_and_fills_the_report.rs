@@ -5,7 +5,7 @@
 //! swapped, the stream is recorded, and the report has its keys.
 
 use nvtmm::rt::stats::Percentiles;
-use nvtmm::service::run::{run_service, RunOptions};
+use nvtmm::service::{run_service, StartOptions};
 
 #[global_allocator]
 static ALLOC: nvtmm::rt::alloc::RtAllocator = nvtmm::rt::alloc::RtAllocator;
@@ -81,11 +81,9 @@ basis_refresh_m = 1e-5
     )
     .unwrap();
     let record = dir.path().join("run.nvts");
-    let report = run_service(&RunOptions {
-        config: cfg,
-        seconds: None,
-        progress: false,
+    let report = run_service(&StartOptions {
         record: Some(record.clone()),
+        ..StartOptions::file(cfg)
     })
     .unwrap();
     eprintln!("{}", report.render());
@@ -155,19 +153,12 @@ fn bad_configuration_names_the_file_and_key() {
     let dir = tempfile::tempdir().unwrap();
     let cfg = dir.path().join("nvtmm.toml");
     std::fs::write(&cfg, "scene = \"x.toml\"\n[loop]\npriority = 200\n").unwrap();
-    let err = run_service(&RunOptions {
-        config: cfg.clone(),
-        ..RunOptions::default()
-    })
-    .unwrap_err()
-    .to_string();
+    let err = run_service(&StartOptions::file(cfg.clone())).unwrap_err().to_string();
     assert!(err.contains("nvtmm.toml") && err.contains("loop.priority"), "{err}");
     std::fs::write(&cfg, "scene = \"missing.toml\"\n").unwrap();
-    let err = run_service(&RunOptions {
-        config: cfg,
-        ..RunOptions::default()
-    })
-    .unwrap_err()
-    .to_string();
-    assert!(err.contains("missing.toml"), "{err}");
+    let err = run_service(&StartOptions::file(cfg.clone())).unwrap_err().to_string();
+    assert!(
+        err.contains("missing.toml") && err.contains("nvtmm.toml") && err.contains("scene"),
+        "the error names the config file, its key and the scene file: {err}"
+    );
 }

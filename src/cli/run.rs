@@ -1,24 +1,24 @@
 //! `nvtmm run` (the haptic service) and `nvtmm check-rt` (the box audit).
 
 use nvtmm::rt::check::{audit, render, Level};
-use nvtmm::service::run::{run_service, RunOptions};
-use nvtmm::service::ServiceConfig;
+use nvtmm::service::{default_config, run_service, ServiceConfig, StartOptions};
 use std::path::{Path, PathBuf};
 
 type Result<T> = std::result::Result<T, Box<dyn std::error::Error>>;
 
 pub fn run(
-    config: &Path,
+    config: Option<&Path>,
     seconds: Option<f64>,
     report_json: Option<&Path>,
     record: Option<PathBuf>,
     quiet: bool,
 ) -> Result<()> {
-    let opts = RunOptions {
-        config: config.to_path_buf(),
+    let config = config.map(Path::to_path_buf).unwrap_or_else(default_config);
+    let opts = StartOptions {
         seconds,
         progress: !quiet,
         record,
+        ..StartOptions::file(config)
     };
     let report = run_service(&opts)?;
     print!("{}", report.render());
@@ -40,7 +40,7 @@ pub fn check_rt(config: Option<&PathBuf>, json: bool) -> Result<()> {
             (c.servo.cpu >= 0).then_some(c.servo.cpu as usize)
         }
         None => {
-            let d = nvtmm::service::run::default_config();
+            let d = default_config();
             ServiceConfig::load(&d)
                 .ok()
                 .and_then(|c| (c.servo.cpu >= 0).then_some(c.servo.cpu as usize))

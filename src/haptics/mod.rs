@@ -12,6 +12,7 @@ pub mod device;
 pub mod openhaptics;
 pub mod passivity;
 pub mod servo;
+pub mod tick;
 pub mod touchx;
 pub mod udp;
 

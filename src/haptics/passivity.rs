@@ -576,6 +576,18 @@ impl PassivityFilter {
         self.theta = 0.0;
     }
 
+    /// Tells the filter the force actually commanded after its output (the
+    /// watchdog may scale it down): that force is held until the next tick,
+    /// so the energy observer and the rate row use it. A non-finite force
+    /// counts as zero.
+    pub fn set_commanded(&mut self, force: Vec3) {
+        self.f_prev = if force.iter().all(|c| c.is_finite()) {
+            force
+        } else {
+            Vec3::zeros()
+        };
+    }
+
     /// The norm bound for the current thermal state (N).
     pub fn bound_n(&self) -> f64 {
         let p = &self.params;

@@ -25,7 +25,7 @@ use crate::rt::clock;
 use crate::solver::loads::{Loads, NodalLoad, TimeProfile};
 use crate::solver::{ImplicitEuler, TissueState};
 use nalgebra::{DMatrix, SMatrix, SVector};
-use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 
 /// Contact forces of one loop tick (loop → background).
@@ -235,8 +235,9 @@ pub struct BackgroundIo<const R: usize> {
     pub returned: rtrb::Consumer<Box<LoopModel<R>>>,
     /// Set to stop.
     pub stop: Arc<AtomicBool>,
-    /// The loop's tick counter.
-    pub loop_ticks: Arc<AtomicU64>,
+    /// Live figures: the loop's tick counter (read), the background's
+    /// progress (written).
+    pub live: Arc<super::live::LiveStats>,
     /// Jobs to the basis thread and its answers (None: no basis refresh).
     pub basis: Option<(rtrb::Producer<BasisJob>, rtrb::Consumer<NewBasis<R>>)>,
     /// ū and the basis rows of each model sent, for the stream publisher
@@ -358,7 +359,7 @@ pub fn run<const R: usize>(mut bg: Background<R>, mut io: BackgroundIo<R>) -> Ba
     let mut sum = vec![Vec3::zeros(); n];
     let mut touched: Vec<u32> = Vec::new();
     let mut fbar = vec![Vec3::zeros(); n];
-    let mut last_tick = io.loop_ticks.load(Ordering::Relaxed);
+    let mut last_tick = io.live.ticks();
     let mut epoch = bg.last_sent.2;
     // A built model not sent yet, its Φᵀ M ū and its basis generation.
     let mut pending: Option<(Box<LoopModel<R>>, SVector<f64, R>, u64)> = None;
@@ -394,7 +395,7 @@ pub fn run<const R: usize>(mut bg: Background<R>, mut io: BackgroundIo<R>) -> Ba
                 }
             }
         }
-        let now_tick = io.loop_ticks.load(Ordering::Relaxed);
+        let now_tick = io.live.ticks();
         let ticks = now_tick.saturating_sub(last_tick).max(1) as f64;
         last_tick = now_tick;
         for f in fbar.iter_mut() {
@@ -512,6 +513,7 @@ pub fn run<const R: usize>(mut bg: Background<R>, mut io: BackgroundIo<R>) -> Ba
         }
         // Never run ahead of real time.
         let wall = (clock::now_ns() - t_start) as f64 * 1e-9;
+        io.live.record_background(stats.steps, sim, wall, stats.models_sent);
         if sim > wall {
             clock::sleep_until(t_start + (sim * 1e9) as i64);
         }

@@ -285,6 +285,15 @@ impl ServiceConfig {
         Ok(cfg)
     }
 
+    /// Parses and validates configuration text; `path` names it in messages
+    /// and is the base for its relative paths (it need not exist).
+    pub fn parse(text: &str, path: &Path) -> Result<ServiceConfig, ConfigError> {
+        let mut cfg: ServiceConfig = crate::config::parse_toml(text, path)?;
+        cfg.path = path.to_path_buf();
+        cfg.validate()?;
+        Ok(cfg)
+    }
+
     /// Resolves a path given in this file relative to the file's directory.
     pub fn resolve(&self, p: &Path) -> PathBuf {
         if p.is_absolute() {

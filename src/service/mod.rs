@@ -1,11 +1,251 @@
-//! The real-time haptic service, `nvtmm run`: the threads of
-//! `shared/DESIGN.md` (device I/O, the 1 kHz haptic loop, the background
-//! full NVTMM solve with its model refresh, the stream publisher and the
-//! reporter), the rings between them, and the end-of-run report.
+//! The real-time haptic service, as a library: start it from a
+//! configuration file or an in-memory configuration, read its live state
+//! while it runs, stop it and get the report. `nvtmm run` is one client of
+//! this API; `examples/embed.rs` and the C ABI (`capi/`) are others.
+//!
+//! ```no_run
+//! use nvtmm::service::{Service, StartOptions};
+//! let handle = Service::start(StartOptions::file("rt-config/nvtmm.toml")).unwrap();
+//! std::thread::sleep(std::time::Duration::from_secs(2));
+//! let live = handle.snapshot();
+//! println!("{} ticks, force {:?} N", live.ticks, live.force_n);
+//! let report = handle.stop().unwrap();
+//! println!("{}", report.render());
+//! ```
+//!
+//! Threads (docs/ARCHITECTURE.md, docs/SERVICE.md): device I/O
+//! ([`device_io`]), the 1 kHz haptic loop ([`loop_thread`], one
+//! [`crate::haptics::tick::HapticTick`] per period), the background full
+//! NVTMM solve and the basis thread ([`background`]), and the stream
+//! publisher ([`publisher`]). [`setup`] builds what they need before they
+//! start; [`running`] starts and stops them and assembles the [`Report`].
 
 pub mod background;
 pub mod config;
+pub mod device_io;
+pub mod live;
+pub mod loop_thread;
+pub mod publisher;
 pub mod report;
-pub mod run;
+pub mod running;
+pub mod script;
+pub mod setup;
 
 pub use config::ServiceConfig;
+pub use live::{FrameSnapshot, Snapshot};
+pub use report::Report;
+
+use running::RunningService;
+use std::path::{Path, PathBuf};
+
+/// Why the service could not start (or stop cleanly).
+#[derive(Debug, thiserror::Error)]
+pub enum ServiceError {
+    /// Bad service configuration.
+    #[error(transparent)]
+    Config(#[from] crate::config::ConfigError),
+    /// The scene the configuration names could not be used: the service
+    /// configuration file and its `scene` key, then the scene's own error.
+    #[error("{config}: scene = {scene:?}: {source}")]
+    SceneOf {
+        /// The service configuration file.
+        config: PathBuf,
+        /// The value of its `scene` key.
+        scene: PathBuf,
+        /// What is wrong with the scene.
+        source: crate::scene::SceneError,
+    },
+    /// Bad scene.
+    #[error(transparent)]
+    Scene(#[from] crate::scene::SceneError),
+    /// The reduced model could not be built.
+    #[error("reduced model: {0}")]
+    Reduced(#[from] crate::reduced::ReducedError),
+    /// The device could not be set up.
+    #[error("device: {0}")]
+    Device(String),
+    /// The passivity filter could not be built.
+    #[error(transparent)]
+    Passivity(#[from] crate::haptics::passivity::PassivityError),
+    /// The full solver could not be built.
+    #[error("background solver: {0}")]
+    Solver(String),
+    /// A thread could not be started or panicked (its name and the panic
+    /// message).
+    #[error("thread {0}: {1}")]
+    Thread(&'static str, String),
+}
+
+/// Where the service configuration comes from.
+#[derive(Debug, Clone, PartialEq)]
+pub enum ConfigSource {
+    /// A TOML file (`rt-config/nvtmm.toml`); relative paths in it (the
+    /// scene, the device files) resolve against its directory.
+    File(PathBuf),
+    /// TOML text built in memory; `path` names it in messages and relative
+    /// paths resolve against its directory (the file need not exist).
+    Text {
+        /// The configuration, TOML.
+        toml: String,
+        /// Label and base for relative paths, e.g. `rt-config/inline.toml`.
+        path: PathBuf,
+    },
+}
+
+/// How to start the service.
+#[derive(Debug, Clone, PartialEq)]
+pub struct StartOptions {
+    /// The configuration.
+    pub config: ConfigSource,
+    /// Length of the simulated hand's script and of `nvtmm run` (s); None:
+    /// the configuration's `seconds`. The service itself runs until
+    /// [`Handle::stop`].
+    pub seconds: Option<f64>,
+    /// Print progress to stderr while preparing.
+    pub progress: bool,
+    /// Record the state stream to this file (also when `[stream]` is off).
+    pub record: Option<PathBuf>,
+}
+
+impl StartOptions {
+    /// Options for the configuration file at `path`, everything else default.
+    pub fn file(path: impl Into<PathBuf>) -> StartOptions {
+        StartOptions {
+            config: ConfigSource::File(path.into()),
+            seconds: None,
+            progress: false,
+            record: None,
+        }
+    }
+
+    /// Options for an in-memory configuration (`path`: label and base
+    /// directory for the relative paths in it).
+    pub fn text(toml: impl Into<String>, path: impl Into<PathBuf>) -> StartOptions {
+        StartOptions {
+            config: ConfigSource::Text {
+                toml: toml.into(),
+                path: path.into(),
+            },
+            seconds: None,
+            progress: false,
+            record: None,
+        }
+    }
+}
+
+/// The service: [`Service::start`] is the way in.
+#[derive(Debug)]
+pub struct Service;
+
+impl Service {
+    /// Reads and validates the configuration and the scene, computes or loads
+    /// the reduced basis, opens the device and starts every thread. Returns
+    /// once the threads run (the loop begins after its jitter baseline).
+    pub fn start(opts: StartOptions) -> Result<Handle, ServiceError> {
+        let p = setup::prepare(&opts)?;
+        let inner: Box<dyn RunningService> = match p.basis.len() {
+            0..=16 => Box::new(running::start_with::<16>(p)?),
+            17..=32 => Box::new(running::start_with::<32>(p)?),
+            _ => Box::new(running::start_with::<64>(p)?),
+        };
+        Ok(Handle { inner: Some(inner) })
+    }
+}
+
+/// A running service. Dropping it stops the service (and discards the
+/// report); call [`Handle::stop`] to get it.
+pub struct Handle {
+    inner: Option<Box<dyn RunningService>>,
+}
+
+impl std::fmt::Debug for Handle {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Handle")
+            .field("running", &self.inner.is_some())
+            .finish()
+    }
+}
+
+impl Handle {
+    /// Live figures and the latest state frame. Cheap (a copy of a few
+    /// atomics and of the last frame); any thread, any time.
+    pub fn snapshot(&self) -> Snapshot {
+        self.inner.as_ref().map(|r| r.snapshot()).unwrap_or_default()
+    }
+
+    /// The jitter baseline plus the configured run length (s): how long
+    /// `nvtmm run` lets it run.
+    pub fn planned_seconds(&self) -> f64 {
+        self.inner.as_ref().map(|r| r.planned_s()).unwrap_or(0.0)
+    }
+
+    /// Whether the loop or the device thread has ended on its own (a fault
+    /// that stopped it); [`Handle::stop`] then says why.
+    pub fn is_finished(&self) -> bool {
+        self.inner.as_ref().is_none_or(|r| r.is_finished())
+    }
+
+    /// Stops every thread, joins them and returns the report.
+    pub fn stop(mut self) -> Result<Report, ServiceError> {
+        match self.inner.take() {
+            Some(mut r) => r.stop(),
+            None => Err(ServiceError::Thread("service", "already stopped".into())),
+        }
+    }
+}
+
+impl Drop for Handle {
+    fn drop(&mut self) {
+        if let Some(mut r) = self.inner.take() {
+            let _ = r.stop();
+        }
+    }
+}
+
+/// The whole of `nvtmm run`: start, let it run for the configured time
+/// (with a progress bar if `opts.progress`), stop, return the report.
+pub fn run_service(opts: &StartOptions) -> Result<Report, ServiceError> {
+    let handle = Service::start(opts.clone())?;
+    let total = handle.planned_seconds();
+    let t0 = std::time::Instant::now();
+    let bar = opts.progress.then(|| {
+        let b = indicatif::ProgressBar::new((total * 10.0) as u64);
+        b.set_style(
+            indicatif::ProgressStyle::with_template("{bar:40} {elapsed}/{duration} {msg}")
+                .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
+        );
+        b
+    });
+    while t0.elapsed().as_secs_f64() < total + 0.05 {
+        std::thread::sleep(std::time::Duration::from_millis(100));
+        if let Some(b) = &bar {
+            b.set_position((t0.elapsed().as_secs_f64() * 10.0) as u64);
+            b.set_message(format!("{} ticks", handle.snapshot().ticks));
+        }
+        if handle.is_finished() {
+            break;
+        }
+    }
+    if let Some(b) = bar {
+        b.finish_and_clear();
+    }
+    handle.stop()
+}
+
+/// The default configuration file: `rt-config/nvtmm.toml` under the working
+/// directory if it is there, else the one in the source tree this binary was
+/// built from (so `nvtmm run` works from any directory of a checkout).
+pub fn default_config() -> PathBuf {
+    let local = Path::new("rt-config").join("nvtmm.toml");
+    if local.is_file() {
+        return local;
+    }
+    let built = Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("rt-config")
+        .join("nvtmm.toml");
+    if built.is_file() {
+        built
+    } else {
+        local
+    }
+}

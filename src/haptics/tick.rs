@@ -1,0 +1,154 @@
+//! One haptic tick, in one place: contact → reduced step → passivity QP →
+//! watchdog gain. The service's loop thread and the closed-loop tests call
+//! [`HapticTick::run`]; nothing else strings these steps together.
+//!
+//! ```text
+//! sample ─▶ Servo::tick (contact with the deformed surface, reduced step
+//!           with the contact implicit, watchdog flags) ─▶ desired force
+//!        ─▶ PassivityFilter::filter (norm, rate and energy-tank rows)
+//!        ─▶ Servo::apply_gain (ramp to zero on a fault, ramp back in)
+//!        ─▶ commanded force; the filter's energy observer is told the
+//!           force actually commanded, so the port energy is counted once.
+//! ```
+//!
+//! Allocates nothing, locks nothing, blocks on nothing: the loop thread may
+//! call it after start.
+
+use super::device::DeviceSample;
+use super::passivity::{predict_velocity, PassivityFilter, PassivityStats};
+use super::servo::{flags, LoopModel, Servo, ServoCounters};
+use crate::math::Vec3;
+use crate::rt::clock;
+
+/// What one tick takes besides the loop state.
+#[derive(Debug, Clone, Copy)]
+pub struct TickInput<'a> {
+    /// The freshest device sample (None if none arrived since the last tick).
+    pub sample: Option<&'a DeviceSample>,
+    /// Loop time (s).
+    pub now_s: f64,
+    /// Consecutive deadline misses so far.
+    pub overrun_streak: u32,
+}
+
+/// What one tick produced.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct TickResult {
+    /// The force to command (N, on the hand, scene frame = device frame
+    /// axes): filtered by the passivity QP and scaled by the watchdog gain.
+    pub force: Vec3,
+    /// The model's force before the filter and the gain (N).
+    pub desired: Vec3,
+    /// Tool centre (m, scene frame).
+    pub tool: Vec3,
+    /// Status bits ([`flags`]).
+    pub flags: u32,
+    /// Deepest penetration this tick (m).
+    pub depth: f64,
+    /// Time spent in the passivity filter (µs).
+    pub qp_us: f64,
+}
+
+/// The haptic loop's state: the servo (contact, reduced model, watchdog)
+/// and the passivity filter. Built before start; [`HapticTick::run`] once
+/// per period.
+pub struct HapticTick<const R: usize> {
+    servo: Servo<R>,
+    filter: PassivityFilter,
+    v_prev: Vec3,
+    rt_granted: bool,
+}
+
+impl<const R: usize> HapticTick<R> {
+    /// A tick over `servo` and `filter`.
+    pub fn new(servo: Servo<R>, filter: PassivityFilter) -> HapticTick<R> {
+        HapticTick {
+            servo,
+            filter,
+            v_prev: Vec3::zeros(),
+            rt_granted: false,
+        }
+    }
+
+    /// Call once on the loop thread before the first tick (after the RT
+    /// allocator is entered): lets the QP solver do its one-time allocation
+    /// work now (see [`PassivityFilter::prime`]).
+    pub fn prime(&mut self) {
+        self.filter.prime();
+    }
+
+    /// Whether the loop runs under SCHED_FIFO (sets [`flags::RT_GRANTED`]).
+    pub fn set_rt_granted(&mut self, granted: bool) {
+        self.rt_granted = granted;
+    }
+
+    /// One tick. Allocates nothing.
+    pub fn run(&mut self, input: TickInput<'_>) -> TickResult {
+        let out = self.servo.tick(input.sample, input.now_s, input.overrun_streak);
+        let (x, v) = input
+            .sample
+            .map(|s| (s.position, s.velocity))
+            .unwrap_or((Vec3::zeros(), Vec3::zeros()));
+        let q0 = clock::now_ns();
+        let v_pred = predict_velocity(v, self.v_prev);
+        self.v_prev = v;
+        let filtered = self.filter.filter(out.desired, x, v_pred).force;
+        let qp_us = (clock::now_ns() - q0) as f64 * 1e-3;
+        let mut fl = out.flags;
+        if self.rt_granted {
+            fl |= flags::RT_GRANTED;
+        }
+        if (filtered - out.desired).norm() > 1e-9 {
+            fl |= flags::LIMITED;
+        }
+        let force = self.servo.apply_gain(filtered, &mut fl);
+        if fl & flags::NONFINITE != 0 {
+            self.filter.reset();
+            self.v_prev = Vec3::zeros();
+        } else {
+            // The force held until the next tick is the gained one: the
+            // energy observer and the rate row must see that one.
+            self.filter.set_commanded(force);
+        }
+        TickResult {
+            force,
+            desired: out.desired,
+            tool: out.tool,
+            flags: fl,
+            depth: out.depth,
+            qp_us,
+        }
+    }
+
+    /// Swaps in a refreshed model (see [`Servo::swap`]); returns the model
+    /// to send back for freeing off the loop thread.
+    pub fn swap(&mut self, model: Box<LoopModel<R>>) -> Option<Box<LoopModel<R>>> {
+        self.servo.swap(model)
+    }
+
+    /// The servo (contact, model, watchdog).
+    pub fn servo(&self) -> &Servo<R> {
+        &self.servo
+    }
+
+    /// The servo, mutable (to hand retired models back).
+    pub fn servo_mut(&mut self) -> &mut Servo<R> {
+        &mut self.servo
+    }
+
+    /// The passivity filter.
+    pub fn filter(&self) -> &PassivityFilter {
+        &self.filter
+    }
+
+    /// Loop counters so far.
+    pub fn counters(&self) -> &ServoCounters {
+        self.servo.counters()
+    }
+
+    /// QP counters so far, including the port energy the observer counted
+    /// (`delivered_j`, `absorbed_j`).
+    pub fn qp_stats(&self) -> &PassivityStats {
+        self.filter.stats()
+    }
+}

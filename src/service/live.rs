@@ -1,0 +1,150 @@
+//! Live figures of a running service, readable from any thread while it
+//! runs ([`crate::service::Handle::snapshot`]): the loop and the background
+//! thread store them in atomics (lock-free, no allocation); the publisher
+//! keeps the latest state frame behind a mutex (it is a normal thread, never
+//! the loop).
+
+use crate::haptics::tick::TickResult;
+use crate::math::Vec3;
+use std::sync::atomic::{AtomicU32, AtomicU64, Ordering};
+use std::sync::Mutex;
+
+/// An f64 in an atomic (bit pattern).
+#[derive(Debug, Default)]
+struct AtomicF64(AtomicU64);
+
+impl AtomicF64 {
+    fn store(&self, v: f64) {
+        self.0.store(v.to_bits(), Ordering::Relaxed);
+    }
+    fn load(&self) -> f64 {
+        f64::from_bits(self.0.load(Ordering::Relaxed))
+    }
+}
+
+/// The latest state frame, owned (surface positions at the stream's
+/// vertices, tool, force).
+#[derive(Debug, Clone, Default, PartialEq, serde::Serialize)]
+pub struct FrameSnapshot {
+    /// Loop time of the frame (s).
+    pub time_s: f64,
+    /// Mesh node of each stream vertex.
+    pub node_ids: Vec<u32>,
+    /// Deformed positions of the stream vertices (m).
+    pub positions: Vec<[f32; 3]>,
+    /// Tool centre (m).
+    pub tool_position: [f32; 3],
+    /// Commanded force (N).
+    pub force: [f32; 3],
+    /// Stream status bits (`crate::stream::flags`).
+    pub flags: u32,
+}
+
+/// Shared live state of one service run.
+#[derive(Debug, Default)]
+pub struct LiveStats {
+    ticks: AtomicU64,
+    misses: AtomicU64,
+    flags: AtomicU32,
+    loop_time: AtomicF64,
+    force: [AtomicF64; 3],
+    tool: [AtomicF64; 3],
+    max_force: AtomicF64,
+    bg_steps: AtomicU64,
+    bg_sim_s: AtomicF64,
+    bg_wall_s: AtomicF64,
+    models_sent: AtomicU64,
+    frame: Mutex<Option<FrameSnapshot>>,
+}
+
+impl LiveStats {
+    /// Called by the loop after each tick. Lock-free, allocates nothing.
+    pub fn record_tick(&self, ticks: u64, now_s: f64, out: &TickResult, misses: u64) {
+        self.ticks.store(ticks, Ordering::Relaxed);
+        self.misses.store(misses, Ordering::Relaxed);
+        self.flags.store(out.flags, Ordering::Relaxed);
+        self.loop_time.store(now_s);
+        for k in 0..3 {
+            self.force[k].store(out.force[k]);
+            self.tool[k].store(out.tool[k]);
+        }
+        let f = out.force.norm();
+        if f > self.max_force.load() {
+            self.max_force.store(f);
+        }
+    }
+
+    /// Called by the background thread after each full step.
+    pub fn record_background(&self, steps: u64, sim_s: f64, wall_s: f64, models_sent: u64) {
+        self.bg_steps.store(steps, Ordering::Relaxed);
+        self.bg_sim_s.store(sim_s);
+        self.bg_wall_s.store(wall_s);
+        self.models_sent.store(models_sent, Ordering::Relaxed);
+    }
+
+    /// Called by the publisher with each frame it builds.
+    pub fn record_frame(&self, frame: FrameSnapshot) {
+        if let Ok(mut slot) = self.frame.lock() {
+            *slot = Some(frame);
+        }
+    }
+
+    /// Loop ticks so far.
+    pub fn ticks(&self) -> u64 {
+        self.ticks.load(Ordering::Relaxed)
+    }
+
+    /// A copy of everything, with `elapsed_s` since start.
+    pub fn snapshot(&self, elapsed_s: f64) -> Snapshot {
+        let v = |a: &[AtomicF64; 3]| Vec3::new(a[0].load(), a[1].load(), a[2].load());
+        let bg_wall = self.bg_wall_s.load();
+        Snapshot {
+            elapsed_s,
+            ticks: self.ticks(),
+            loop_time_s: self.loop_time.load(),
+            deadline_misses: self.misses.load(Ordering::Relaxed),
+            flags: self.flags.load(Ordering::Relaxed),
+            force_n: v(&self.force).into(),
+            tool_m: v(&self.tool).into(),
+            max_force_n: self.max_force.load(),
+            background_steps: self.bg_steps.load(Ordering::Relaxed),
+            background_real_time_factor: if bg_wall > 0.0 {
+                self.bg_sim_s.load() / bg_wall
+            } else {
+                0.0
+            },
+            models_sent: self.models_sent.load(Ordering::Relaxed),
+            frame: self.frame.lock().ok().and_then(|f| f.clone()),
+        }
+    }
+}
+
+/// What [`crate::service::Handle::snapshot`] returns: live figures and the
+/// latest state frame.
+#[derive(Debug, Clone, Default, PartialEq, serde::Serialize)]
+pub struct Snapshot {
+    /// Wall time since the service started (s).
+    pub elapsed_s: f64,
+    /// Loop ticks so far.
+    pub ticks: u64,
+    /// Loop time of the last tick (s, service clock).
+    pub loop_time_s: f64,
+    /// Deadline misses so far.
+    pub deadline_misses: u64,
+    /// Status bits of the last tick (`crate::haptics::servo::flags`).
+    pub flags: u32,
+    /// Force commanded on the last tick (N).
+    pub force_n: [f64; 3],
+    /// Tool centre on the last tick (m, scene frame).
+    pub tool_m: [f64; 3],
+    /// Largest force commanded so far (N).
+    pub max_force_n: f64,
+    /// Full steps of the background solve so far.
+    pub background_steps: u64,
+    /// Simulated time / wall time of the background solve so far.
+    pub background_real_time_factor: f64,
+    /// Refreshed models the background sent so far.
+    pub models_sent: u64,
+    /// The latest state frame (None before the first one).
+    pub frame: Option<FrameSnapshot>,
+}

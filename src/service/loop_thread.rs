@@ -1,0 +1,234 @@
+//! The haptic loop thread: absolute-deadline wake-ups at the loop rate, one
+//! [`HapticTick`] per period, and the rings around it (pose in, force out,
+//! contact forces to the background, models in and out, state snapshots to
+//! the publisher). Timing goes into fixed histograms; live figures into
+//! [`LiveStats`] atomics; nothing here allocates, locks, logs or blocks after
+//! start.
+
+use super::background::{ContactMsg, CONTACT_MSG_NODES};
+use super::device_io::ForceCmd;
+use super::live::LiveStats;
+use super::publisher::StateSnapshot;
+use crate::haptics::contact::NodeContact;
+use crate::haptics::device::DeviceSample;
+use crate::haptics::passivity::PassivityStats;
+use crate::haptics::servo::{LoopModel, ServoCounters};
+use crate::haptics::tick::{HapticTick, TickInput};
+use crate::rt::clock::{self, Nanos};
+use crate::rt::stats::Histogram;
+use crate::rt::thread::{setup_current, RtGrant, RtRequest};
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::Arc;
+
+/// The loop ticks this long after the device thread reads a sample (ns).
+pub(super) const LOOP_PHASE: Nanos = 200_000;
+
+/// Everything gathered from the loop thread at the end.
+pub(super) struct LoopResult {
+    pub jitter: Histogram,
+    pub compute: Histogram,
+    pub baseline: Histogram,
+    pub qp_us: Histogram,
+    pub grant: RtGrant,
+    pub counters: ServoCounters,
+    pub qp: PassivityStats,
+    pub misses: u64,
+    pub misses_compute: u64,
+    pub allocations: u64,
+    pub allocator_installed: bool,
+    pub max_force: f64,
+    pub max_depth: f64,
+    pub seconds: f64,
+    pub force_ring_full: u64,
+    pub contact_ring_full: u64,
+    pub state_ring_full: u64,
+    pub swaps_deferred: u64,
+}
+
+/// Loop-side rings.
+pub(super) struct LoopIo<const R: usize> {
+    pub pose: rtrb::Consumer<DeviceSample>,
+    pub force: rtrb::Producer<ForceCmd>,
+    pub contact: rtrb::Producer<ContactMsg>,
+    pub models: rtrb::Consumer<Box<LoopModel<R>>>,
+    pub returned: rtrb::Producer<Box<LoopModel<R>>>,
+    pub state: rtrb::Producer<StateSnapshot<R>>,
+    pub stop: Arc<AtomicBool>,
+    pub live: Arc<LiveStats>,
+}
+
+/// When and how the loop runs.
+pub(super) struct LoopPlan {
+    pub request: RtRequest,
+    pub period: Nanos,
+    pub start: Nanos,
+    pub loop_start: Nanos,
+    pub baseline_s: f64,
+    pub pool_bytes: usize,
+    pub state_every: u64,
+}
+
+/// The loop thread's body: the jitter baseline, then ticks until `stop`.
+pub(super) fn loop_thread<const R: usize>(mut tick: HapticTick<R>, mut io: LoopIo<R>, plan: LoopPlan) -> LoopResult {
+    let grant = setup_current(&plan.request);
+    let pool = crate::rt::alloc::enter_rt(plan.pool_bytes);
+    let allocator_installed = pool.map(|p| p.installed).unwrap_or(false);
+    // Whatever clarabel sizes or frees on its first solve happens now.
+    tick.prime();
+    tick.set_rt_granted(grant.fifo);
+    let mut res = LoopResult {
+        jitter: Histogram::new(),
+        compute: Histogram::new(),
+        baseline: Histogram::new(),
+        qp_us: Histogram::new(),
+        grant,
+        counters: ServoCounters::default(),
+        qp: *tick.qp_stats(),
+        misses: 0,
+        misses_compute: 0,
+        allocations: 0,
+        allocator_installed,
+        max_force: 0.0,
+        max_depth: 0.0,
+        seconds: 0.0,
+        force_ring_full: 0,
+        contact_ring_full: 0,
+        state_ring_full: 0,
+        swaps_deferred: 0,
+    };
+    let period = plan.period;
+    // The jitter baseline: a bare absolute-deadline sleep loop, same thread,
+    // same CPU, same policy, same run.
+    let mut next = plan.start;
+    let base_end = plan.start + (plan.baseline_s * 1e9) as Nanos;
+    while next < base_end && !io.stop.load(Ordering::Relaxed) {
+        clock::sleep_until(next);
+        res.baseline.record((clock::now_ns() - next) as f64 * 1e-3);
+        next += period;
+    }
+    next = next.max(plan.loop_start);
+    let sys0 = crate::rt::alloc::thread_system_calls();
+    let t_begin = clock::now_ns();
+    let mut streak = 0u32;
+    let mut last: Option<DeviceSample> = None;
+    let mut last_pose_time: Nanos = 0;
+    let mut n: u64 = 0;
+    let mut window_max_us = 0.0f64;
+    // A retired model the return ring had no room for (kept, never freed here).
+    let mut pending_return: Option<Box<LoopModel<R>>> = None;
+    let mut contact_msg = ContactMsg {
+        tick: 0,
+        nodes: heapless::Vec::new(),
+    };
+    while !io.stop.load(Ordering::Relaxed) {
+        clock::sleep_until(next);
+        let wake = clock::now_ns();
+        res.jitter.record((wake - next) as f64 * 1e-3);
+        n += 1;
+
+        // Freshest pose (drain).
+        while let Ok(s) = io.pose.pop() {
+            last_pose_time = (s.time_s * 1e9) as Nanos + clock::epoch();
+            last = Some(s);
+        }
+        // A new model between ticks; only if the models it retires can be
+        // returned (never freed here).
+        if !io.models.is_empty() {
+            if pending_return.is_none() && io.returned.slots() >= 2 {
+                if let Ok(m) = io.models.pop() {
+                    if let Some(old) = tick.swap(m) {
+                        if let Err(rtrb::PushError::Full(old)) = io.returned.push(old) {
+                            pending_return = Some(old);
+                        }
+                    }
+                }
+            } else {
+                res.swaps_deferred += 1;
+            }
+        }
+        let now_s = clock::to_s(wake);
+        let out = tick.run(TickInput {
+            sample: last.as_ref(),
+            now_s,
+            overrun_streak: streak,
+        });
+        res.qp_us.record(out.qp_us);
+        res.max_force = res.max_force.max(out.force.norm());
+        res.max_depth = res.max_depth.max(out.depth);
+        if io
+            .force
+            .push(ForceCmd {
+                force: out.force,
+                pose_time: last_pose_time,
+            })
+            .is_err()
+        {
+            res.force_ring_full += 1;
+        }
+        let c = tick.servo().contact();
+        if !c.nodes.is_empty() {
+            contact_msg.tick = n;
+            contact_msg.nodes.clear();
+            for nc in c.nodes.iter().take(CONTACT_MSG_NODES) {
+                let _ = contact_msg.nodes.push(NodeContact {
+                    node: nc.node,
+                    force: nc.force,
+                });
+            }
+            if io.contact.push(contact_msg.clone()).is_err() {
+                res.contact_ring_full += 1;
+            }
+        }
+        if pending_return.is_none() {
+            pending_return = tick.servo_mut().take_retired();
+        }
+        if let Some(old) = pending_return.take() {
+            if let Err(rtrb::PushError::Full(old)) = io.returned.push(old) {
+                pending_return = Some(old);
+            }
+        }
+        let end = clock::now_ns();
+        let compute = end - wake;
+        res.compute.record(compute as f64 * 1e-3);
+        window_max_us = window_max_us.max(compute as f64 * 1e-3);
+        io.live.record_tick(n, now_s, &out, res.misses);
+        if n % plan.state_every == 0 {
+            let model = tick.servo().model();
+            let snap = StateSnapshot {
+                time_s: now_s,
+                epoch: model.epoch,
+                q: *model.dynamics.q(),
+                tool: out.tool,
+                force: out.force,
+                flags: out.flags,
+                tick_max_us: window_max_us as f32,
+            };
+            window_max_us = 0.0;
+            if io.state.push(snap).is_err() {
+                res.state_ring_full += 1;
+            }
+        }
+        // Deadlines: a tick that ends after the next deadline is a miss; the
+        // loop re-phases to the next future deadline instead of bursting.
+        next += period;
+        if end > next {
+            res.misses += 1;
+            if compute > period {
+                res.misses_compute += 1;
+            }
+            streak += 1;
+            let behind = (end - next) / period + 1;
+            next += behind * period;
+        } else {
+            streak = 0;
+        }
+    }
+    res.allocations = crate::rt::alloc::thread_system_calls() - sys0;
+    // Off the clock: whatever was not returned is freed with the thread.
+    drop(pending_return);
+    res.seconds = (clock::now_ns() - t_begin) as f64 * 1e-9;
+    res.counters = *tick.counters();
+    res.qp = *tick.qp_stats();
+    crate::rt::alloc::leave_rt();
+    res
+}

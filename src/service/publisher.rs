@@ -1,0 +1,163 @@
+//! The stream publisher thread (normal priority): turns the loop's state
+//! snapshots into stream frames, x = X + ū + Φ δq at the stream's vertices,
+//! publishes them (UDP, recording; see `crate::stream`) and keeps the latest
+//! one for [`crate::service::Handle::snapshot`]. Never blocks the loop: it
+//! only pops rings.
+
+use super::background::OffsetMsg;
+use super::live::{FrameSnapshot, LiveStats};
+use crate::haptics::servo::flags;
+use crate::math::Vec3;
+use nalgebra::SVector;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::Arc;
+
+/// A loop state snapshot (loop → stream publisher).
+#[derive(Debug, Clone, Copy)]
+pub struct StateSnapshot<const R: usize> {
+    /// Loop time (s).
+    pub time_s: f64,
+    /// Epoch of the model in use.
+    pub epoch: u64,
+    /// Reduced coordinates δq.
+    pub q: SVector<f64, R>,
+    /// Tool centre (m, scene frame).
+    pub tool: Vec3,
+    /// Commanded force (N).
+    pub force: Vec3,
+    /// Status bits.
+    pub flags: u32,
+    /// Largest tick compute time since the previous snapshot (µs).
+    pub tick_max_us: f32,
+}
+
+/// What the publisher thread needs.
+pub(super) struct PublisherPlan<const R: usize> {
+    pub publisher: crate::stream::Publisher,
+    pub rows: crate::reduced::BasisRows<R>,
+    pub state: rtrb::Consumer<StateSnapshot<R>>,
+    pub offsets: rtrb::Consumer<OffsetMsg<R>>,
+    pub first_offset: Arc<Vec<Vec3>>,
+    pub tool_radius: f64,
+    pub simulated: bool,
+    pub stop: Arc<AtomicBool>,
+    pub live: Arc<LiveStats>,
+}
+
+/// The stream publisher (normal priority): turns loop snapshots into stream
+/// frames, x = X + ū + Φ δq at the stream's vertices, and publishes them.
+/// Never blocks the loop (it only pops rings).
+pub(super) fn publisher_thread<const R: usize>(mut p: PublisherPlan<R>) -> (u64, u64, Option<String>) {
+    use crate::stream::{flags as sf, StateFrame};
+    let topo = p.publisher.topology().clone();
+    let mut positions = vec![[0f32; 3]; topo.node_ids.len()];
+    let mut offsets: std::collections::VecDeque<OffsetMsg<R>> = std::collections::VecDeque::new();
+    offsets.push_back((0, p.first_offset.clone(), p.rows.clone()));
+    let mut last_epoch = 0;
+    let mut refreshed_at = f64::NEG_INFINITY;
+    let mut times: std::collections::VecDeque<f64> = std::collections::VecDeque::new();
+    let mut maxes: std::collections::VecDeque<f32> = std::collections::VecDeque::new();
+    let mut errors = 0u64;
+    let mut first_error = None;
+    while !p.stop.load(Ordering::Relaxed) {
+        while let Ok(o) = p.offsets.pop() {
+            offsets.push_back(o);
+            while offsets.len() > 8 {
+                offsets.pop_front();
+            }
+        }
+        let mut snap = None;
+        while let Ok(s) = p.state.pop() {
+            times.push_back(s.time_s);
+            maxes.push_back(s.tick_max_us);
+            snap = Some(s);
+        }
+        let Some(s) = snap else {
+            std::thread::sleep(std::time::Duration::from_millis(2));
+            continue;
+        };
+        while times.len() > 61 {
+            times.pop_front();
+            maxes.pop_front();
+        }
+        let (offset, rows) = match offsets
+            .iter()
+            .rev()
+            .find(|(e, _, _)| *e == s.epoch)
+            .or_else(|| offsets.back())
+        {
+            Some((_, o, r)) => (Some(o.clone()), r.clone()),
+            None => (None, p.rows.clone()),
+        };
+        for (k, &node) in topo.node_ids.iter().enumerate() {
+            let i = node as usize;
+            let rest = Vec3::from(topo.rest_positions[k].map(f64::from));
+            let ubar = offset
+                .as_ref()
+                .and_then(|o| o.get(i).copied())
+                .unwrap_or_else(Vec3::zeros);
+            let d = rows.get(i).map(|row| row * s.q).unwrap_or_else(Vec3::zeros);
+            let x = rest + ubar + d;
+            positions[k] = [x.x as f32, x.y as f32, x.z as f32];
+        }
+        if s.epoch != last_epoch {
+            last_epoch = s.epoch;
+            refreshed_at = s.time_s;
+        }
+        let mut fl = 0;
+        for (a, b) in [
+            (flags::WATCHDOG, sf::WATCHDOG_ACTIVE),
+            (flags::CONTACT, sf::IN_CONTACT),
+            (flags::LIMITED, sf::FORCE_LIMITED),
+            (flags::RT_GRANTED, sf::RT_GRANTED),
+        ] {
+            if s.flags & a != 0 {
+                fl |= b;
+            }
+        }
+        if s.time_s - refreshed_at < 0.5 {
+            fl |= sf::MODEL_REFRESHED;
+        }
+        if p.simulated {
+            fl |= sf::DEVICE_SIMULATED;
+        }
+        let rate = match (times.front(), times.back()) {
+            (Some(a), Some(b)) if b > a => {
+                // Snapshots come every `state_every` ticks.
+                (times.len() - 1) as f64 / (b - a) * (1e3 / 60.0f64).floor()
+            }
+            _ => 0.0,
+        };
+        let p99 = maxes.iter().copied().fold(0.0f32, f32::max);
+        let frame = StateFrame {
+            time_s: s.time_s,
+            positions: &positions,
+            tool_position: [s.tool.x as f32, s.tool.y as f32, s.tool.z as f32],
+            tool_radius: p.tool_radius as f32,
+            force: [s.force.x as f32, s.force.y as f32, s.force.z as f32],
+            flags: fl,
+            loop_rate_hz: rate as f32,
+            tick_p99_us: p99,
+        };
+        p.live.record_frame(FrameSnapshot {
+            time_s: s.time_s,
+            node_ids: topo.node_ids.clone(),
+            positions: positions.clone(),
+            tool_position: frame.tool_position,
+            force: frame.force,
+            flags: fl,
+        });
+        if let Err(e) = p.publisher.publish(&frame) {
+            errors += 1;
+            first_error.get_or_insert_with(|| e.to_string());
+        }
+    }
+    let frames = p.publisher.stats().frames;
+    match p.publisher.finish() {
+        Ok(_) => {}
+        Err(e) => {
+            first_error.get_or_insert_with(|| e.to_string());
+        }
+    }
+    (frames, errors, first_error)
+}

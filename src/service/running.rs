@@ -1,0 +1,497 @@
+//! A started service: the threads, the rings between them and what the
+//! report needs at the end. [`start_with`] builds the rings and starts the
+//! threads at the reduced capacity R; [`Running::stop`] stops them, joins
+//! them and assembles the [`Report`].
+
+use super::background::{
+    self, Background, BackgroundIo, BackgroundStats, BasisJob, BasisPolicy, BasisStats, BasisWorker, ContactMsg,
+    NewBasis, OffsetMsg,
+};
+use super::config::Backend;
+use super::device_io::{device_thread, DeviceIo, DeviceResult, ForceCmd};
+use super::live::{LiveStats, Snapshot};
+use super::loop_thread::{loop_thread, LoopIo, LoopPlan, LoopResult, LOOP_PHASE};
+use super::publisher::{publisher_thread, PublisherPlan, StateSnapshot};
+use super::report::{BackgroundReport, QpReport, Report, RingReport};
+use super::setup::Prepared;
+use super::ServiceError;
+use crate::haptics::contact::SurfaceIndex;
+use crate::haptics::device::{DeviceSample, HapticDevice};
+use crate::haptics::passivity::PassivityFilter;
+use crate::haptics::servo::{LoopModel, Servo, ServoParams};
+use crate::haptics::tick::HapticTick;
+use crate::math::Vec3;
+use crate::reduced::{basis_rows, BasisParams, Refresher};
+use crate::rt::clock::{self, Nanos};
+use crate::rt::stats::Percentiles;
+use crate::rt::thread::{lock_memory, setup_current, RtRequest};
+use crate::service::config::RingConfig;
+use crate::solver::ImplicitEuler;
+use nalgebra::SVector;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::Arc;
+use std::thread::JoinHandle;
+
+/// A running service at reduced capacity R (type-erased by [`Service`]).
+pub(super) struct Running<const R: usize> {
+    stop: Arc<AtomicBool>,
+    live: Arc<LiveStats>,
+    started: std::time::Instant,
+    planned_s: f64,
+    loop_handle: Option<JoinHandle<LoopResult>>,
+    dev_handle: Option<JoinHandle<(DeviceResult, Box<dyn HapticDevice>)>>,
+    bg_handle: Option<JoinHandle<BackgroundStats>>,
+    basis_handle: Option<JoinHandle<BasisStats>>,
+    pub_handle: Option<JoinHandle<(u64, u64, Option<String>)>>,
+    refusals: Vec<String>,
+    memory_locked: bool,
+    rings: RingConfig,
+    device_name: String,
+    basis_refresh_on: bool,
+    nodes: usize,
+    tets: usize,
+    r: usize,
+    basis_s: f64,
+    basis_cache: String,
+}
+
+/// What [`super::Handle`] needs of a running service, whatever its R.
+pub(super) trait RunningService: Send {
+    fn snapshot(&self) -> Snapshot;
+    fn planned_s(&self) -> f64;
+    fn is_finished(&self) -> bool;
+    fn stop(&mut self) -> Result<Report, ServiceError>;
+}
+
+/// Joins a thread; a panic becomes an error naming the thread and the
+/// panic message.
+fn join<T>(h: Option<JoinHandle<T>>, name: &'static str) -> Result<T, ServiceError> {
+    let h = h.ok_or_else(|| ServiceError::Thread(name, "already stopped".into()))?;
+    h.join().map_err(|p| {
+        let msg = p
+            .downcast_ref::<&str>()
+            .map(|s| s.to_string())
+            .or_else(|| p.downcast_ref::<String>().cloned())
+            .unwrap_or_else(|| "unknown payload".into());
+        ServiceError::Thread(name, format!("panicked: {msg}"))
+    })
+}
+
+impl<const R: usize> RunningService for Running<R> {
+    fn snapshot(&self) -> Snapshot {
+        self.live.snapshot(self.started.elapsed().as_secs_f64())
+    }
+
+    fn planned_s(&self) -> f64 {
+        self.planned_s
+    }
+
+    fn is_finished(&self) -> bool {
+        self.loop_handle.as_ref().is_none_or(|h| h.is_finished())
+            || self.dev_handle.as_ref().is_none_or(|h| h.is_finished())
+    }
+
+    fn stop(&mut self) -> Result<Report, ServiceError> {
+        self.stop.store(true, Ordering::Relaxed);
+        let lr = join(self.loop_handle.take(), "haptic loop")?;
+        let (dr, mut dev) = join(self.dev_handle.take(), "device")?;
+        dev.stop();
+        let bs: Option<BackgroundStats> = match self.bg_handle.take() {
+            Some(h) => Some(join(Some(h), "background")?),
+            None => None,
+        };
+        let basis_stats: BasisStats = match self.basis_handle.take() {
+            Some(h) => join(Some(h), "basis")?,
+            None => BasisStats::default(),
+        };
+        let (stream_frames, stream_errors, stream_error) = join(self.pub_handle.take(), "stream")?;
+        let mut refusals = std::mem::take(&mut self.refusals);
+        let (rings, memory_locked) = (self.rings, self.memory_locked);
+        if let Some(e) = &stream_error {
+            refusals.push(format!("stream: {stream_errors} publish errors, first: {e}"));
+        }
+        if memory_locked {
+            crate::rt::thread::unlock_memory();
+        }
+
+        refusals.extend(lr.grant.refusals.iter().cloned());
+        let mut ring_overflows = std::collections::BTreeMap::new();
+        ring_overflows.insert("pose", ring_report(rings.pose, "drop newest", dr.pose_ring_full));
+        ring_overflows.insert("force", ring_report(rings.force, "drop newest", lr.force_ring_full));
+        ring_overflows.insert(
+            "contact",
+            ring_report(rings.contact, "drop newest", lr.contact_ring_full),
+        );
+        ring_overflows.insert(
+            "model",
+            ring_report(
+                rings.model,
+                "keep latest (background retries)",
+                bs.as_ref().map(|b| b.model_ring_full).unwrap_or(0),
+            ),
+        );
+        ring_overflows.insert(
+            "returned",
+            ring_report(rings.returned, "loop defers the swap", lr.swaps_deferred),
+        );
+        ring_overflows.insert("state", ring_report(rings.state, "drop newest", lr.state_ring_full));
+        let (energy_in, energy_out, source) = match dr.energy {
+            Some(e) => (e.absorbed_j, e.delivered_j, "device"),
+            None => (lr.qp.absorbed_j, lr.qp.delivered_j, "observer"),
+        };
+        let qp = &lr.qp;
+        let background = match &bs {
+            Some(b) => BackgroundReport {
+                enabled: true,
+                steps: b.steps,
+                failed_steps: b.failed_steps,
+                split_steps: b.split_steps,
+                step_ms: ms_of(&b.step_us),
+                refresh_ms: ms_of(&b.refresh_us),
+                refresh_hz: b.models_sent as f64 / b.wall_s.max(1e-9),
+                real_time_factor: b.sim_time_s / b.wall_s.max(1e-9),
+                max_displacement_m: b.max_displacement_m,
+                basis_refresh_on: self.basis_refresh_on,
+                basis_requests: b.basis_requests,
+                basis_recomputed: basis_stats.recomputed,
+                basis_failures: basis_stats.failures,
+                basis_swaps: b.basis_swaps_sent,
+                basis_recompute_s: Percentiles::of(&basis_stats.seconds),
+                basis_iterations: basis_stats.iterations.clone(),
+            },
+            None => BackgroundReport::default(),
+        };
+        Ok(Report {
+            ticks: lr.counters.ticks,
+            seconds: lr.seconds,
+            deadline_misses: lr.misses,
+            deadline_misses_compute: lr.misses_compute,
+            period_jitter_us: lr.jitter.percentiles(),
+            tick_compute_us: lr.compute.percentiles(),
+            pose_to_force_latency_us: dr.latency.percentiles(),
+            baseline_jitter_us: lr.baseline.percentiles(),
+            allocations_after_start: lr.allocations + dr.allocations,
+            allocator_installed: lr.allocator_installed,
+            max_force_n: lr.max_force,
+            qp: QpReport {
+                solves: qp.solves,
+                active_norm: qp.active_norm,
+                active_rate: qp.active_rate,
+                active_energy: qp.active_energy,
+                iters_p99: qp.iter_p99(),
+                solve_us_p99: lr.qp_us.percentiles().p99,
+                solve_us_p50: lr.qp_us.percentiles().p50,
+                fallbacks: qp.fallbacks(),
+                tank_low_j: qp.tank_low_j,
+            },
+            energy_in_j: energy_in,
+            energy_out_j: energy_out,
+            energy_source: source,
+            ring_overflows,
+            model_swaps: lr.counters.model_swaps,
+            rt_policy_granted: lr.grant.fifo,
+            rt_refusals: refusals,
+            loop_cpu: lr.grant.cpu,
+            memory_locked,
+            device: self.device_name.clone(),
+            nodes: self.nodes,
+            tets: self.tets,
+            r: self.r,
+            r_capacity: R,
+            basis_s: self.basis_s,
+            basis_cache: self.basis_cache.clone(),
+            background,
+            watchdog: lr.counters,
+            device_ticks: dr.ticks,
+            device_errors: dr.errors,
+            max_depth_m: lr.max_depth,
+            stream_frames,
+        })
+    }
+}
+
+fn cpu(c: i32) -> Option<usize> {
+    (c >= 0).then_some(c as usize)
+}
+
+fn ring_report(capacity: usize, policy: &'static str, overflows: u64) -> RingReport {
+    RingReport {
+        capacity,
+        policy,
+        overflows,
+    }
+}
+
+/// Exact percentiles (ms) of samples in µs.
+fn ms_of(us: &[f64]) -> Percentiles {
+    let p = Percentiles::of(us);
+    Percentiles {
+        p50: p.p50 * 1e-3,
+        p99: p.p99 * 1e-3,
+        p999: p.p999 * 1e-3,
+        max: p.max * 1e-3,
+    }
+}
+
+/// Builds the rings and starts every thread at reduced capacity R.
+pub(super) fn start_with<const R: usize>(p: Prepared) -> Result<Running<R>, ServiceError> {
+    let Prepared {
+        cfg,
+        mesh,
+        model,
+        fixed,
+        mass,
+        basis,
+        basis_s,
+        basis_cache,
+        dynamics,
+        device,
+        passivity,
+        seconds,
+        scene,
+        record,
+        contact,
+        max_static,
+    } = p;
+    let n = mesh.num_nodes();
+    let rows = basis_rows::<R>(&basis)?;
+    let mut refresher = Refresher::new(&mesh, &basis, &mass);
+    let zeros = vec![Vec3::zeros(); n];
+    let k0 = refresher.reduced_stiffness(model.as_ref(), &zeros);
+    let first = background::rest_model::<R>(rows.clone(), &k0, &dynamics, n)?;
+    let index = Arc::new(SurfaceIndex::new(&mesh, &cfg.contact));
+    let period = (1e9 / cfg.servo.rate_hz).round() as Nanos;
+    let w = &cfg.watchdog;
+    let servo_params = ServoParams {
+        dt: period as f64 * 1e-9,
+        contact: cfg.contact,
+        device_origin: Vec3::from(cfg.device.origin_m),
+        device_timeout_s: w.device_timeout_ms * 1e-3,
+        model_timeout_s: if cfg.background.enabled {
+            w.model_timeout_ms * 1e-3
+        } else {
+            f64::INFINITY
+        },
+        overrun_streak: w.overrun_streak,
+        ramp_down_s: w.ramp_down_ms * 1e-3,
+        ramp_in_s: w.ramp_in_s,
+        swap_blend_s: cfg.servo.swap_blend_ms * 1e-3,
+    };
+    let filter = PassivityFilter::new(&passivity)?;
+    let rings = cfg.rings;
+    let (pose_tx, pose_rx) = rtrb::RingBuffer::<DeviceSample>::new(rings.pose);
+    let (force_tx, force_rx) = rtrb::RingBuffer::<ForceCmd>::new(rings.force);
+    let (contact_tx, contact_rx) = rtrb::RingBuffer::<ContactMsg>::new(rings.contact);
+    let (model_tx, model_rx) = rtrb::RingBuffer::<Box<LoopModel<R>>>::new(rings.model);
+    let (ret_tx, ret_rx) = rtrb::RingBuffer::<Box<LoopModel<R>>>::new(rings.returned);
+    let stop = Arc::new(AtomicBool::new(false));
+    let live = Arc::new(LiveStats::default());
+    let (state_tx, state_rx) = rtrb::RingBuffer::<StateSnapshot<R>>::new(rings.state);
+    let (offset_tx, offset_rx) = rtrb::RingBuffer::<OffsetMsg<R>>::new(16);
+    let state_every = ((cfg.servo.rate_hz / cfg.stream.rate_hz).round() as u64).max(1);
+
+    let memory_locked = cfg.servo.lock_memory && lock_memory().is_ok();
+    let mut refusals = Vec::new();
+    if cfg.servo.lock_memory && !memory_locked {
+        refusals.push("mlockall refused (RLIMIT_MEMLOCK); memory not locked".to_string());
+    }
+    let mut device = device;
+    device.start().map_err(|e| ServiceError::Device(e.to_string()))?;
+    let device_name = device.name().to_string();
+
+    clock::epoch();
+    // The baseline runs first on the loop's thread; the device and the
+    // background start with the loop.
+    let start = clock::now_ns() + 50_000_000;
+    let loop_start = start + (cfg.servo.baseline_s * 1e9) as Nanos + LOOP_PHASE;
+    let pool_bytes = 8 << 20;
+
+    // Background.
+    let mut basis_handle: Option<std::thread::JoinHandle<BasisStats>> = None;
+    let bg_handle = if cfg.background.enabled {
+        let mut params = scene.integrator;
+        params.dt = cfg.background.dt;
+        let solver =
+            ImplicitEuler::new(&mesh, mass.clone(), params).map_err(|e| ServiceError::Solver(e.to_string()))?;
+        let basis_policy = BasisPolicy {
+            every_s: cfg.background.basis_refresh_s,
+            min_change_m: cfg.background.basis_refresh_m,
+        };
+        let bg = Background::<R> {
+            model,
+            solver,
+            fixed: fixed.clone(),
+            refresher,
+            rows: rows.clone(),
+            dynamics,
+            last_sent: (first.offset.clone(), SVector::zeros(), 0),
+            dt_max: cfg.background.dt_max,
+            basis_policy,
+        };
+        let bg_cpu = cpu(cfg.background.cpu);
+        // The basis thread, when the basis refresh is on.
+        let basis_io = if basis_policy.every_s > 0.0 {
+            let (job_tx, job_rx) = rtrb::RingBuffer::<BasisJob>::new(1);
+            let (new_tx, new_rx) = rtrb::RingBuffer::<NewBasis<R>>::new(1);
+            let worker = BasisWorker {
+                mesh: mesh.clone(),
+                mass: mass.clone(),
+                fixed: fixed.clone(),
+                contact: contact.clone(),
+                r: basis.len(),
+                max_static,
+                params: BasisParams::default(),
+                current: basis.clone(),
+            };
+            let stop_b = stop.clone();
+            let h = std::thread::Builder::new()
+                .name("nvtmm-basis".into())
+                .spawn(move || {
+                    if bg_cpu.is_some() {
+                        setup_current(&RtRequest {
+                            fifo_priority: None,
+                            cpu: bg_cpu,
+                            prefault_stack_bytes: 0,
+                        });
+                    }
+                    background::basis_thread::<R>(worker, job_rx, new_tx, stop_b)
+                })
+                .map_err(|e| ServiceError::Thread("basis", e.to_string()))?;
+            basis_handle = Some(h);
+            Some((job_tx, new_rx))
+        } else {
+            None
+        };
+        let bio = BackgroundIo {
+            contact: contact_rx,
+            models: model_tx,
+            returned: ret_rx,
+            offsets: Some(offset_tx),
+            stop: stop.clone(),
+            live: live.clone(),
+            basis: basis_io,
+        };
+        Some(
+            std::thread::Builder::new()
+                .name("nvtmm-background".into())
+                .spawn(move || {
+                    clock::sleep_until(loop_start);
+                    if bg_cpu.is_some() {
+                        setup_current(&RtRequest {
+                            fifo_priority: None,
+                            cpu: bg_cpu,
+                            prefault_stack_bytes: 0,
+                        });
+                    }
+                    background::run(bg, bio)
+                })
+                .map_err(|e| ServiceError::Thread("background", e.to_string()))?,
+        )
+    } else {
+        drop((contact_rx, model_tx, ret_rx, model, refresher, offset_tx));
+        None
+    };
+
+    // Stream publisher: always runs (it also keeps the latest frame for
+    // `Handle::snapshot`); it sends only where `[stream]` or `--record` say.
+    let pub_handle = {
+        let topology = crate::stream::decimate::surface(&mesh, cfg.stream.decimate_vertices);
+        let publisher = crate::stream::Publisher::new(cfg.stream.clone(), topology, record.as_deref())
+            .map_err(|e| ServiceError::Device(format!("stream: {e}")))?;
+        let plan = PublisherPlan::<R> {
+            publisher,
+            rows: rows.clone(),
+            state: state_rx,
+            offsets: offset_rx,
+            first_offset: first.offset.clone(),
+            tool_radius: cfg.contact.tool_radius_m,
+            simulated: cfg.device.backend == Backend::TouchxSim,
+            stop: stop.clone(),
+            live: live.clone(),
+        };
+        std::thread::Builder::new()
+            .name("nvtmm-stream".into())
+            .spawn(move || publisher_thread::<R>(plan))
+            .map_err(|e| ServiceError::Thread("stream", e.to_string()))?
+    };
+
+    // Device I/O.
+    let dev_req = RtRequest {
+        fifo_priority: (cfg.device.priority > 0).then_some(cfg.device.priority),
+        cpu: cpu(cfg.device.cpu),
+        prefault_stack_bytes: 256 * 1024,
+    };
+    let dev_period = (1e9 / cfg.device.rate_hz).round() as Nanos;
+    let dio = DeviceIo {
+        pose: pose_tx,
+        force: force_rx,
+        stop: stop.clone(),
+    };
+    let dev_handle = std::thread::Builder::new()
+        .name("nvtmm-device".into())
+        .stack_size(1 << 20)
+        .spawn(move || {
+            device_thread(
+                device,
+                dio,
+                dev_req,
+                loop_start - LOOP_PHASE,
+                dev_period,
+                dev_period / 2,
+                pool_bytes,
+            )
+        })
+        .map_err(|e| ServiceError::Thread("device", e.to_string()))?;
+
+    // The haptic loop, phased 200 µs after the device read.
+    let tick = HapticTick::new(Servo::new(first, index, servo_params, clock::now_s()), filter);
+    let lio = LoopIo {
+        pose: pose_rx,
+        force: force_tx,
+        contact: contact_tx,
+        models: model_rx,
+        returned: ret_tx,
+        state: state_tx,
+        stop: stop.clone(),
+        live: live.clone(),
+    };
+    let plan = LoopPlan {
+        request: RtRequest {
+            fifo_priority: (cfg.servo.priority > 0).then_some(cfg.servo.priority),
+            cpu: cpu(cfg.servo.cpu),
+            prefault_stack_bytes: cfg.servo.stack_kib * 1024 / 2,
+        },
+        period,
+        start,
+        loop_start,
+        baseline_s: cfg.servo.baseline_s,
+        pool_bytes,
+        state_every,
+    };
+    let loop_handle = std::thread::Builder::new()
+        .name("nvtmm-haptic".into())
+        .stack_size(cfg.servo.stack_kib * 1024)
+        .spawn(move || loop_thread::<R>(tick, lio, plan))
+        .map_err(|e| ServiceError::Thread("haptic loop", e.to_string()))?;
+    Ok(Running {
+        stop,
+        live,
+        started: std::time::Instant::now(),
+        planned_s: cfg.servo.baseline_s + seconds,
+        loop_handle: Some(loop_handle),
+        dev_handle: Some(dev_handle),
+        bg_handle,
+        basis_handle,
+        pub_handle: Some(pub_handle),
+        refusals,
+        memory_locked,
+        rings,
+        device_name,
+        basis_refresh_on: cfg.background.basis_refresh_s > 0.0,
+        nodes: n,
+        tets: mesh.tets().len(),
+        r: basis.len(),
+        basis_s,
+        basis_cache,
+    })
+}

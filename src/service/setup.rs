@@ -1,0 +1,182 @@
+//! Everything built before the threads start: the configuration and the
+//! scene are read and validated, the basis is computed or loaded from the
+//! cache, and the device is opened. Errors name the file and the key.
+
+use super::config::{Backend, ServiceConfig};
+use super::script::{press_target, scripted_press};
+use super::{ConfigSource, ServiceError, StartOptions};
+use crate::haptics::device::HapticDevice;
+use crate::haptics::passivity::PassivityParams;
+use crate::math::Vec3;
+use crate::mesh::TetMesh;
+use crate::reduced::cache::{load_or_compute, BasisRequest, CacheStatus};
+use crate::reduced::{BasisParams, DynamicsParams, ModalBasis};
+use crate::scene::Scene;
+use std::path::PathBuf;
+use std::sync::Arc;
+
+/// Everything built before the threads start (shared by all capacities).
+pub struct Prepared {
+    /// The configuration.
+    pub cfg: ServiceConfig,
+    /// The scene.
+    pub scene: Scene,
+    /// The mesh.
+    pub mesh: Arc<TetMesh>,
+    /// The full model.
+    pub model: Box<dyn crate::model::ForceModel>,
+    /// Fixed nodes.
+    pub fixed: Vec<u32>,
+    /// Lumped mass.
+    pub mass: Vec<f64>,
+    /// The basis.
+    pub basis: ModalBasis,
+    /// Basis seconds (0 on a cache hit).
+    pub basis_s: f64,
+    /// Cache outcome.
+    pub basis_cache: String,
+    /// Reduced damping.
+    pub dynamics: DynamicsParams,
+    /// The device.
+    pub device: Box<dyn HapticDevice>,
+    /// The passivity parameters.
+    pub passivity: PassivityParams,
+    /// The loop runs this long (s).
+    pub seconds: f64,
+    /// Record the stream here.
+    pub record: Option<PathBuf>,
+    /// Contact region of the basis's static modes.
+    pub contact: Vec<u32>,
+    /// Static directions the basis keeps.
+    pub max_static: usize,
+}
+
+/// Loads the configuration and the scene, computes (or loads) the basis and
+/// opens the device.
+pub fn prepare(opts: &StartOptions) -> Result<Prepared, ServiceError> {
+    let cfg = match &opts.config {
+        ConfigSource::File(path) => ServiceConfig::load(path)?,
+        ConfigSource::Text { toml, path } => ServiceConfig::parse(toml, path)?,
+    };
+    let seconds = opts.seconds.unwrap_or(cfg.seconds);
+    crate::config::Checker::new(&cfg.path).f64_in("--seconds", seconds, 0.1, 86_400.0, "s")?;
+    let scene_path = cfg.resolve(&cfg.scene);
+    let scene = Scene::load(&scene_path).map_err(|e| ServiceError::SceneOf {
+        config: cfg.path.clone(),
+        scene: cfg.scene.clone(),
+        source: e,
+    })?;
+    let built = scene.build()?;
+    let red = scene.reduced.clone().ok_or_else(|| crate::scene::SceneError {
+        path: scene_path.clone(),
+        key: "reduced".into(),
+        msg: "the service needs a [reduced] table (r, contact_modes, contact_region)".into(),
+    })?;
+    let contact = if red.contact_modes {
+        scene.contact_nodes(&built.mesh)?
+    } else {
+        Vec::new()
+    };
+    let mass = built.mesh.lumped_mass(built.material.density);
+    if opts.progress {
+        eprintln!(
+            "nvtmm run: {} nodes, {} tets; basis r = {} ({} contact nodes)...",
+            built.mesh.num_nodes(),
+            built.mesh.tets().len(),
+            red.r,
+            contact.len()
+        );
+    }
+    let req = BasisRequest {
+        mesh: &built.mesh,
+        model: built.model.as_ref(),
+        material: built.material,
+        law: scene.material.law,
+        mass: &mass,
+        fixed: &built.fixed,
+        r: red.r,
+        contact: &contact,
+        max_static: red.r / 2,
+        params: BasisParams::default(),
+    };
+    let max_static = red.r / 2;
+    let dir = red.cache.then(|| scene.cache_dir());
+    let (basis, outcome) = load_or_compute(&req, dir.as_deref(), false)?;
+    let basis_cache = match &outcome.status {
+        CacheStatus::Hit => "hit".to_string(),
+        CacheStatus::Computed => "computed".to_string(),
+        CacheStatus::Recomputed(why) => format!("recomputed ({why})"),
+        CacheStatus::Bypassed => "off".to_string(),
+    };
+    let mut passivity = cfg.passivity.clone();
+    passivity.dt_s = 1.0 / cfg.servo.rate_hz;
+    let dynamics = DynamicsParams {
+        dt: 1.0 / cfg.servo.rate_hz,
+        alpha: red.alpha,
+        beta: red.beta,
+    };
+    let device = make_device(&cfg, &built.mesh, &scene, seconds)?;
+    Ok(Prepared {
+        basis_s: outcome.compute_s,
+        basis_cache,
+        mesh: Arc::new(built.mesh),
+        model: built.model,
+        fixed: built.fixed,
+        mass,
+        basis,
+        dynamics,
+        device,
+        passivity,
+        seconds,
+        record: opts.record.clone(),
+        contact,
+        max_static,
+        scene,
+        cfg,
+    })
+}
+
+/// Opens the configured device backend.
+pub fn make_device(
+    cfg: &ServiceConfig,
+    mesh: &TetMesh,
+    scene: &Scene,
+    seconds: f64,
+) -> Result<Box<dyn HapticDevice>, ServiceError> {
+    let origin = Vec3::from(cfg.device.origin_m);
+    match cfg.device.backend {
+        Backend::TouchxSim => {
+            use crate::haptics::touchx::{TouchXParams, TouchXSim, Waypoint};
+            let params = TouchXParams::load(&cfg.resolve(&cfg.device.touchx))?;
+            let (_, p, n, t) = press_target(mesh, scene);
+            let pts: Vec<Waypoint> = scripted_press(p, n, t, &cfg.interaction, cfg.contact.tool_radius_m, seconds)
+                .into_iter()
+                .map(|(t_s, x)| Waypoint {
+                    t_s,
+                    position: x - origin,
+                })
+                .collect();
+            let dev = TouchXSim::new(params, &pts).map_err(|e| ServiceError::Device(e.to_string()))?;
+            Ok(Box::new(dev))
+        }
+        Backend::Udp => {
+            use crate::haptics::udp::{UdpDevice, UdpParams};
+            let params = UdpParams::load(&cfg.resolve(&cfg.device.udp))?;
+            Ok(Box::new(UdpDevice::new(params)))
+        }
+        Backend::Openhaptics => open_openhaptics(),
+    }
+}
+
+#[cfg(feature = "openhaptics")]
+fn open_openhaptics() -> Result<Box<dyn HapticDevice>, ServiceError> {
+    // Samples older than the device watchdog's limit count as stale.
+    Ok(Box::new(crate::haptics::openhaptics::OpenHapticsDevice::new(0.005)))
+}
+
+#[cfg(not(feature = "openhaptics"))]
+fn open_openhaptics() -> Result<Box<dyn HapticDevice>, ServiceError> {
+    Err(ServiceError::Device(
+        "this build has no OpenHaptics backend; rebuild with --features openhaptics on a box with the SDK".into(),
+    ))
+}
