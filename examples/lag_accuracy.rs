@@ -6,8 +6,8 @@
 use nvtmm::bench::{parse_linear, standard_load, standard_params};
 use nvtmm::material::{Law, Material};
 use nvtmm::mesh::arch::{generate, ArchParams};
+use nvtmm::model::factory::build_model;
 use nvtmm::model::ModelKind;
-use nvtmm::scene::build_model;
 use nvtmm::solver::{ImplicitEuler, ImplicitEulerParams, TissueState};
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {

@@ -7,8 +7,8 @@ use nvtmm::material::{Law, Material};
 use nvtmm::math::Mat3;
 use nvtmm::math::Vec3;
 use nvtmm::mesh::arch::{generate, ArchParams};
+use nvtmm::model::factory::build_model;
 use nvtmm::model::{BlockTangent, ModelKind};
-use nvtmm::scene::build_model;
 use nvtmm::solver::linear::{project_fixed, CholeskySolver};
 use std::time::Instant;
 

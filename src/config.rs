@@ -3,8 +3,8 @@
 //! syntax and unknown keys into that error, and range checks.
 //!
 //! Each configuration struct (service, device, stream) lives next to the code
-//! it configures and validates itself with a [`Checker`]; scenes keep their
-//! own [`crate::scene::SceneError`] of the same shape.
+//! it configures and validates itself with a [`Checker`]; scenes too
+//! ([`crate::scene::SceneError`] is this error type).
 
 use serde::de::DeserializeOwned;
 use std::fmt::Display;
@@ -34,13 +34,37 @@ pub fn load_toml<T: DeserializeOwned>(path: &Path) -> Result<T, ConfigError> {
     parse_toml(&text, path)
 }
 
-/// Deserializes TOML text; `path` is used in messages.
+/// Deserializes TOML text; `path` is used in messages. A syntax error is
+/// reported as `(syntax)` with its line and column; a value of the wrong
+/// type, a bad choice or an unknown key is reported at its dotted key
+/// (an unknown key is named itself), also with its line and column.
 pub fn parse_toml<T: DeserializeOwned>(text: &str, path: &Path) -> Result<T, ConfigError> {
-    toml::from_str(text).map_err(|e| ConfigError {
+    let err = |key: String, e: &toml::de::Error| ConfigError {
         path: path.to_path_buf(),
-        key: "(syntax)".into(),
-        msg: e.to_string().trim().replace('\n', " "),
+        key,
+        msg: match e.span() {
+            Some(span) => {
+                let (line, col) = line_col(text, span.start);
+                format!("line {line}, column {col}: {}", e.message().trim())
+            }
+            None => e.message().trim().to_string(),
+        },
+    };
+    let de = toml::Deserializer::parse(text).map_err(|e| err("(syntax)".into(), &e))?;
+    serde_path_to_error::deserialize(de).map_err(|e| {
+        let key = e.path().to_string();
+        let key = if key == "." { "(top level)".to_string() } else { key };
+        err(key, e.inner())
     })
+}
+
+/// 1-based line and column (in characters) of byte offset `at` in `text`.
+fn line_col(text: &str, at: usize) -> (usize, usize) {
+    let at = at.min(text.len());
+    let before = text.get(..at).unwrap_or(text);
+    let line = before.matches('\n').count() + 1;
+    let col = before.rsplit('\n').next().map(|l| l.chars().count()).unwrap_or(0) + 1;
+    (line, col)
 }
 
 /// Range checks that produce [`ConfigError`]s naming one file.
@@ -106,8 +130,21 @@ mod tests {
     fn errors_name_the_file_the_key_and_the_range() {
         let p = Path::new("rt-config/x.toml");
         let e = parse_toml::<Small>("rate_hz = 1.0\nbogus = 2", p).unwrap_err();
-        assert_eq!(e.key, "(syntax)");
-        assert!(e.msg.contains("bogus"), "{e}");
+        assert_eq!(
+            e.key, "bogus",
+            "an unknown key is named, not called a syntax error: {e}"
+        );
+        assert!(e.msg.contains("bogus") && e.msg.starts_with("line 2, column 1:"), "{e}");
+        assert!(
+            !e.msg.contains('^') && !e.msg.contains('|'),
+            "no caret drawing on one line: {e}"
+        );
+        let e = parse_toml::<Small>("rate_hz = \"fast\"", p).unwrap_err();
+        assert_eq!(e.key, "rate_hz", "{e}");
+        assert!(e.msg.starts_with("line 1, column 11:"), "{e}");
+        let e = parse_toml::<Small>("rate_hz = = 1", p).unwrap_err();
+        assert_eq!(e.key, "(syntax)", "{e}");
+        assert!(e.msg.starts_with("line 1,"), "{e}");
         let c = Checker::new(p);
         let e = c.f64_in("loop.rate_hz", f64::NAN, 1.0, 2.0, "Hz").unwrap_err();
         assert_eq!(

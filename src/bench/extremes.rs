@@ -6,8 +6,8 @@ use crate::material::{Law, Material, PronyTerm};
 use crate::math::Vec3;
 use crate::mesh::block::block;
 use crate::mesh::TetMesh;
+use crate::model::factory::build_model;
 use crate::model::ModelKind;
-use crate::scene::build_model;
 use crate::solver::loads::{Loads, NodalLoad, TimeProfile};
 use crate::solver::{ImplicitEuler, ImplicitEulerParams, LinearSolverKind, NewtonParams, TissueState};
 

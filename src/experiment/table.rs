@@ -27,8 +27,8 @@ use crate::bench::{arch_top_node, standard_load, standard_params, STANDARD_FORCE
 use crate::material::{Law, Material};
 use crate::math::Vec3;
 use crate::mesh::arch::{generate, ArchParams};
+use crate::model::factory::build_model;
 use crate::model::ModelKind;
-use crate::scene::build_model;
 use crate::solver::{ImplicitEuler, ImplicitEulerParams, LinearSolverKind, TissueState};
 use std::io::Write;
 use std::path::Path;

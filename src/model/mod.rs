@@ -13,6 +13,7 @@
 //! edge, in the mesh's own numbering. No model here knows about time
 //! integration or linear solvers (see `solver`).
 
+pub mod factory;
 pub mod fem;
 pub mod msm;
 pub mod nvtmm;

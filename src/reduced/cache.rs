@@ -443,7 +443,7 @@ pub fn basis_for_scene(
         Vec::new()
     };
     let material = scene.material();
-    let model = crate::scene::build_model(scene.model, &built.mesh, &material, scene.material.law, &[]);
+    let model = crate::model::factory::build_model(scene.model, &built.mesh, &material, scene.material.law, &[]);
     let mass = built.mesh.lumped_mass(material.density);
     let req = BasisRequest {
         mesh: &built.mesh,

@@ -55,9 +55,6 @@ pub enum ServiceError {
         /// What is wrong with the scene.
         source: crate::scene::SceneError,
     },
-    /// Bad scene.
-    #[error(transparent)]
-    Scene(#[from] crate::scene::SceneError),
     /// The reduced model could not be built.
     #[error("reduced model: {0}")]
     Reduced(#[from] crate::reduced::ReducedError),

@@ -67,10 +67,11 @@ pub fn prepare(opts: &StartOptions) -> Result<Prepared, ServiceError> {
         source: e,
     })?;
     let built = scene.build()?;
-    let red = scene.reduced.clone().ok_or_else(|| crate::scene::SceneError {
-        path: scene_path.clone(),
-        key: "reduced".into(),
-        msg: "the service needs a [reduced] table (r, contact_modes, contact_region)".into(),
+    let red = scene.reduced.clone().ok_or_else(|| {
+        crate::config::Checker::new(&scene_path).err(
+            "reduced",
+            "the service needs a [reduced] table (r, contact_modes, contact_region)",
+        )
     })?;
     let contact = if red.contact_modes {
         scene.contact_nodes(&built.mesh)?

@@ -1,0 +1,195 @@
+//! From a validated scene to what the solver needs: the mesh (or the
+//! region of interest's sub-mesh), the force model, fixed nodes, loads and
+//! probe nodes.
+
+use super::*;
+use crate::model::factory::build_model;
+
+/// What [`Scene::build`] produces.
+pub struct Built {
+    /// The mesh (SI units).
+    pub mesh: TetMesh,
+    /// The force model.
+    pub model: Box<dyn ForceModel>,
+    /// The material.
+    pub material: Material,
+    /// Fixed nodes (sorted, unique).
+    pub fixed: Vec<u32>,
+    /// External loads.
+    pub loads: Loads,
+    /// Nodes written to the probe CSV.
+    pub probes: Vec<u32>,
+    /// With a `[roi]`: the whole-mesh node of each node of `mesh` (which is
+    /// then the region's sub-mesh; its cut nodes are in `fixed`).
+    pub roi_to_full: Option<Vec<u32>>,
+}
+
+impl Scene {
+    /// Builds the mesh.
+    pub fn build_mesh(&self) -> Result<TetMesh, SceneError> {
+        let m = &self.mesh;
+        if let Some(n) = m.arch_nodes {
+            return generate(&ArchParams::default(), n)
+                .map(|a| a.mesh)
+                .map_err(|e| self.err("mesh.arch_nodes", e.to_string()));
+        }
+        if let Some(b) = &m.block {
+            return block(b.cells, b.size).map_err(|e| self.err("mesh.block", e.to_string()));
+        }
+        let file = m.file.as_ref().ok_or_else(|| self.err("mesh", "no mesh source"))?;
+        let full = if file.is_absolute() {
+            file.clone()
+        } else {
+            self.base_dir.join(file)
+        };
+        read_mesh_scaled(&full, m.scale).map_err(|e| self.err("mesh.file", e.to_string()))
+    }
+
+    /// Builds the mesh the scene simulates: the whole mesh, or with a
+    /// `[roi]` the region's sub-mesh (cut nodes in the set
+    /// [`crate::mesh::roi::CUT_SET`]) and its map to whole-mesh nodes.
+    pub fn build_roi_mesh(&self) -> Result<(TetMesh, Option<Vec<u32>>), SceneError> {
+        let Some(roi) = &self.roi else {
+            return Ok((self.build_mesh()?, None));
+        };
+        let (mesh, region) = if let Some([s0, s1]) = roi.arclength {
+            let n = self
+                .mesh
+                .arch_nodes
+                .ok_or_else(|| self.err("roi.arclength", "only for the built-in arch"))?;
+            let arch = generate(&ArchParams::default(), n).map_err(|e| self.err("mesh.arch_nodes", e.to_string()))?;
+            let node_value = crate::mesh::roi::arch_node_arclength(&arch);
+            (
+                arch.mesh,
+                Region::Interval {
+                    node_value,
+                    lo: s0,
+                    hi: s1,
+                },
+            )
+        } else if let Some(b) = &roi.aabb {
+            (
+                self.build_mesh()?,
+                Region::Box {
+                    min: Vec3::from(b.min),
+                    max: Vec3::from(b.max),
+                },
+            )
+        } else if let Some(sp) = &roi.sphere {
+            (
+                self.build_mesh()?,
+                Region::Sphere {
+                    center: Vec3::from(sp.center),
+                    radius: sp.radius,
+                },
+            )
+        } else {
+            return Err(self.err("roi", "give exactly one of box, sphere, arclength"));
+        };
+        let sub = extract(&mesh, &region).map_err(|e| self.err("roi", e.to_string()))?;
+        Ok((sub.mesh, Some(sub.to_full)))
+    }
+
+    /// Builds everything the solver needs. With a `[roi]`, node indices in
+    /// the scene (`load.nodes`, `output.csv_nodes`) are whole-mesh indices;
+    /// node sets and boxes select the region's nodes; the cut nodes are
+    /// fixed.
+    pub fn build(&self) -> Result<Built, SceneError> {
+        let (mesh, roi_to_full) = self.build_roi_mesh()?;
+        // Whole-mesh node indices given in the scene → region nodes.
+        let map_nodes = |key: &str, ids: &[u32]| -> Result<Vec<u32>, SceneError> {
+            match &roi_to_full {
+                None => Ok(ids.to_vec()),
+                Some(map) => ids
+                    .iter()
+                    .map(|&v| {
+                        map.binary_search(&v)
+                            .map(|i| i as u32)
+                            .map_err(|_| self.err(key, format!("node {v} is outside the roi")))
+                    })
+                    .collect(),
+            }
+        };
+        let material = self.material();
+        let model = build_model(self.model, &mesh, &material, self.material.law, &self.prony);
+        let n = mesh.num_nodes();
+
+        let mut fixed: Vec<u32> = Vec::new();
+        for (i, s) in self.fixed.sets.iter().enumerate() {
+            let ids = mesh.node_set(s).ok_or_else(|| {
+                let names: Vec<&str> = mesh.node_sets().keys().map(String::as_str).collect();
+                self.err(
+                    &format!("fixed.sets[{i}]"),
+                    format!("no node set '{s}' (the mesh has: {})", names.join(", ")),
+                )
+            })?;
+            fixed.extend_from_slice(ids);
+        }
+        for b in &self.fixed.boxes {
+            fixed.extend(nodes_in_box(&mesh, Vec3::from(b.min), Vec3::from(b.max)));
+        }
+        if roi_to_full.is_some() {
+            fixed.extend_from_slice(mesh.node_set(CUT_SET).unwrap_or(&[]));
+        }
+        fixed.sort_unstable();
+        fixed.dedup();
+
+        let surface = mesh.surface_nodes();
+        let mut loads = Loads {
+            nodal: Vec::new(),
+            gravity: Vec3::from(self.gravity),
+        };
+        let mut probes: Vec<u32> = Vec::new();
+        for (i, l) in self.loads.iter().enumerate() {
+            let key = format!("load[{i}]");
+            let nodes: Vec<u32> = if let Some(s) = &l.set {
+                mesh.node_set(s)
+                    .ok_or_else(|| self.err(&format!("{key}.set"), format!("no node set '{s}'")))?
+                    .to_vec()
+            } else if let Some(p) = l.near {
+                let p = Vec3::from(p);
+                let best = surface.iter().copied().min_by(|&a, &b| {
+                    (mesh.rest()[a as usize] - p)
+                        .norm()
+                        .total_cmp(&(mesh.rest()[b as usize] - p).norm())
+                });
+                vec![best.ok_or_else(|| self.err(&format!("{key}.near"), "the mesh has no surface"))?]
+            } else {
+                if let Some(&bad) = l.nodes.iter().find(|&&v| roi_to_full.is_none() && v as usize >= n) {
+                    return Err(self.err(&format!("{key}.nodes"), format!("node {bad} is out of range 0..{n}")));
+                }
+                map_nodes(&format!("{key}.nodes"), &l.nodes)?
+            };
+            if nodes.is_empty() {
+                return Err(self.err(&key, "selects no nodes"));
+            }
+            let per = Vec3::from(l.force_n) / nodes.len() as f64;
+            probes.extend_from_slice(&nodes);
+            loads.nodal.push(NodalLoad {
+                nodes,
+                force: per,
+                profile: l.profile,
+            });
+        }
+        if let Some(&bad) = self
+            .output
+            .csv_nodes
+            .iter()
+            .find(|&&v| roi_to_full.is_none() && v as usize >= n)
+        {
+            return Err(self.err("output.csv_nodes", format!("node {bad} is out of range 0..{n}")));
+        }
+        probes.extend(map_nodes("output.csv_nodes", &self.output.csv_nodes)?);
+        probes.sort_unstable();
+        probes.dedup();
+        Ok(Built {
+            mesh,
+            model,
+            material,
+            fixed,
+            loads,
+            probes,
+            roi_to_full,
+        })
+    }
+}
