@@ -15,7 +15,7 @@
 //! call it after start.
 
 use super::device::DeviceSample;
-use super::passivity::{predict_velocity, PassivityFilter, PassivityStats};
+use super::passivity::{predict_velocity, PassivityFilter, PassivityStats, QpStatus};
 use super::servo::{flags, LoopModel, Servo, ServoCounters};
 use crate::math::Vec3;
 use crate::rt::clock;
@@ -47,6 +47,9 @@ pub struct TickResult {
     pub depth: f64,
     /// Time spent in the passivity filter (µs).
     pub qp_us: f64,
+    /// Whether the filter ran the QP solver (false: the model's force was
+    /// inside every bound and was used as it is, the shortcut).
+    pub qp_solved: bool,
 }
 
 /// The haptic loop's state: the servo (contact, reduced model, watchdog)
@@ -92,7 +95,9 @@ impl<const R: usize> HapticTick<R> {
         let q0 = clock::now_ns();
         let v_pred = predict_velocity(v, self.v_prev);
         self.v_prev = v;
-        let filtered = self.filter.filter(out.desired, x, v_pred).force;
+        let fo = self.filter.filter(out.desired, x, v_pred);
+        let filtered = fo.force;
+        let qp_solved = !matches!(fo.status, QpStatus::Interior | QpStatus::NotRun);
         let qp_us = (clock::now_ns() - q0) as f64 * 1e-3;
         let mut fl = out.flags;
         if self.rt_granted {
@@ -117,6 +122,7 @@ impl<const R: usize> HapticTick<R> {
             flags: fl,
             depth: out.depth,
             qp_us,
+            qp_solved,
         }
     }
 

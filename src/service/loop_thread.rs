@@ -152,7 +152,9 @@ pub(super) fn loop_thread<const R: usize>(mut tick: HapticTick<R>, mut io: LoopI
             now_s,
             overrun_streak: streak,
         });
-        res.qp_us.record(out.qp_us);
+        if out.qp_solved {
+            res.qp_us.record(out.qp_us);
+        }
         res.max_force = res.max_force.max(out.force.norm());
         res.max_depth = res.max_depth.max(out.depth);
         if io

@@ -26,6 +26,9 @@ pub struct QpReport {
     pub fallbacks: u64,
     /// Lowest tank level (J).
     pub tank_low_j: f64,
+    /// Ticks whose model force was inside every bound and went out as it
+    /// was, without a solve (the shortcut).
+    pub shortcuts: u64,
 }
 
 /// One ring's counters.
@@ -150,6 +153,11 @@ pub struct Report {
     pub max_depth_m: f64,
     /// Stream frames published (0 with the stream off).
     pub stream_frames: u64,
+    /// How far past the undeformed wall the simulated hand's script pushes
+    /// the probe (m); None with a real device.
+    pub scripted_press_depth_m: Option<f64>,
+    /// The model age that counts as stale (ms, `watchdog.model_timeout_ms`).
+    pub model_timeout_ms: f64,
 }
 
 impl Report {
@@ -202,22 +210,51 @@ impl Report {
             self.energy_out_j,
             self.energy_source
         );
-        s += &format!(
-            "  QP: {} solves, active norm {} rate {} energy {}, iters p99 {}, solve p50 {:.1} µs p99 {:.1} µs, {} fallbacks\n",
-            self.qp.solves,
-            self.qp.active_norm,
-            self.qp.active_rate,
-            self.qp.active_energy,
-            self.qp.iters_p99,
-            self.qp.solve_us_p50,
-            self.qp.solve_us_p99,
-            self.qp.fallbacks
-        );
+        if let Some(d) = self.scripted_press_depth_m {
+            s += &format!(
+                "    (the scripted hand aims {:.1} mm past the undeformed wall; the wall gives way under the probe, \
+                 so the probe sinks only {:.2} mm into the deformed surface)\n",
+                d * 1e3,
+                self.max_depth_m * 1e3
+            );
+        }
+        let q = &self.qp;
+        if q.solves == 0 {
+            s += &format!(
+                "  QP: no solve needed: on all {} ticks the model's force was inside every bound (norm, rate, energy) \
+                 and went out unchanged; {} fallbacks, tank low {:.4} J\n",
+                q.shortcuts, q.fallbacks, q.tank_low_j
+            );
+        } else {
+            s += &format!(
+                "  QP: {} solves ({} ticks inside every bound took the shortcut), active norm {} rate {} energy {}, \
+                 iters p99 {}, solve p50 {:.1} µs p99 {:.1} µs, {} fallbacks\n",
+                q.solves,
+                q.shortcuts,
+                q.active_norm,
+                q.active_rate,
+                q.active_energy,
+                q.iters_p99,
+                q.solve_us_p50,
+                q.solve_us_p99,
+                q.fallbacks
+            );
+        }
         let b = &self.background;
         if b.enabled {
             s += &format!(
                 "  background: {} full steps ({} failed, {} split), step p50 {:.1} ms, refresh p50 {:.2} ms, {:.1} models/s, real-time factor {:.2}, {} swaps\n",
                 b.steps, b.failed_steps, b.split_steps, b.step_ms.p50, b.refresh_ms.p50, b.refresh_hz, b.real_time_factor, self.model_swaps
+            );
+            s += &format!(
+                "    (real-time factor {:.2}: the full model covers {:.2} s of tissue time per second of wall time{})\n",
+                b.real_time_factor,
+                b.real_time_factor,
+                if b.real_time_factor < 0.95 {
+                    "; it falls behind the hand, so the haptic model's linearization grows older as the run goes on"
+                } else {
+                    "; it keeps up with the hand"
+                }
             );
             if b.basis_refresh_on {
                 s += &format!(
@@ -240,6 +277,15 @@ impl Report {
             "  watchdog: {} ticks held down, device silent {} ticks, non-finite {}, stale model {} ticks; contact {} ticks\n",
             w.watchdog_ticks, w.device_silent_ticks, w.nonfinite, w.model_stale_ticks, w.contact_ticks
         );
+        if w.model_stale_ticks > 0 {
+            s += &format!(
+                "    (stale model: on {} ticks ({:.1} s) the loop rendered force from a model older than {:.0} ms; \
+                 the hand still felt the tissue, linearized at an older state)\n",
+                w.model_stale_ticks,
+                w.model_stale_ticks as f64 / (self.ticks.max(1) as f64 / self.seconds.max(1e-9)),
+                self.model_timeout_ms
+            );
+        }
         let rings: Vec<String> = self
             .ring_overflows
             .iter()
@@ -247,5 +293,43 @@ impl Report {
             .collect();
         s += &format!("  ring overflows: {}\n", rings.join(", "));
         s
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn no_solve_times_are_printed_when_nothing_was_solved() {
+        let mut r = Report {
+            ticks: 1000,
+            seconds: 1.0,
+            ..Report::default()
+        };
+        r.qp.shortcuts = 1000;
+        let s = r.render();
+        assert!(s.contains("no solve needed"), "{s}");
+        assert!(!s.contains("solve p50"), "no percentile of zero samples: {s}");
+        r.qp.solves = 3;
+        r.qp.solve_us_p50 = 20.0;
+        assert!(r.render().contains("solve p50 20.0"));
+    }
+
+    #[test]
+    fn the_report_says_what_stale_ticks_and_the_press_depth_mean() {
+        let mut r = Report {
+            ticks: 2000,
+            seconds: 2.0,
+            scripted_press_depth_m: Some(5e-3),
+            max_depth_m: 0.27e-3,
+            model_timeout_ms: 500.0,
+            ..Report::default()
+        };
+        r.watchdog.model_stale_ticks = 284;
+        let s = r.render();
+        assert!(s.contains("5.0 mm past the undeformed wall"), "{s}");
+        assert!(s.contains("0.284 s") || s.contains("(0.3 s)"), "{s}");
+        assert!(s.contains("older than 500 ms"), "{s}");
     }
 }

@@ -53,6 +53,8 @@ pub(super) struct Running<const R: usize> {
     r: usize,
     basis_s: f64,
     basis_cache: String,
+    scripted_press_depth_m: Option<f64>,
+    model_timeout_ms: f64,
 }
 
 /// What [`super::Handle`] needs of a running service, whatever its R.
@@ -183,6 +185,7 @@ impl<const R: usize> RunningService for Running<R> {
                 solve_us_p50: lr.qp_us.percentiles().p50,
                 fallbacks: qp.fallbacks(),
                 tank_low_j: qp.tank_low_j,
+                shortcuts: qp.interior,
             },
             energy_in_j: energy_in,
             energy_out_j: energy_out,
@@ -206,6 +209,8 @@ impl<const R: usize> RunningService for Running<R> {
             device_errors: dr.errors,
             max_depth_m: lr.max_depth,
             stream_frames,
+            scripted_press_depth_m: self.scripted_press_depth_m,
+            model_timeout_ms: self.model_timeout_ms,
         })
     }
 }
@@ -493,5 +498,7 @@ pub(super) fn start_with<const R: usize>(p: Prepared) -> Result<Running<R>, Serv
         r: basis.len(),
         basis_s,
         basis_cache,
+        scripted_press_depth_m: (cfg.device.backend == Backend::TouchxSim).then_some(cfg.interaction.press_depth_m),
+        model_timeout_ms: cfg.watchdog.model_timeout_ms,
     })
 }
