@@ -12,6 +12,12 @@ use nvtmm::service::{Service, StartOptions};
 use std::path::Path;
 use std::time::{Duration, Instant};
 
+/// The RT allocator: a fixed pool for the service's RT threads that also
+/// counts any system-allocator call they make (the report's
+/// `allocations_after_start`). An embedder installs it the same way.
+#[global_allocator]
+static ALLOCATOR: nvtmm::rt::alloc::RtAllocator = nvtmm::rt::alloc::RtAllocator;
+
 fn main() -> Result<(), Box<dyn std::error::Error>> {
     // The shipped scene (the arch at 5832 nodes) and the simulated Touch X;
     // relative paths resolve against the directory of `label`.

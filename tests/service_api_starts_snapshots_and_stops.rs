@@ -58,8 +58,16 @@ enabled = false
     let handle = Service::start(StartOptions::text(config, label)).unwrap();
     std::thread::sleep(Duration::from_millis(700));
     let a = handle.snapshot();
-    std::thread::sleep(Duration::from_millis(700));
-    let b = handle.snapshot();
+    // The first state frame comes from the publisher thread (normal
+    // priority): wait for it, up to 20 s on a loaded machine.
+    let mut b = handle.snapshot();
+    for _ in 0..200 {
+        std::thread::sleep(Duration::from_millis(100));
+        b = handle.snapshot();
+        if b.frame.is_some() && b.ticks > a.ticks {
+            break;
+        }
+    }
     assert!(!handle.is_finished());
     assert!(b.ticks > a.ticks, "the loop advances: {} then {}", a.ticks, b.ticks);
     assert!(b.elapsed_s > a.elapsed_s);

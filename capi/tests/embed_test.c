@@ -42,8 +42,13 @@ int main(int argc, char **argv) {
     NvtmmSnapshot a, b;
     sleep_ms(800);
     CHECK(nvtmm_snapshot(s, &a) == 0, "snapshot");
-    sleep_ms(800);
-    CHECK(nvtmm_snapshot(s, &b) == 0, "snapshot");
+    /* The first state frame comes from the publisher thread (normal
+     * priority): wait for it, up to 20 s on a loaded machine. */
+    for (int k = 0; k < 200; k++) {
+        sleep_ms(100);
+        CHECK(nvtmm_snapshot(s, &b) == 0, "snapshot");
+        if (b.frame_vertices > 0 && b.ticks > a.ticks) break;
+    }
     printf("ticks %llu -> %llu, force (%.3f, %.3f, %.3f) N, frame %u vertices\n",
            (unsigned long long)a.ticks, (unsigned long long)b.ticks,
            b.force_n[0], b.force_n[1], b.force_n[2], b.frame_vertices);

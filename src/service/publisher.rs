@@ -40,6 +40,9 @@ pub(super) struct PublisherPlan<const R: usize> {
     pub first_offset: Arc<Vec<Vec3>>,
     pub tool_radius: f64,
     pub simulated: bool,
+    /// Send or record frames (`[stream] enabled`, or `--record`); without
+    /// it the thread only keeps the latest frame for snapshots.
+    pub send: bool,
     pub stop: Arc<AtomicBool>,
     pub live: Arc<LiveStats>,
 }
@@ -147,6 +150,9 @@ pub(super) fn publisher_thread<const R: usize>(mut p: PublisherPlan<R>) -> (u64,
             force: frame.force,
             flags: fl,
         });
+        if !p.send {
+            continue;
+        }
         if let Err(e) = p.publisher.publish(&frame) {
             errors += 1;
             first_error.get_or_insert_with(|| e.to_string());
