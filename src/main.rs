@@ -95,6 +95,15 @@ enum Command {
 
 #[derive(Subcommand)]
 enum ExperimentCmd {
+    /// Contact anywhere: rendered vs full-model stiffness at random surface points (inner and outer wall), first tick and settled, with and without the residual compliance (docs/RESULTS.md).
+    Contact {
+        /// 1458 nodes, r = 16, 60 points (else 5832 nodes, r = 32, 120 points).
+        #[arg(long)]
+        quick: bool,
+        /// JSON on stdout (the ratio and settle-time keys), no table.
+        #[arg(long)]
+        json: bool,
+    },
     /// Linear vs exact cubic reduced StVK: precompute, µs per step, accuracy against the full NVTMM under a large load (docs/RESULTS.md).
     Cubic {
         /// Output directory.
@@ -319,6 +328,7 @@ fn main() -> ExitCode {
             BenchCmd::Extremes { quick, halvings, json } => cli::sim::bench_extremes(quick, halvings, json),
         },
         Command::Experiment(e) => match e {
+            ExperimentCmd::Contact { quick, json } => cli::reduced::experiment_contact(quick, json),
             ExperimentCmd::Cubic { out, quick } => cli::cubic::experiment_cubic(&out, quick),
             ExperimentCmd::Reduced { out, quick } => cli::reduced::experiment_reduced(&out, quick),
             ExperimentCmd::Fig5 { out, quick } => cli::sim::experiment_fig5(&out, quick),

@@ -250,6 +250,7 @@ fn swap_mid_contact(new_basis: bool) {
         last_sent: (s.model().offset.clone(), nalgebra::SVector::zeros(), 0),
         dt_max: 0.05,
         basis_policy: BasisPolicy::OFF,
+        compliance: None,
     };
     let m: Box<LoopModel<R>> = if new_basis {
         // What the basis thread does: the modes of K at the full state,

@@ -6,6 +6,7 @@
 //! commands. Plotting lives in [`plot`]; the benchmarks' standard load in
 //! [`crate::bench`].
 
+pub mod contact;
 pub mod cubic;
 pub mod fig5;
 pub mod plot;

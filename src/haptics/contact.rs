@@ -19,15 +19,37 @@
 //! For the implicit reduced step the contact also gives its reduced stiffness
 //! K_c = Σ k_p Aᵢ (Φᵢᵀnᵢ)(Φᵢᵀnᵢ)ᵀ (the normal part of −∂f/∂q, positive
 //! semi-definite); see [`crate::reduced::ReducedDynamics::step_with_contact`].
+//!
+//! **Contact anywhere** ([`evaluate_with`] with a
+//! [`LocalCompliance`]): the reduced model alone is too stiff where its basis
+//! has no static mode. The residual compliance ΔW (what the basis misses of
+//! K⁻¹, see [`crate::reduced::compliance`]) acts in series with the penalty:
+//! the normal forces p of the touched nodes solve the small system
+//!
+//! ```text
+//! (K_p⁻¹ + S) p = d,   S_ab = n_aᵀ ΔW_ab n_b,   p ≥ 0 (nodes with p < 0 leave)
+//! ```
+//!
+//! (d the penetrations of the reduced surface, K_p = diag(k_p A_a)), which
+//! couples the nodes of a patch and of nearby patches; the reduced stiffness
+//! becomes K_c = G (K_p⁻¹ + S)⁻¹ Gᵀ with G = [Φ_aᵀ n_a]. At static
+//! equilibrium the patch then sees exactly (K_p⁻¹ + (K⁻¹)_SS)⁻¹: the full
+//! model's local stiffness, at any surface point, several patches at once,
+//! for a cost that follows the number of touched nodes (at most
+//! [`MAX_COMPLIANT_NODES`] are corrected; more are counted).
 
 use crate::math::Vec3;
 use crate::mesh::TetMesh;
+use crate::reduced::compliance::LocalCompliance;
 use nalgebra::{SMatrix, SVector};
 
 /// Candidate capacity of one query (a larger patch is truncated and counted).
 pub const MAX_CANDIDATES: usize = 4096;
 /// Capacity of the touched-node list of one tick.
 pub const MAX_CONTACT_NODES: usize = 256;
+/// Touched nodes whose residual compliance is applied in one tick (the
+/// deepest ones; the others keep the plain penalty and are counted).
+pub const MAX_COMPLIANT_NODES: usize = 32;
 
 /// Contact parameters.
 #[derive(Debug, Clone, Copy, PartialEq, serde::Deserialize, serde::Serialize)]
@@ -219,6 +241,21 @@ pub struct ContactOutput<const R: usize> {
     pub candidates: usize,
     /// The candidate or touched-node list overflowed (contact truncated).
     pub truncated: bool,
+    /// Touched nodes left without the compliance correction (beyond
+    /// [`MAX_COMPLIANT_NODES`]).
+    pub uncorrected: usize,
+    /// Touched nodes the compliance correction released (p < 0).
+    pub released: usize,
+    active: heapless::Vec<ActiveNode, MAX_CONTACT_NODES>,
+}
+
+/// A penetrating node, before its force is known.
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct ActiveNode {
+    node: u32,
+    n: Vec3,
+    k: f64,
+    depth: f64,
 }
 
 impl<const R: usize> Default for ContactOutput<R> {
@@ -231,6 +268,9 @@ impl<const R: usize> Default for ContactOutput<R> {
             max_depth: 0.0,
             candidates: 0,
             truncated: false,
+            uncorrected: 0,
+            released: 0,
+            active: heapless::Vec::new(),
         }
     }
 }
@@ -250,11 +290,30 @@ pub fn evaluate<const R: usize>(
     scratch: &mut Candidates,
     out: &mut ContactOutput<R>,
 ) {
+    evaluate_with(index, params, center, position, rows, None, scratch, out)
+}
+
+/// As [`evaluate`], with the residual `compliance` of the model in series
+/// with the penalty (module doc, "Contact anywhere"). Allocates nothing.
+#[allow(clippy::too_many_arguments)]
+pub fn evaluate_with<const R: usize>(
+    index: &SurfaceIndex,
+    params: &ContactParams,
+    center: &Vec3,
+    position: impl Fn(u32) -> Vec3,
+    rows: impl Fn(u32) -> Option<SMatrix<f64, 3, R>>,
+    compliance: Option<&LocalCompliance>,
+    scratch: &mut Candidates,
+    out: &mut ContactOutput<R>,
+) {
     out.tool_force = Vec3::zeros();
     out.reduced_force = SVector::zeros();
     out.reduced_stiffness = SMatrix::zeros();
     out.nodes.clear();
+    out.active.clear();
     out.max_depth = 0.0;
+    out.uncorrected = 0;
+    out.released = 0;
     out.truncated = !index.query(center, scratch);
     out.candidates = scratch.len();
     let rho = params.tool_radius_m;
@@ -268,17 +327,182 @@ pub fn evaluate<const R: usize>(
         }
         let n = if dist > 1e-9 * rho { d / dist } else { index.normal(i) };
         let k = params.pressure_stiffness * index.area(i);
-        let f = n * (k * depth);
-        out.tool_force -= f;
         out.max_depth = out.max_depth.max(depth);
-        if out.nodes.push(NodeContact { node: i, force: f }).is_err() {
+        if out.active.push(ActiveNode { node: i, n, k, depth }).is_err() {
             out.truncated = true;
         }
-        if let Some(phi) = rows(i) {
-            out.reduced_force += phi.tr_mul(&f);
+    }
+    let corrected = match compliance {
+        Some(w) if !out.active.is_empty() => {
+            // The deepest nodes first: they carry the patch.
+            out.active
+                .sort_unstable_by(|a, b| b.depth.total_cmp(&a.depth).then(a.node.cmp(&b.node)));
+            let m = out.active.len().min(MAX_COMPLIANT_NODES);
+            out.uncorrected = out.active.len() - m;
+            series_patch(w, &rows, m, out);
+            m
+        }
+        _ => 0,
+    };
+    // Nodes without the correction: the plain penalty.
+    for a in corrected..out.active.len() {
+        let ActiveNode { node, n, k, depth } = out.active[a];
+        push_force(out, node, n * (k * depth));
+        if let Some(phi) = rows(node) {
             let g = phi.tr_mul(&n);
             out.reduced_stiffness += g * g.transpose() * k;
         }
+    }
+    let mut fr = SVector::<f64, R>::zeros();
+    for c in out.nodes.iter() {
+        if let Some(phi) = rows(c.node) {
+            fr += phi.tr_mul(&c.force);
+        }
+    }
+    out.reduced_force = fr;
+}
+
+/// Records the force `f` on the tissue at `node`: tool reaction, reduced
+/// force, the touched-node list.
+fn push_force<const R: usize>(out: &mut ContactOutput<R>, node: u32, f: Vec3) {
+    out.tool_force -= f;
+    if out.nodes.push(NodeContact { node, force: f }).is_err() {
+        out.truncated = true;
+    }
+}
+
+#[allow(clippy::needless_range_loop)] // index arithmetic reads as the formula
+/// In-place Cholesky of the leading m × m block of `a` (lower triangle);
+/// false if not positive definite.
+fn cholesky_in_place(a: &mut [[f64; MAX_COMPLIANT_NODES]; MAX_COMPLIANT_NODES], m: usize) -> bool {
+    for j in 0..m {
+        let mut s = a[j][j];
+        for k in 0..j {
+            s -= a[j][k] * a[j][k];
+        }
+        if !(s > 0.0 && s.is_finite()) {
+            return false;
+        }
+        let d = s.sqrt();
+        a[j][j] = d;
+        for i in j + 1..m {
+            let mut s = a[i][j];
+            for k in 0..j {
+                s -= a[i][k] * a[j][k];
+            }
+            a[i][j] = s / d;
+        }
+    }
+    true
+}
+
+#[allow(clippy::needless_range_loop)] // index arithmetic reads as the formula
+/// Solves L Lᵀ x = b in place (leading m entries).
+fn cholesky_solve(l: &[[f64; MAX_COMPLIANT_NODES]; MAX_COMPLIANT_NODES], m: usize, b: &mut [f64; MAX_COMPLIANT_NODES]) {
+    for i in 0..m {
+        let mut s = b[i];
+        for k in 0..i {
+            s -= l[i][k] * b[k];
+        }
+        b[i] = s / l[i][i];
+    }
+    for i in (0..m).rev() {
+        let mut s = b[i];
+        for k in i + 1..m {
+            s -= l[k][i] * b[k];
+        }
+        b[i] = s / l[i][i];
+    }
+}
+
+/// The first `m` active nodes with the residual compliance in series:
+/// (K_p⁻¹ + S) p = d, p ≥ 0; forces p n, K_c = G (K_p⁻¹ + S)⁻¹ Gᵀ.
+fn series_patch<const R: usize>(
+    w: &LocalCompliance,
+    rows: &impl Fn(u32) -> Option<SMatrix<f64, 3, R>>,
+    m: usize,
+    out: &mut ContactOutput<R>,
+) {
+    const C: usize = MAX_COMPLIANT_NODES;
+    let mut on = [false; C];
+    on[..m].iter_mut().for_each(|o| *o = true);
+    let mut p = [0.0f64; C];
+    let mut l = [[0.0f64; C]; C];
+    let mut ok = false;
+    // Each pass releases the node pulled hardest; at most m passes.
+    for _ in 0..m {
+        for a in 0..m {
+            for b in 0..=a {
+                l[a][b] = if !(on[a] && on[b]) {
+                    (a == b) as u8 as f64
+                } else {
+                    let (na, nb) = (&out.active[a], &out.active[b]);
+                    let s = w
+                        .block(na.node, nb.node)
+                        .map(|blk| na.n.dot(&(blk * nb.n)))
+                        .unwrap_or(0.0);
+                    s + if a == b { 1.0 / na.k } else { 0.0 }
+                };
+            }
+        }
+        for a in 0..m {
+            p[a] = if on[a] { out.active[a].depth } else { 0.0 };
+        }
+        if !cholesky_in_place(&mut l, m) {
+            break;
+        }
+        cholesky_solve(&l, m, &mut p);
+        let worst = (0..m)
+            .filter(|&a| on[a] && p[a] < 0.0)
+            .min_by(|&a, &b| p[a].total_cmp(&p[b]));
+        match worst {
+            Some(a) => {
+                on[a] = false;
+                out.released += 1;
+            }
+            None => {
+                ok = true;
+                break;
+            }
+        }
+    }
+    if !ok {
+        // Not positive definite (a corrupt table): the plain penalty.
+        for a in 0..m {
+            let ActiveNode { node, n, k, depth } = out.active[a];
+            push_force(out, node, n * (k * depth));
+            if let Some(phi) = rows(node) {
+                let g = phi.tr_mul(&n);
+                out.reduced_stiffness += g * g.transpose() * k;
+            }
+        }
+        return;
+    }
+    // Forces, and h_a = Σ_b (K_p⁻¹ + S)⁻¹_ab g_b column by column of the inverse.
+    let mut g = [SVector::<f64, R>::zeros(); C];
+    for a in 0..m {
+        let ActiveNode { node, n, .. } = out.active[a];
+        if on[a] {
+            push_force(out, node, n * p[a]);
+        }
+        if let Some(phi) = rows(node) {
+            g[a] = phi.tr_mul(&n);
+        }
+    }
+    for b in 0..m {
+        if !on[b] {
+            continue;
+        }
+        let mut col = [0.0f64; C];
+        col[b] = 1.0;
+        cholesky_solve(&l, m, &mut col);
+        let mut h = SVector::<f64, R>::zeros();
+        for a in 0..m {
+            if on[a] {
+                h += g[a] * col[a];
+            }
+        }
+        out.reduced_stiffness += h * g[b].transpose();
     }
 }
 

@@ -12,6 +12,7 @@
 use super::contact::{self, Candidates, ContactOutput, ContactParams, SurfaceIndex};
 use super::device::DeviceSample;
 use crate::math::Vec3;
+use crate::reduced::compliance::LocalCompliance;
 use crate::reduced::ReducedDynamics;
 use nalgebra::{SMatrix, SVector};
 use std::sync::Arc;
@@ -34,6 +35,9 @@ pub struct LoopModel<const R: usize> {
     pub shift: SVector<f64, R>,
     /// Creation time (s on the service clock).
     pub created_s: f64,
+    /// The residual compliance of the model's basis (contact anywhere,
+    /// `crate::reduced::compliance`); None: the reduced model alone.
+    pub compliance: Option<Arc<LocalCompliance>>,
 }
 
 /// Watchdog and contact settings of the loop.
@@ -129,7 +133,7 @@ fn eval_contact<const R: usize>(
 ) {
     let dynamics = &m.dynamics;
     let offset = &m.offset;
-    contact::evaluate(
+    contact::evaluate_with(
         index,
         params,
         tool,
@@ -138,6 +142,7 @@ fn eval_contact<const R: usize>(
             base + dynamics.displacement_at(i).unwrap_or_else(Vec3::zeros)
         },
         |i| dynamics.rows_at(i).copied(),
+        m.compliance.as_deref(),
         scratch,
         out,
     );

@@ -23,6 +23,7 @@
 
 pub mod basis;
 pub mod cache;
+pub mod compliance;
 pub mod cubic;
 pub mod derivatives;
 pub mod dynamics;

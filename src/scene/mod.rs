@@ -176,6 +176,24 @@ pub struct ReducedConfig {
     /// Reduced stiffness-proportional Rayleigh damping β (s), in [0, 1].
     #[serde(default)]
     pub beta: f64,
+    /// Contact anywhere: the residual compliance of the basis in series with
+    /// the contact (docs/REDUCED.md, "Contact anywhere"); default on.
+    #[serde(default = "yes")]
+    pub contact_anywhere: bool,
+    /// Coupling radius of the residual compliance (m), in [0.5 mm, 50 mm].
+    #[serde(default = "d_couple")]
+    pub couple_radius_m: f64,
+    /// Probing separation (m), at least twice the coupling radius, ≤ 0.5 m.
+    #[serde(default = "d_separation")]
+    pub separation_m: f64,
+}
+
+fn d_couple() -> f64 {
+    crate::reduced::compliance::ComplianceParams::default().couple_radius_m
+}
+
+fn d_separation() -> f64 {
+    crate::reduced::compliance::ComplianceParams::default().separation_m
 }
 
 fn yes() -> bool {
@@ -337,6 +355,17 @@ impl Scene {
             Some(d) => self.base_dir.join(d),
             None => default_cache_dir(),
         }
+    }
+
+    /// The contact-anywhere settings of `[reduced]` (None: off or no
+    /// `[reduced]`).
+    pub fn compliance_params(&self) -> Option<crate::reduced::compliance::ComplianceParams> {
+        let r = self.reduced.as_ref()?;
+        r.contact_anywhere
+            .then_some(crate::reduced::compliance::ComplianceParams {
+                couple_radius_m: r.couple_radius_m,
+                separation_m: r.separation_m,
+            })
     }
 
     /// The material constants.

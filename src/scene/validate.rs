@@ -161,6 +161,15 @@ impl Scene {
                 }
             }
         }
+        let c = self.checker();
+        c.f64_in("reduced.couple_radius_m", r.couple_radius_m, 5e-4, 0.05, "m")?;
+        c.f64_in(
+            "reduced.separation_m",
+            r.separation_m,
+            2.0 * r.couple_radius_m,
+            0.5,
+            "m (at least 2 couple_radius_m)",
+        )?;
         if r.cache_dir.as_ref().is_some_and(|d| d.as_os_str().is_empty()) {
             return Err(self.err("reduced.cache_dir", "must not be empty"));
         }

@@ -20,6 +20,7 @@ use crate::math::Vec3;
 use crate::mesh::TetMesh;
 use crate::model::BlockTangent;
 use crate::model::ForceModel;
+use crate::reduced::compliance::{ComplianceParams, LocalCompliance};
 use crate::reduced::{basis_rows, BasisParams, BasisRows, DynamicsParams, ModalBasis, ReducedDynamics, Refresher};
 use crate::rt::clock;
 use crate::solver::loads::{Loads, NodalLoad, TimeProfile};
@@ -60,6 +61,9 @@ pub struct Background<const R: usize> {
     pub dt_max: f64,
     /// When to recompute the basis in the background.
     pub basis_policy: BasisPolicy,
+    /// The residual compliance of the basis in use (contact anywhere), given
+    /// to every model sent; None: the reduced model alone.
+    pub compliance: Option<Arc<LocalCompliance>>,
 }
 
 /// When the background thread asks for a new basis: at most every
@@ -98,6 +102,8 @@ pub struct NewBasis<const R: usize> {
     pub seconds: f64,
     /// Subspace iterations it took.
     pub iterations: usize,
+    /// The residual compliance of the new basis (when contact anywhere is on).
+    pub compliance: Option<Arc<LocalCompliance>>,
 }
 
 /// What the basis thread needs.
@@ -118,6 +124,9 @@ pub struct BasisWorker {
     pub params: BasisParams,
     /// The basis in use: the warm start of the next computation.
     pub current: ModalBasis,
+    /// Contact anywhere: the residual compliance is recomputed with each
+    /// basis (None: off).
+    pub compliance: Option<ComplianceParams>,
 }
 
 /// Statistics of the basis thread.
@@ -168,6 +177,16 @@ pub fn basis_thread<const R: usize>(
             continue;
         };
         let refresher = Refresher::new(&w.mesh, &basis, &w.mass);
+        let compliance = match &w.compliance {
+            Some(cp) => match LocalCompliance::compute(&w.mesh, &job.tangent, &basis, cp) {
+                Ok((c, _)) => Some(Arc::new(c)),
+                Err(_) => {
+                    stats.failures += 1;
+                    continue;
+                }
+            },
+            None => None,
+        };
         let seconds = t.elapsed().as_secs_f64();
         stats.seconds.push(seconds);
         stats.iterations.push(basis.iterations);
@@ -176,6 +195,7 @@ pub fn basis_thread<const R: usize>(
             rows,
             seconds,
             iterations: basis.iterations,
+            compliance,
         };
         if out.push(msg).is_ok() {
             stats.recomputed += 1;
@@ -318,6 +338,7 @@ impl<const R: usize> Background<R> {
             transfer,
             shift,
             created_s: clock::now_s(),
+            compliance: self.compliance.clone(),
         });
         Some((model, qbar))
     }
@@ -348,6 +369,7 @@ pub fn rest_model<const R: usize>(
         transfer: SMatrix::identity(),
         shift: SVector::zeros(),
         created_s: clock::now_s(),
+        compliance: None,
     }))
 }
 
@@ -440,6 +462,7 @@ pub fn run<const R: usize>(mut bg: Background<R>, mut io: BackgroundIo<R>) -> Ba
                     sent_phi = Some(old.phi().clone());
                 }
                 bg.rows = nb.rows;
+                bg.compliance = nb.compliance;
                 generation += 1;
                 in_flight = false;
                 stats.basis_installed += 1;

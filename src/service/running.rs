@@ -257,13 +257,15 @@ pub(super) fn start_with<const R: usize>(p: Prepared) -> Result<Running<R>, Serv
         record,
         contact,
         max_static,
+        compliance,
     } = p;
     let n = mesh.num_nodes();
     let rows = basis_rows::<R>(&basis)?;
     let mut refresher = Refresher::new(&mesh, &basis, &mass);
     let zeros = vec![Vec3::zeros(); n];
     let k0 = refresher.reduced_stiffness(model.as_ref(), &zeros);
-    let first = background::rest_model::<R>(rows.clone(), &k0, &dynamics, n)?;
+    let mut first = background::rest_model::<R>(rows.clone(), &k0, &dynamics, n)?;
+    first.compliance = compliance.as_ref().map(|c| c.0.clone());
     let index = Arc::new(SurfaceIndex::new(&mesh, &cfg.contact));
     let period = (1e9 / cfg.servo.rate_hz).round() as Nanos;
     let w = &cfg.watchdog;
@@ -332,6 +334,7 @@ pub(super) fn start_with<const R: usize>(p: Prepared) -> Result<Running<R>, Serv
             last_sent: (first.offset.clone(), SVector::zeros(), 0),
             dt_max: cfg.background.dt_max,
             basis_policy,
+            compliance: first.compliance.clone(),
         };
         let bg_cpu = cpu(cfg.background.cpu);
         // The basis thread, when the basis refresh is on.
@@ -347,6 +350,7 @@ pub(super) fn start_with<const R: usize>(p: Prepared) -> Result<Running<R>, Serv
                 max_static,
                 params: BasisParams::default(),
                 current: basis.clone(),
+                compliance: compliance.as_ref().map(|c| c.1),
             };
             let stop_b = stop.clone();
             let h = std::thread::Builder::new()

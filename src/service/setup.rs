@@ -9,7 +9,9 @@ use crate::haptics::device::HapticDevice;
 use crate::haptics::passivity::PassivityParams;
 use crate::math::Vec3;
 use crate::mesh::TetMesh;
+use crate::model::BlockTangent;
 use crate::reduced::cache::{load_or_compute, BasisRequest, CacheStatus};
+use crate::reduced::compliance::{ComplianceParams, ComplianceStats, LocalCompliance};
 use crate::reduced::{BasisParams, DynamicsParams, ModalBasis};
 use crate::scene::Scene;
 use std::path::PathBuf;
@@ -49,6 +51,9 @@ pub struct Prepared {
     pub contact: Vec<u32>,
     /// Static directions the basis keeps.
     pub max_static: usize,
+    /// Contact anywhere: the residual compliance of the basis and how it
+    /// was built (None: off).
+    pub compliance: Option<(Arc<LocalCompliance>, ComplianceParams, ComplianceStats)>,
 }
 
 /// Loads the configuration and the scene, computes (or loads) the basis and
@@ -116,8 +121,23 @@ pub fn prepare(opts: &StartOptions) -> Result<Prepared, ServiceError> {
         alpha: red.alpha,
         beta: red.beta,
     };
+    let compliance = match scene.compliance_params() {
+        Some(cp) => {
+            if opts.progress {
+                eprintln!("nvtmm run: residual compliance for contact anywhere...");
+            }
+            let mut k = BlockTangent::zeros(&built.mesh);
+            let zeros = vec![Vec3::zeros(); built.mesh.num_nodes()];
+            built.model.add_stiffness(&zeros, &mut k);
+            let (table, stats) =
+                LocalCompliance::compute(&built.mesh, &k, &basis, &cp).map_err(ServiceError::Solver)?;
+            Some((Arc::new(table), cp, stats))
+        }
+        None => None,
+    };
     let device = make_device(&cfg, &built.mesh, &scene, seconds)?;
     Ok(Prepared {
+        compliance,
         basis_s: outcome.compute_s,
         basis_cache,
         mesh: Arc::new(built.mesh),

@@ -1,0 +1,412 @@
+//! `nvtmm experiment contact`: does the haptic loop render the full model's
+//! stiffness wherever the tool touches?
+//!
+//! Set-up: the service's scene (the built-in arch, NVTMM, both ends fixed)
+//! with a basis of vibration modes only (no contact region declared), the
+//! residual compliance table of that basis ([`crate::reduced::compliance`]),
+//! the service's contact (3 mm probe sphere, k_p = 1e8 Pa/m). At random
+//! surface nodes of the inner and the outer wall, the probe is held pushed
+//! `push_m` into the wall along the surface normal while the loop ticks at
+//! 1 kHz ([`crate::haptics::servo::Servo`]). The rendered force is compared
+//! with the full linear model's at the same state (rest) under the same
+//! sphere contact: the touched nodes move by (K⁻¹)_SS f (exact columns, 3
+//! solves per touched node on a Cholesky factor of K) and the penalty and
+//! the sphere geometry are solved to equilibrium, so the ratio isolates the
+//! reduced model's error.
+//!
+//! Reported: the ratio of rendered to full force on the first tick and once
+//! settled (after `settle_s`), with and without the compliance table (the
+//! basis alone), and the settle time (first tick from which the force stays
+//! within 10 % of the full model's).
+
+use crate::haptics::contact::{ContactParams, SurfaceIndex};
+use crate::haptics::device::DeviceSample;
+use crate::haptics::servo::{Servo, ServoParams};
+use crate::material::Material;
+use crate::math::Vec3;
+use crate::mesh::arch::{generate, ArchParams};
+use crate::model::nvtmm::Nvtmm;
+use crate::model::{BlockTangent, ForceModel};
+use crate::reduced::compliance::{ComplianceParams, ComplianceStats, ExactCompliance, LocalCompliance};
+use crate::reduced::{basis_rows, DynamicsParams, ModalBasis, Refresher};
+use crate::service::background::rest_model;
+use nalgebra::DMatrix;
+use std::sync::Arc;
+
+/// What to run.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ContactExperiment {
+    /// Arch size (nodes).
+    pub nodes: usize,
+    /// Basis size (vibration modes only).
+    pub r: usize,
+    /// Surface points (half inner wall, half outer wall).
+    pub points: usize,
+    /// How far the probe is held into the undeformed wall (m).
+    pub push_m: f64,
+    /// Simulated time per point (s).
+    pub settle_s: f64,
+    /// Random seed of the points.
+    pub seed: u64,
+    /// The compliance table's settings.
+    pub compliance: ComplianceParams,
+}
+
+impl ContactExperiment {
+    /// The service's size (5832 nodes, r = 32), 120 points.
+    pub fn full() -> ContactExperiment {
+        ContactExperiment {
+            nodes: 5832,
+            r: 32,
+            points: 120,
+            push_m: 0.5e-3,
+            settle_s: 1.5,
+            seed: 7,
+            compliance: ComplianceParams::default(),
+        }
+    }
+
+    /// A quick version (1458 nodes, r = 16, 60 points).
+    pub fn quick() -> ContactExperiment {
+        ContactExperiment {
+            nodes: 1458,
+            r: 16,
+            points: 60,
+            push_m: 0.5e-3,
+            settle_s: 1.5,
+            seed: 7,
+            compliance: ComplianceParams::default(),
+        }
+    }
+}
+
+/// One surface point.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
+pub struct ContactPoint {
+    /// Mesh node pushed.
+    pub node: u32,
+    /// Whether it is on the inner (lumen) wall.
+    pub inner: bool,
+    /// Full linear model's force (N).
+    pub full_n: f64,
+    /// Rendered / full, first tick, with the compliance table.
+    pub ratio_first: f64,
+    /// Rendered / full, settled, with the compliance table.
+    pub ratio_settled: f64,
+    /// Rendered / full, settled, the basis alone.
+    pub ratio_settled_basis_only: f64,
+    /// First time from which the force stays within 10 % of the full (ms).
+    pub settle_ms: f64,
+    /// Touched nodes at the end.
+    pub touched: usize,
+}
+
+/// Quantiles of a sample.
+#[derive(Debug, Clone, Copy, PartialEq, Default, serde::Serialize)]
+pub struct Spread {
+    /// 5th percentile.
+    pub p05: f64,
+    /// Median.
+    pub p50: f64,
+    /// 95th percentile.
+    pub p95: f64,
+    /// Farthest from 1 (for ratios) or largest (for times).
+    pub worst: f64,
+}
+
+impl Spread {
+    fn of(v: &[f64], worst_from_one: bool) -> Spread {
+        let mut s: Vec<f64> = v.iter().copied().filter(|x| x.is_finite()).collect();
+        if s.is_empty() {
+            return Spread::default();
+        }
+        s.sort_by(f64::total_cmp);
+        let q = |p: f64| s[((p * (s.len() - 1) as f64).round() as usize).min(s.len() - 1)];
+        let worst = if worst_from_one {
+            s.iter()
+                .copied()
+                .max_by(|a, b| (a - 1.0).abs().total_cmp(&(b - 1.0).abs()))
+                .unwrap_or(1.0)
+        } else {
+            s[s.len() - 1]
+        };
+        Spread {
+            p05: q(0.05),
+            p50: q(0.5),
+            p95: q(0.95),
+            worst,
+        }
+    }
+}
+
+/// The whole result.
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct ContactResult {
+    /// Arch nodes.
+    pub nodes: usize,
+    /// Basis size.
+    pub r: usize,
+    /// Every point.
+    pub points: Vec<ContactPoint>,
+    /// Settled ratio, with the table.
+    pub ratio_settled: Spread,
+    /// First-tick ratio, with the table.
+    pub ratio_first: Spread,
+    /// Settled ratio, the basis alone.
+    pub ratio_settled_basis_only: Spread,
+    /// Settle time (ms).
+    pub settle_ms: Spread,
+    /// Building the table.
+    pub table: ComplianceStats,
+}
+
+const R: usize = 32;
+
+/// The force magnitude per tick and the touched nodes (node, normal) at the end.
+type LoopTrace = (Vec<f64>, Vec<(u32, Vec3)>);
+
+/// Runs the experiment.
+pub fn run(e: &ContactExperiment) -> Result<ContactResult, String> {
+    if e.r > R {
+        return Err(format!("r = {} is above the experiment's capacity {R}", e.r));
+    }
+    let arch = generate(&ArchParams::default(), e.nodes).map_err(|x| x.to_string())?;
+    let mesh = arch.mesh;
+    let mat = Material::aorta();
+    let model = Nvtmm::new(&mesh, &mat);
+    let mut fixed: Vec<u32> = ["inlet", "outlet_descending"]
+        .iter()
+        .flat_map(|s| mesh.node_set(s).unwrap_or(&[]).to_vec())
+        .collect();
+    fixed.sort_unstable();
+    fixed.dedup();
+    let n = mesh.num_nodes();
+    let mass = mesh.lumped_mass(mat.density);
+    let zeros = vec![Vec3::zeros(); n];
+    let basis = ModalBasis::compute(&mesh, &model, &zeros, &mass, &fixed, e.r, None).map_err(|x| x.to_string())?;
+    let mut k = BlockTangent::zeros(&mesh);
+    model.add_stiffness(&zeros, &mut k);
+    let (table, stats) = LocalCompliance::compute(&mesh, &k, &basis, &e.compliance)?;
+    let table = Arc::new(table);
+    let mut exact = ExactCompliance::new(&k, &fixed)?;
+    let rows = basis_rows::<R>(&basis).map_err(|x| x.to_string())?;
+    let k0 = Refresher::new(&mesh, &basis, &mass).reduced_stiffness(&model, &zeros);
+    let dynp = DynamicsParams {
+        dt: 1e-3,
+        alpha: 5.0,
+        beta: 1e-3,
+    };
+    let cp = ContactParams::default();
+    let index = Arc::new(SurfaceIndex::new(&mesh, &cp));
+    let normals = mesh.surface_vertex_normals();
+    let is_fixed = |i: u32| fixed.binary_search(&i).is_ok();
+    let pick = |set: &str, count: usize, seed: u64| -> Vec<u32> {
+        let cand: Vec<u32> = mesh
+            .node_set(set)
+            .unwrap_or(&[])
+            .iter()
+            .copied()
+            .filter(|&i| !is_fixed(i))
+            .collect();
+        let mut s = seed.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+        (0..count)
+            .filter_map(|_| {
+                s = s.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+                (!cand.is_empty()).then(|| cand[((s >> 33) as usize) % cand.len()])
+            })
+            .collect()
+    };
+    let mut targets: Vec<(u32, bool)> = pick("inner_wall", e.points / 2, e.seed)
+        .into_iter()
+        .map(|i| (i, true))
+        .collect();
+    targets.extend(
+        pick("outer_wall", e.points - e.points / 2, e.seed + 1)
+            .into_iter()
+            .map(|i| (i, false)),
+    );
+    let ticks = (e.settle_s / dynp.dt).round() as usize;
+    let sp = ServoParams {
+        dt: dynp.dt,
+        contact: cp,
+        device_origin: Vec3::zeros(),
+        device_timeout_s: f64::INFINITY,
+        model_timeout_s: f64::INFINITY,
+        overrun_streak: u32::MAX,
+        ramp_down_s: 0.01,
+        ramp_in_s: 0.0,
+        swap_blend_s: 0.0,
+    };
+    let mut points = Vec::new();
+    for (node, inner) in targets {
+        let nrm = normals[node as usize];
+        if nrm.norm() < 0.5 {
+            continue;
+        }
+        let tool = mesh.rest()[node as usize] + nrm * (cp.tool_radius_m - e.push_m);
+        let run_loop = |with_table: bool| -> Result<LoopTrace, String> {
+            let mut m = rest_model::<R>(rows.clone(), &k0, &dynp, n).map_err(|x| x.to_string())?;
+            m.compliance = with_table.then(|| table.clone());
+            let mut servo = Servo::new(m, index.clone(), sp, 0.0);
+            let mut trace = Vec::with_capacity(ticks);
+            for t in 1..=ticks {
+                let s = DeviceSample {
+                    seq: t as u64,
+                    time_s: t as f64 * dynp.dt,
+                    position: tool,
+                    velocity: Vec3::zeros(),
+                    ..DeviceSample::REST
+                };
+                let out = servo.tick(Some(&s), t as f64 * dynp.dt, 0);
+                trace.push(out.desired.norm());
+            }
+            let touched = servo
+                .contact()
+                .nodes
+                .iter()
+                .map(|c| (c.node, c.force / c.force.norm().max(1e-300)))
+                .collect();
+            Ok((trace, touched))
+        };
+        let (trace, touched) = run_loop(true)?;
+        let (trace_basis, _) = run_loop(false)?;
+        // The full linear model with the same penalty contact, on the
+        // nodes the probe touches (normals from the loop's last tick).
+        let nodes: Vec<u32> = touched.iter().map(|t| t.0).collect();
+        if nodes.is_empty() {
+            continue;
+        }
+        let w = exact.blocks(&nodes)?;
+        let full = full_force(&mesh, &cp, &index, &tool, &touched, &w);
+        if full.is_nan() || full <= 0.0 {
+            continue;
+        }
+        let last = |tr: &[f64]| tr.last().copied().unwrap_or(0.0);
+        let settled_from = trace
+            .iter()
+            .rposition(|f| (f / full - 1.0).abs() > 0.1)
+            .map(|k| k + 1)
+            .unwrap_or(0);
+        points.push(ContactPoint {
+            node,
+            inner,
+            full_n: full,
+            ratio_first: trace.first().copied().unwrap_or(0.0) / full,
+            ratio_settled: last(&trace) / full,
+            ratio_settled_basis_only: last(&trace_basis) / full,
+            settle_ms: (settled_from as f64 + 1.0) * dynp.dt * 1e3,
+            touched: nodes.len(),
+        });
+    }
+    let col = |f: fn(&ContactPoint) -> f64| points.iter().map(f).collect::<Vec<f64>>();
+    Ok(ContactResult {
+        nodes: n,
+        r: e.r,
+        ratio_settled: Spread::of(&col(|p| p.ratio_settled), true),
+        ratio_first: Spread::of(&col(|p| p.ratio_first), true),
+        ratio_settled_basis_only: Spread::of(&col(|p| p.ratio_settled_basis_only), true),
+        settle_ms: Spread::of(&col(|p| p.settle_ms), false),
+        points,
+        table: stats,
+    })
+}
+
+/// The full linear model's probe force with the same sphere contact: the
+/// touched nodes sit at x = X + W f (W = (K⁻¹)_SS, all three components),
+/// f_a = p_a n_a, p = K_p max(0, ρ − |x_a − c|), n_a = (x_a − c)/|x_a − c|;
+/// solved by repeated series solves (K_p⁻¹ + NᵀWN) p' = d + NᵀWN p about
+/// the current state (with the release of nodes pulled into the tool).
+fn full_force(
+    mesh: &crate::mesh::TetMesh,
+    cp: &ContactParams,
+    index: &SurfaceIndex,
+    tool: &Vec3,
+    touched: &[(u32, Vec3)],
+    w: &DMatrix<f64>,
+) -> f64 {
+    let m = touched.len();
+    let rest: Vec<Vec3> = touched.iter().map(|t| mesh.rest()[t.0 as usize]).collect();
+    let kp: Vec<f64> = touched
+        .iter()
+        .map(|t| cp.pressure_stiffness * index.area(t.0))
+        .collect();
+    let mut p = vec![0.0; m];
+    let mut nrm: Vec<Vec3> = touched.iter().map(|t| t.1).collect();
+    let mut force = f64::NAN;
+    for _ in 0..200 {
+        // Positions under the current forces.
+        let x: Vec<Vec3> = (0..m)
+            .map(|a| {
+                let mut u = Vec3::zeros();
+                for b in 0..m {
+                    let f = nrm[b] * p[b];
+                    for i in 0..3 {
+                        for j in 0..3 {
+                            u[i] += w[(3 * a + i, 3 * b + j)] * f[j];
+                        }
+                    }
+                }
+                rest[a] + u
+            })
+            .collect();
+        let d: Vec<f64> = (0..m).map(|a| cp.tool_radius_m - (x[a] - tool).norm()).collect();
+        nrm = (0..m)
+            .map(|a| {
+                let v = x[a] - tool;
+                if v.norm() > 0.0 {
+                    v / v.norm()
+                } else {
+                    nrm[a]
+                }
+            })
+            .collect();
+        let s = |a: usize, b: usize| -> f64 {
+            let mut s = 0.0;
+            for i in 0..3 {
+                for j in 0..3 {
+                    s += nrm[a][i] * w[(3 * a + i, 3 * b + j)] * nrm[b][j];
+                }
+            }
+            s
+        };
+        let mut on = vec![true; m];
+        let mut next = vec![0.0; m];
+        loop {
+            let mut a_m = DMatrix::<f64>::zeros(m, m);
+            let mut rhs = nalgebra::DVector::<f64>::zeros(m);
+            for a in 0..m {
+                for b in 0..m {
+                    a_m[(a, b)] = if on[a] && on[b] {
+                        s(a, b) + if a == b { 1.0 / kp[a] } else { 0.0 }
+                    } else {
+                        (a == b) as u8 as f64
+                    };
+                }
+                if on[a] {
+                    rhs[a] = d[a] + (0..m).map(|b| s(a, b) * p[b]).sum::<f64>();
+                }
+            }
+            let Some(ch) = a_m.cholesky() else { return f64::NAN };
+            let q = ch.solve(&rhs);
+            match (0..m)
+                .filter(|&a| on[a] && q[a] < 0.0)
+                .min_by(|&a, &b| q[a].total_cmp(&q[b]))
+            {
+                Some(a) => on[a] = false,
+                None => {
+                    next.copy_from_slice(q.as_slice());
+                    break;
+                }
+            }
+        }
+        let change = (0..m).map(|a| (next[a] - p[a]).abs()).fold(0.0, f64::max);
+        let scale = next.iter().fold(0.0f64, |s, v| s.max(v.abs())).max(1e-300);
+        p = next;
+        let f: Vec3 = (0..m).map(|a| nrm[a] * p[a]).sum();
+        force = f.norm();
+        if change <= 1e-10 * scale {
+            break;
+        }
+    }
+    force
+}
