@@ -235,7 +235,8 @@ pub struct ContactOutput<const R: usize> {
     pub reduced_stiffness: SMatrix<f64, R, R>,
     /// Touched nodes and their forces.
     pub nodes: heapless::Vec<NodeContact, MAX_CONTACT_NODES>,
-    /// Deepest penetration (m).
+    /// Deepest penetration (m), into the surface as the residual compliance
+    /// deflects it when that is on.
     pub max_depth: f64,
     /// Candidates examined.
     pub candidates: usize,
@@ -478,6 +479,12 @@ fn series_patch<const R: usize>(
         }
         return;
     }
+    // The penetration into the surface as the residual compliance moves it.
+    out.max_depth = (0..m)
+        .filter(|&a| on[a])
+        .map(|a| p[a] / out.active[a].k)
+        .chain(out.active[m..].iter().map(|a| a.depth))
+        .fold(0.0, f64::max);
     // Forces, and h_a = Σ_b (K_p⁻¹ + S)⁻¹_ab g_b column by column of the inverse.
     let mut g = [SVector::<f64, R>::zeros(); C];
     for a in 0..m {
