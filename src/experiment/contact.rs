@@ -162,42 +162,164 @@ pub struct ContactResult {
 
 const R: usize = 32;
 
-/// The force magnitude per tick and the touched nodes (node, normal) at the end.
-type LoopTrace = (Vec<f64>, Vec<(u32, Vec3)>);
+/// The force magnitude per tick and the touched nodes at the end.
+type LoopTrace = (Vec<f64>, Vec<Touched>);
+
+/// A touched node at the end of a run: which node, the contact normal (from
+/// the tool's centre) and which sphere touched it.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Touched {
+    /// Mesh node.
+    pub node: u32,
+    /// Unit normal, from the sphere centre through the node.
+    pub normal: Vec3,
+    /// Index of the sphere.
+    pub sphere: usize,
+}
+
+/// The touched nodes of the servo's last tick.
+pub fn touched_of(servo: &Servo<R>) -> Vec<Touched> {
+    let c = servo.contact();
+    c.nodes
+        .iter()
+        .map(|nc| Touched {
+            node: nc.node,
+            normal: nc.force / nc.force.norm().max(1e-300),
+            sphere: nc.sphere as usize,
+        })
+        .collect()
+}
+
+/// The experiment's model: the built-in arch with both ends fixed, NVTMM
+/// at rest, a vibration-only basis, its residual compliance table, the
+/// service's contact and a loop model ready to run.
+pub struct Setup {
+    /// The arch (mesh, grid, centreline).
+    pub arch: crate::mesh::arch::Arch,
+    /// Fixed nodes (sorted).
+    pub fixed: Vec<u32>,
+    /// K at rest.
+    pub k: BlockTangent,
+    /// The residual compliance table.
+    pub table: Arc<LocalCompliance>,
+    /// What building it cost.
+    pub stats: ComplianceStats,
+    /// Loop rows of the basis.
+    pub rows: crate::reduced::BasisRows<R>,
+    /// Reduced stiffness at rest.
+    pub k0: DMatrix<f64>,
+    /// Reduced dynamics settings (1 kHz, α = 5, β = 1e-3).
+    pub dynp: DynamicsParams,
+    /// Contact (the service's defaults).
+    pub cp: ContactParams,
+    /// Surface index.
+    pub index: Arc<SurfaceIndex>,
+    /// Loop settings (no watchdog in the way).
+    pub sp: ServoParams,
+}
+
+impl Setup {
+    /// Builds it: arch of `nodes`, basis of `r` ≤ 32 vibration modes.
+    pub fn new(nodes: usize, r: usize, compliance: &ComplianceParams) -> Result<Setup, String> {
+        if r > R {
+            return Err(format!("r = {r} is above the experiment's capacity {R}"));
+        }
+        let arch = generate(&ArchParams::default(), nodes).map_err(|x| x.to_string())?;
+        let mesh = &arch.mesh;
+        let mat = Material::aorta();
+        let model = Nvtmm::new(mesh, &mat);
+        let mut fixed: Vec<u32> = ["inlet", "outlet_descending"]
+            .iter()
+            .flat_map(|s| mesh.node_set(s).unwrap_or(&[]).to_vec())
+            .collect();
+        fixed.sort_unstable();
+        fixed.dedup();
+        let n = mesh.num_nodes();
+        let mass = mesh.lumped_mass(mat.density);
+        let zeros = vec![Vec3::zeros(); n];
+        let basis = ModalBasis::compute(mesh, &model, &zeros, &mass, &fixed, r, None).map_err(|x| x.to_string())?;
+        let mut k = BlockTangent::zeros(mesh);
+        model.add_stiffness(&zeros, &mut k);
+        let (table, stats) = LocalCompliance::compute(mesh, &k, &basis, compliance)?;
+        let table = Arc::new(table);
+        let rows = basis_rows::<R>(&basis).map_err(|x| x.to_string())?;
+        let k0 = Refresher::new(mesh, &basis, &mass).reduced_stiffness(&model, &zeros);
+        let dynp = DynamicsParams {
+            dt: 1e-3,
+            alpha: 5.0,
+            beta: 1e-3,
+        };
+        let cp = ContactParams::default();
+        let index = Arc::new(SurfaceIndex::new(mesh, &cp));
+        let sp = ServoParams {
+            dt: dynp.dt,
+            contact: cp,
+            device_origin: Vec3::zeros(),
+            device_timeout_s: f64::INFINITY,
+            model_timeout_s: f64::INFINITY,
+            overrun_streak: u32::MAX,
+            ramp_down_s: 0.01,
+            ramp_in_s: 0.0,
+            swap_blend_s: 0.0,
+        };
+        Ok(Setup {
+            arch,
+            fixed,
+            k,
+            table,
+            stats,
+            rows,
+            k0,
+            dynp,
+            cp,
+            index,
+            sp,
+        })
+    }
+
+    /// A loop at rest, with or without the residual compliance.
+    pub fn servo(&self, with_table: bool) -> Result<Servo<R>, String> {
+        let n = self.arch.mesh.num_nodes();
+        let mut m = rest_model::<R>(self.rows.clone(), &self.k0, &self.dynp, n).map_err(|x| x.to_string())?;
+        m.compliance = with_table.then(|| self.table.clone());
+        Ok(Servo::new(m, self.index.clone(), self.sp, 0.0))
+    }
+
+    /// Exact (K⁻¹)_SS on the touched nodes, and the full model's reaction
+    /// on each sphere with the same contact ([`full_forces`]).
+    pub fn full_reactions(&self, spheres: &[Vec3], touched: &[Touched]) -> Result<Vec<Vec3>, String> {
+        let mut exact = ExactCompliance::new(&self.k, &self.fixed)?;
+        let nodes: Vec<u32> = touched.iter().map(|t| t.node).collect();
+        let w = exact.blocks(&nodes)?;
+        Ok(full_forces(
+            &self.arch.mesh,
+            &self.cp,
+            &self.index,
+            spheres,
+            touched,
+            &w,
+        ))
+    }
+}
 
 /// Runs the experiment.
 pub fn run(e: &ContactExperiment) -> Result<ContactResult, String> {
     if e.r > R {
         return Err(format!("r = {} is above the experiment's capacity {R}", e.r));
     }
-    let arch = generate(&ArchParams::default(), e.nodes).map_err(|x| x.to_string())?;
-    let mesh = arch.mesh;
-    let mat = Material::aorta();
-    let model = Nvtmm::new(&mesh, &mat);
-    let mut fixed: Vec<u32> = ["inlet", "outlet_descending"]
-        .iter()
-        .flat_map(|s| mesh.node_set(s).unwrap_or(&[]).to_vec())
-        .collect();
-    fixed.sort_unstable();
-    fixed.dedup();
+    let s = Setup::new(e.nodes, e.r, &e.compliance)?;
+    let Setup {
+        arch,
+        fixed,
+        stats,
+        dynp,
+        cp,
+        index,
+        ..
+    } = &s;
+    let (mesh, stats, dynp, cp) = (&arch.mesh, *stats, *dynp, *cp);
     let n = mesh.num_nodes();
-    let mass = mesh.lumped_mass(mat.density);
-    let zeros = vec![Vec3::zeros(); n];
-    let basis = ModalBasis::compute(&mesh, &model, &zeros, &mass, &fixed, e.r, None).map_err(|x| x.to_string())?;
-    let mut k = BlockTangent::zeros(&mesh);
-    model.add_stiffness(&zeros, &mut k);
-    let (table, stats) = LocalCompliance::compute(&mesh, &k, &basis, &e.compliance)?;
-    let table = Arc::new(table);
-    let mut exact = ExactCompliance::new(&k, &fixed)?;
-    let rows = basis_rows::<R>(&basis).map_err(|x| x.to_string())?;
-    let k0 = Refresher::new(&mesh, &basis, &mass).reduced_stiffness(&model, &zeros);
-    let dynp = DynamicsParams {
-        dt: 1e-3,
-        alpha: 5.0,
-        beta: 1e-3,
-    };
-    let cp = ContactParams::default();
-    let index = Arc::new(SurfaceIndex::new(&mesh, &cp));
+    let mut exact = ExactCompliance::new(&s.k, fixed)?;
     let normals = mesh.surface_vertex_normals();
     let is_fixed = |i: u32| fixed.binary_search(&i).is_ok();
     let pick = |set: &str, count: usize, seed: u64| -> Vec<u32> {
@@ -226,17 +348,6 @@ pub fn run(e: &ContactExperiment) -> Result<ContactResult, String> {
             .map(|i| (i, false)),
     );
     let ticks = (e.settle_s / dynp.dt).round() as usize;
-    let sp = ServoParams {
-        dt: dynp.dt,
-        contact: cp,
-        device_origin: Vec3::zeros(),
-        device_timeout_s: f64::INFINITY,
-        model_timeout_s: f64::INFINITY,
-        overrun_streak: u32::MAX,
-        ramp_down_s: 0.01,
-        ramp_in_s: 0.0,
-        swap_blend_s: 0.0,
-    };
     let mut points = Vec::new();
     for (node, inner) in targets {
         let nrm = normals[node as usize];
@@ -245,9 +356,7 @@ pub fn run(e: &ContactExperiment) -> Result<ContactResult, String> {
         }
         let tool = mesh.rest()[node as usize] + nrm * (cp.tool_radius_m - e.push_m);
         let run_loop = |with_table: bool| -> Result<LoopTrace, String> {
-            let mut m = rest_model::<R>(rows.clone(), &k0, &dynp, n).map_err(|x| x.to_string())?;
-            m.compliance = with_table.then(|| table.clone());
-            let mut servo = Servo::new(m, index.clone(), sp, 0.0);
+            let mut servo = s.servo(with_table)?;
             let mut trace = Vec::with_capacity(ticks);
             for t in 1..=ticks {
                 let s = DeviceSample {
@@ -260,24 +369,19 @@ pub fn run(e: &ContactExperiment) -> Result<ContactResult, String> {
                 let out = servo.tick(Some(&s), t as f64 * dynp.dt, 0);
                 trace.push(out.desired.norm());
             }
-            let touched = servo
-                .contact()
-                .nodes
-                .iter()
-                .map(|c| (c.node, c.force / c.force.norm().max(1e-300)))
-                .collect();
+            let touched = touched_of(&servo);
             Ok((trace, touched))
         };
         let (trace, touched) = run_loop(true)?;
         let (trace_basis, _) = run_loop(false)?;
         // The full linear model with the same penalty contact, on the
         // nodes the probe touches (normals from the loop's last tick).
-        let nodes: Vec<u32> = touched.iter().map(|t| t.0).collect();
+        let nodes: Vec<u32> = touched.iter().map(|t| t.node).collect();
         if nodes.is_empty() {
             continue;
         }
         let w = exact.blocks(&nodes)?;
-        let full = full_force(&mesh, &cp, &index, &tool, &touched, &w);
+        let full = full_forces(mesh, &cp, index, &[tool], &touched, &w)[0].norm();
         if full.is_nan() || full <= 0.0 {
             continue;
         }
@@ -311,30 +415,30 @@ pub fn run(e: &ContactExperiment) -> Result<ContactResult, String> {
     })
 }
 
-/// The full linear model's probe force with the same sphere contact: the
-/// touched nodes sit at x = X + W f (W = (K⁻¹)_SS, all three components),
-/// f_a = p_a n_a, p = K_p max(0, ρ − |x_a − c|), n_a = (x_a − c)/|x_a − c|;
+/// The full linear model's reactions on the tool `spheres` with the same
+/// sphere contact: the touched nodes sit at x = X + W f (W = (K⁻¹)_SS, all
+/// three components), f_a = p_a n_a, p = K_p max(0, ρ − |x_a − c_a|),
+/// n_a = (x_a − c_a)/|x_a − c_a| (c_a the centre of the node's sphere);
 /// solved by repeated series solves (K_p⁻¹ + NᵀWN) p' = d + NᵀWN p about
-/// the current state (with the release of nodes pulled into the tool).
-fn full_force(
+/// the current state, releasing nodes pulled into the tool.
+pub fn full_forces(
     mesh: &crate::mesh::TetMesh,
     cp: &ContactParams,
     index: &SurfaceIndex,
-    tool: &Vec3,
-    touched: &[(u32, Vec3)],
+    spheres: &[Vec3],
+    touched: &[Touched],
     w: &DMatrix<f64>,
-) -> f64 {
+) -> Vec<Vec3> {
     let m = touched.len();
-    let rest: Vec<Vec3> = touched.iter().map(|t| mesh.rest()[t.0 as usize]).collect();
+    let centre = |a: usize| spheres.get(touched[a].sphere).copied().unwrap_or_else(Vec3::zeros);
+    let rest: Vec<Vec3> = touched.iter().map(|t| mesh.rest()[t.node as usize]).collect();
     let kp: Vec<f64> = touched
         .iter()
-        .map(|t| cp.pressure_stiffness * index.area(t.0))
+        .map(|t| cp.pressure_stiffness * index.area(t.node))
         .collect();
     let mut p = vec![0.0; m];
-    let mut nrm: Vec<Vec3> = touched.iter().map(|t| t.1).collect();
-    let mut force = f64::NAN;
+    let mut nrm: Vec<Vec3> = touched.iter().map(|t| t.normal).collect();
     for _ in 0..200 {
-        // Positions under the current forces.
         let x: Vec<Vec3> = (0..m)
             .map(|a| {
                 let mut u = Vec3::zeros();
@@ -349,10 +453,10 @@ fn full_force(
                 rest[a] + u
             })
             .collect();
-        let d: Vec<f64> = (0..m).map(|a| cp.tool_radius_m - (x[a] - tool).norm()).collect();
+        let d: Vec<f64> = (0..m).map(|a| cp.tool_radius_m - (x[a] - centre(a)).norm()).collect();
         nrm = (0..m)
             .map(|a| {
-                let v = x[a] - tool;
+                let v = x[a] - centre(a);
                 if v.norm() > 0.0 {
                     v / v.norm()
                 } else {
@@ -370,8 +474,7 @@ fn full_force(
             s
         };
         let mut on = vec![true; m];
-        let mut next = vec![0.0; m];
-        loop {
+        let next = loop {
             let mut a_m = DMatrix::<f64>::zeros(m, m);
             let mut rhs = nalgebra::DVector::<f64>::zeros(m);
             for a in 0..m {
@@ -386,27 +489,30 @@ fn full_force(
                     rhs[a] = d[a] + (0..m).map(|b| s(a, b) * p[b]).sum::<f64>();
                 }
             }
-            let Some(ch) = a_m.cholesky() else { return f64::NAN };
+            let Some(ch) = a_m.cholesky() else {
+                return vec![Vec3::repeat(f64::NAN); spheres.len()];
+            };
             let q = ch.solve(&rhs);
             match (0..m)
                 .filter(|&a| on[a] && q[a] < 0.0)
                 .min_by(|&a, &b| q[a].total_cmp(&q[b]))
             {
                 Some(a) => on[a] = false,
-                None => {
-                    next.copy_from_slice(q.as_slice());
-                    break;
-                }
+                None => break q,
             }
-        }
+        };
         let change = (0..m).map(|a| (next[a] - p[a]).abs()).fold(0.0, f64::max);
         let scale = next.iter().fold(0.0f64, |s, v| s.max(v.abs())).max(1e-300);
-        p = next;
-        let f: Vec3 = (0..m).map(|a| nrm[a] * p[a]).sum();
-        force = f.norm();
+        p.copy_from_slice(next.as_slice());
         if change <= 1e-10 * scale {
             break;
         }
     }
-    force
+    let mut out = vec![Vec3::zeros(); spheres.len()];
+    for a in 0..m {
+        if let Some(o) = out.get_mut(touched[a].sphere) {
+            *o += nrm[a] * p[a];
+        }
+    }
+    out
 }

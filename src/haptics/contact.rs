@@ -47,6 +47,8 @@ use nalgebra::{SMatrix, SVector};
 pub const MAX_CANDIDATES: usize = 4096;
 /// Capacity of the touched-node list of one tick.
 pub const MAX_CONTACT_NODES: usize = 256;
+/// Tool spheres one contact evaluation takes ([`evaluate_spheres`]).
+pub const MAX_SPHERES: usize = 32;
 /// Touched nodes whose residual compliance is applied in one tick (the
 /// deepest ones; the others keep the plain penalty and are counted).
 pub const MAX_COMPLIANT_NODES: usize = 32;
@@ -222,6 +224,8 @@ pub struct NodeContact {
     pub node: u32,
     /// Force on the tissue at the node (N).
     pub force: Vec3,
+    /// The tool sphere that touches it ([`evaluate_spheres`]; 0: the tool).
+    pub sphere: u16,
 }
 
 /// What contact produced in one tick. Fixed capacity, reused every tick.
@@ -247,6 +251,8 @@ pub struct ContactOutput<const R: usize> {
     pub uncorrected: usize,
     /// Touched nodes the compliance correction released (p < 0).
     pub released: usize,
+    /// Reaction on each tool sphere (N), in the order given.
+    pub sphere_forces: heapless::Vec<Vec3, MAX_SPHERES>,
     active: heapless::Vec<ActiveNode, MAX_CONTACT_NODES>,
 }
 
@@ -257,6 +263,7 @@ struct ActiveNode {
     n: Vec3,
     k: f64,
     depth: f64,
+    sphere: u16,
 }
 
 impl<const R: usize> Default for ContactOutput<R> {
@@ -271,6 +278,7 @@ impl<const R: usize> Default for ContactOutput<R> {
             truncated: false,
             uncorrected: 0,
             released: 0,
+            sphere_forces: heapless::Vec::new(),
             active: heapless::Vec::new(),
         }
     }
@@ -307,30 +315,79 @@ pub fn evaluate_with<const R: usize>(
     scratch: &mut Candidates,
     out: &mut ContactOutput<R>,
 ) {
+    evaluate_spheres(
+        index,
+        params,
+        std::slice::from_ref(center),
+        position,
+        rows,
+        compliance,
+        scratch,
+        out,
+    )
+}
+
+/// Several tool spheres at once (the points where an instrument touches
+/// the wall, up to [`MAX_SPHERES`]; more are ignored and flagged as
+/// truncated), all of radius `params.tool_radius_m`: their touched nodes
+/// form one coupled contact problem, so nearby patches load each other
+/// through the residual compliance. `out.sphere_forces[s]` is the reaction
+/// on sphere s. A node inside several spheres belongs to the one it
+/// penetrates deepest. Allocates nothing.
+#[allow(clippy::too_many_arguments)]
+pub fn evaluate_spheres<const R: usize>(
+    index: &SurfaceIndex,
+    params: &ContactParams,
+    centers: &[Vec3],
+    position: impl Fn(u32) -> Vec3,
+    rows: impl Fn(u32) -> Option<SMatrix<f64, 3, R>>,
+    compliance: Option<&LocalCompliance>,
+    scratch: &mut Candidates,
+    out: &mut ContactOutput<R>,
+) {
     out.tool_force = Vec3::zeros();
     out.reduced_force = SVector::zeros();
     out.reduced_stiffness = SMatrix::zeros();
     out.nodes.clear();
     out.active.clear();
+    out.sphere_forces.clear();
     out.max_depth = 0.0;
     out.uncorrected = 0;
     out.released = 0;
-    out.truncated = !index.query(center, scratch);
-    out.candidates = scratch.len();
+    out.truncated = centers.len() > MAX_SPHERES;
+    out.candidates = 0;
     let rho = params.tool_radius_m;
-    for &i in scratch.iter() {
-        let x = position(i);
-        let d = x - center;
-        let dist = d.norm();
-        let depth = rho - dist;
-        if depth.is_nan() || depth <= 0.0 {
-            continue;
-        }
-        let n = if dist > 1e-9 * rho { d / dist } else { index.normal(i) };
-        let k = params.pressure_stiffness * index.area(i);
-        out.max_depth = out.max_depth.max(depth);
-        if out.active.push(ActiveNode { node: i, n, k, depth }).is_err() {
-            out.truncated = true;
+    for (s, center) in centers.iter().take(MAX_SPHERES).enumerate() {
+        let _ = out.sphere_forces.push(Vec3::zeros());
+        out.truncated |= !index.query(center, scratch);
+        out.candidates += scratch.len();
+        for &i in scratch.iter() {
+            let x = position(i);
+            let d = x - center;
+            let dist = d.norm();
+            let depth = rho - dist;
+            if depth.is_nan() || depth <= 0.0 {
+                continue;
+            }
+            let n = if dist > 1e-9 * rho { d / dist } else { index.normal(i) };
+            let k = params.pressure_stiffness * index.area(i);
+            out.max_depth = out.max_depth.max(depth);
+            let node = ActiveNode {
+                node: i,
+                n,
+                k,
+                depth,
+                sphere: s as u16,
+            };
+            match out.active.iter_mut().find(|a| a.node == i) {
+                Some(a) if a.depth < depth => *a = node,
+                Some(_) => {}
+                None => {
+                    if out.active.push(node).is_err() {
+                        out.truncated = true;
+                    }
+                }
+            }
         }
     }
     let corrected = match compliance {
@@ -347,8 +404,14 @@ pub fn evaluate_with<const R: usize>(
     };
     // Nodes without the correction: the plain penalty.
     for a in corrected..out.active.len() {
-        let ActiveNode { node, n, k, depth } = out.active[a];
-        push_force(out, node, n * (k * depth));
+        let ActiveNode {
+            node,
+            n,
+            k,
+            depth,
+            sphere,
+        } = out.active[a];
+        push_force(out, node, sphere, n * (k * depth));
         if let Some(phi) = rows(node) {
             let g = phi.tr_mul(&n);
             out.reduced_stiffness += g * g.transpose() * k;
@@ -365,9 +428,12 @@ pub fn evaluate_with<const R: usize>(
 
 /// Records the force `f` on the tissue at `node`: tool reaction, reduced
 /// force, the touched-node list.
-fn push_force<const R: usize>(out: &mut ContactOutput<R>, node: u32, f: Vec3) {
+fn push_force<const R: usize>(out: &mut ContactOutput<R>, node: u32, sphere: u16, f: Vec3) {
     out.tool_force -= f;
-    if out.nodes.push(NodeContact { node, force: f }).is_err() {
+    if let Some(s) = out.sphere_forces.get_mut(sphere as usize) {
+        *s -= f;
+    }
+    if out.nodes.push(NodeContact { node, force: f, sphere }).is_err() {
         out.truncated = true;
     }
 }
@@ -470,8 +536,14 @@ fn series_patch<const R: usize>(
     if !ok {
         // Not positive definite (a corrupt table): the plain penalty.
         for a in 0..m {
-            let ActiveNode { node, n, k, depth } = out.active[a];
-            push_force(out, node, n * (k * depth));
+            let ActiveNode {
+                node,
+                n,
+                k,
+                depth,
+                sphere,
+            } = out.active[a];
+            push_force(out, node, sphere, n * (k * depth));
             if let Some(phi) = rows(node) {
                 let g = phi.tr_mul(&n);
                 out.reduced_stiffness += g * g.transpose() * k;
@@ -488,9 +560,9 @@ fn series_patch<const R: usize>(
     // Forces, and h_a = Σ_b (K_p⁻¹ + S)⁻¹_ab g_b column by column of the inverse.
     let mut g = [SVector::<f64, R>::zeros(); C];
     for a in 0..m {
-        let ActiveNode { node, n, .. } = out.active[a];
+        let ActiveNode { node, n, sphere, .. } = out.active[a];
         if on[a] {
-            push_force(out, node, n * p[a]);
+            push_force(out, node, sphere, n * p[a]);
         }
         if let Some(phi) = rows(node) {
             g[a] = phi.tr_mul(&n);

@@ -127,16 +127,16 @@ fn eval_contact<const R: usize>(
     m: &LoopModel<R>,
     index: &SurfaceIndex,
     params: &ContactParams,
-    tool: &Vec3,
+    centers: &[Vec3],
     scratch: &mut Candidates,
     out: &mut ContactOutput<R>,
 ) {
     let dynamics = &m.dynamics;
     let offset = &m.offset;
-    contact::evaluate_with(
+    contact::evaluate_spheres(
         index,
         params,
-        tool,
+        centers,
         |i| {
             let base = index.rest(i) + offset.get(i as usize).copied().unwrap_or_else(Vec3::zeros);
             base + dynamics.displacement_at(i).unwrap_or_else(Vec3::zeros)
@@ -156,7 +156,9 @@ fn step_model<const R: usize>(
     counters: &mut ServoCounters,
 ) -> (Vec3, bool) {
     let f = c.reduced_force - m.f_bar;
-    let desired = c.tool_force;
+    // The hand feels the tool sphere only (extra spheres are other contact
+    // points of the instrument).
+    let desired = c.sphere_forces.first().copied().unwrap_or(c.tool_force);
     let finite = desired.iter().all(|v| v.is_finite()) && f.iter().all(|v| v.is_finite());
     if finite && !m.dynamics.step_with_contact(&f, &c.reduced_stiffness) {
         counters.contact_stiffness_dropped += 1;
@@ -184,6 +186,8 @@ pub struct Servo<const R: usize> {
     fade_contact: ContactOutput<R>,
     blend: f64,
     retired: Option<Box<LoopModel<R>>>,
+    extra: heapless::Vec<Vec3, { contact::MAX_SPHERES - 1 }>,
+    centers: heapless::Vec<Vec3, { contact::MAX_SPHERES }>,
 }
 
 /// Most loaded touched nodes whose displacement a model swap keeps exactly.
@@ -215,6 +219,8 @@ impl<const R: usize> Servo<R> {
             fade_contact: ContactOutput::default(),
             blend: 1.0,
             retired: None,
+            extra: heapless::Vec::new(),
+            centers: heapless::Vec::new(),
         }
     }
 
@@ -341,6 +347,18 @@ impl<const R: usize> Servo<R> {
         }
     }
 
+    /// More contact spheres besides the tool (scene frame, the tool's
+    /// radius; at most [`contact::MAX_SPHERES`] − 1, the rest ignored): the
+    /// other points where an instrument touches the wall. They load the
+    /// tissue and couple with the tool's patch; their reactions are in
+    /// `contact().sphere_forces[1..]`. Allocates nothing.
+    pub fn set_extra_spheres(&mut self, centers: &[Vec3]) {
+        self.extra.clear();
+        for c in centers.iter().take(contact::MAX_SPHERES - 1) {
+            let _ = self.extra.push(*c);
+        }
+    }
+
     /// The model in use.
     pub fn model(&self) -> &LoopModel<R> {
         &self.model
@@ -405,11 +423,16 @@ impl<const R: usize> Servo<R> {
 
         // Contact against the surface as the current state deforms it.
         let tool = self.tool;
+        self.centers.clear();
+        let _ = self.centers.push(tool);
+        for c in self.extra.iter() {
+            let _ = self.centers.push(*c);
+        }
         eval_contact(
             &self.model,
             &self.index,
             &p.contact,
-            &tool,
+            &self.centers,
             &mut self.scratch,
             &mut self.contact,
         );
@@ -428,7 +451,7 @@ impl<const R: usize> Servo<R> {
                 old,
                 &self.index,
                 &p.contact,
-                &tool,
+                &self.centers,
                 &mut self.fade_scratch,
                 &mut self.fade_contact,
             );

@@ -9,7 +9,6 @@ use super::background::{ContactMsg, CONTACT_MSG_NODES};
 use super::device_io::ForceCmd;
 use super::live::LiveStats;
 use super::publisher::StateSnapshot;
-use crate::haptics::contact::NodeContact;
 use crate::haptics::device::DeviceSample;
 use crate::haptics::passivity::PassivityStats;
 use crate::haptics::servo::{LoopModel, ServoCounters};
@@ -172,10 +171,7 @@ pub(super) fn loop_thread<const R: usize>(mut tick: HapticTick<R>, mut io: LoopI
             contact_msg.tick = n;
             contact_msg.nodes.clear();
             for nc in c.nodes.iter().take(CONTACT_MSG_NODES) {
-                let _ = contact_msg.nodes.push(NodeContact {
-                    node: nc.node,
-                    force: nc.force,
-                });
+                let _ = contact_msg.nodes.push(*nc);
             }
             if io.contact.push(contact_msg.clone()).is_err() {
                 res.contact_ring_full += 1;
