@@ -25,6 +25,13 @@ pub struct ReplayArgs {
     /// Instead of sending, export a ParaView series (surface.pvd, tool.pvd) into DIR.
     #[arg(long, value_name = "DIR")]
     vtu: Option<PathBuf>,
+    /// Instead of UDP, serve the recording over OpenIGTLink on this TCP
+    /// address (e.g. 127.0.0.1:18944, for 3D Slicer's OpenIGTLinkIF).
+    #[arg(long, value_name = "ADDR")]
+    igtl: Option<SocketAddr>,
+    /// With --igtl: how long to wait for a first client (s).
+    #[arg(long, default_value_t = 60.0)]
+    wait: f64,
 }
 
 /// `nvtmm view`.
@@ -79,6 +86,20 @@ pub fn replay(a: ReplayArgs) -> Result<()> {
                 s.decoder.total_rejected()
             );
         }
+        return Ok(());
+    }
+    if let Some(addr) = a.igtl {
+        println!(
+            "serving {} over OpenIGTLink on {addr} at {}x (waiting up to {} s for a client)",
+            a.file.display(),
+            a.speed,
+            a.wait
+        );
+        let s = record::replay_igtl(&a.file, addr, a.speed, a.wait)?;
+        println!(
+            "served {} frames ({:.2} s recorded) from {} datagrams",
+            s.frames_written, s.duration_s, s.datagrams
+        );
         return Ok(());
     }
     println!("replaying {} to udp://{} at {}x", a.file.display(), a.to, a.speed);

@@ -415,7 +415,7 @@ pub(super) fn start_with<const R: usize>(p: Prepared) -> Result<Running<R>, Serv
             first_offset: first.offset.clone(),
             tool_radius: cfg.contact.tool_radius_m,
             simulated: cfg.device.backend == Backend::TouchxSim,
-            send: cfg.stream.enabled || record.is_some(),
+            send: cfg.stream.enabled || record.is_some() || cfg.stream.igtl.is_some(),
             stop: stop.clone(),
             live: live.clone(),
         };

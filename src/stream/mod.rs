@@ -20,6 +20,7 @@
 pub mod decimate;
 pub mod demo;
 pub mod format;
+pub mod igtl;
 pub mod publisher;
 pub mod record;
 pub mod viewer;
@@ -205,6 +206,32 @@ pub struct StreamConfig {
     /// Seconds between topology re-sends (late-joining receivers wait at most
     /// this long), in [0.1, 60].
     pub topology_period_s: f64,
+    /// The OpenIGTLink server for 3D Slicer and other OpenIGTLink peers
+    /// ([`igtl`]); off when absent.
+    pub igtl: Option<IgtlConfig>,
+}
+
+/// `[stream] igtl = { listen = "127.0.0.1:18944" }`.
+#[derive(Debug, Clone, PartialEq, serde::Deserialize, serde::Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct IgtlConfig {
+    /// TCP address to listen on, `IP:PORT` (18944 is the protocol's usual
+    /// port; loopback keeps it on this machine).
+    pub listen: String,
+    /// Clients served at once, in [1, 64].
+    #[serde(default = "d_igtl_clients")]
+    pub max_clients: usize,
+    /// Frames queued per client before frames are dropped for it, in [1, 64].
+    #[serde(default = "d_igtl_queue")]
+    pub queue_frames: usize,
+}
+
+fn d_igtl_clients() -> usize {
+    8
+}
+
+fn d_igtl_queue() -> usize {
+    4
 }
 
 impl Default for StreamConfig {
@@ -215,6 +242,7 @@ impl Default for StreamConfig {
             target: "127.0.0.1:7878".into(),
             decimate_vertices: 2000,
             topology_period_s: 1.0,
+            igtl: None,
         }
     }
 }
@@ -230,6 +258,16 @@ impl StreamConfig {
         c.f64_in(&k("rate_hz"), self.rate_hz, 1.0, 120.0, "Hz")?;
         c.f64_in(&k("topology_period_s"), self.topology_period_s, 0.1, 60.0, "s")?;
         c.int_in(&k("decimate_vertices"), self.decimate_vertices, 0, MAX_VERTICES)?;
+        if let Some(g) = &self.igtl {
+            g.listen.parse::<SocketAddr>().map_err(|_| {
+                c.err(
+                    &k("igtl.listen"),
+                    format!("'{}': must be IP:PORT, e.g. 127.0.0.1:18944", g.listen),
+                )
+            })?;
+            c.int_in(&k("igtl.max_clients"), g.max_clients, 1, 64)?;
+            c.int_in(&k("igtl.queue_frames"), g.queue_frames, 1, 64)?;
+        }
         self.target_addr().map_err(|msg| c.err(&k("target"), msg)).map(|_| ())
     }
 

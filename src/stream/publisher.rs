@@ -54,6 +54,7 @@ pub struct Publisher {
     start_ns: clock::Nanos,
     recorder: Option<(PathBuf, RecordWriter)>,
     stats: PublisherStats,
+    igtl: Option<super::igtl::IgtlServer>,
 }
 
 fn check_topology(t: &Topology) -> Result<Vec<u8>, StreamError> {
@@ -104,7 +105,26 @@ impl Publisher {
             Some(p) => Some((p.to_path_buf(), RecordWriter::create(p)?)),
             None => None,
         };
+        let igtl = match &cfg.igtl {
+            Some(g) => {
+                let addr: SocketAddr = g.listen.parse().map_err(|_| StreamError::Invalid {
+                    what: "stream igtl.listen",
+                    msg: format!("'{}': must be IP:PORT", g.listen),
+                })?;
+                let mut s = super::igtl::IgtlServer::bind(addr, g.max_clients, g.queue_frames).map_err(|source| {
+                    StreamError::Socket {
+                        what: "OpenIGTLink server on",
+                        addr: addr.to_string(),
+                        source,
+                    }
+                })?;
+                s.set_topology(topology.epoch, &topology.triangles);
+                Some(s)
+            }
+            None => None,
+        };
         Ok(Publisher {
+            igtl,
             cfg,
             target,
             socket,
@@ -118,6 +138,16 @@ impl Publisher {
             recorder,
             stats: PublisherStats::default(),
         })
+    }
+
+    /// The OpenIGTLink server's counters (None when it is off).
+    pub fn igtl_stats(&self) -> Option<super::igtl::IgtlStats> {
+        self.igtl.as_ref().map(|s| s.stats())
+    }
+
+    /// The OpenIGTLink server's address (None when it is off).
+    pub fn igtl_addr(&self) -> Option<SocketAddr> {
+        self.igtl.as_ref().and_then(|s| s.local_addr().ok())
     }
 
     /// Counters so far.
@@ -191,6 +221,18 @@ impl Publisher {
                 msg: format!("non-finite value at t = {} s", frame.time_s),
             });
         }
+        if let Some(g) = self.igtl.as_mut() {
+            g.set_topology(self.topology.epoch, &self.topology.triangles);
+            g.publish(&super::igtl::IgtlFrame {
+                time_s: frame.time_s,
+                positions: frame.positions,
+                tool_position: frame.tool_position,
+                force: frame.force,
+                flags: frame.flags,
+                loop_rate_hz: frame.loop_rate_hz,
+                wire: None,
+            });
+        }
         let now = clock::now_ns();
         let mut record_err = None;
         if self.topology_due_ns.is_none_or(|due| now >= due) {
@@ -229,14 +271,18 @@ impl Publisher {
             ..
         } = self;
         let mut failed = None;
+        let send = self.cfg.enabled;
         format::chunk_message(kind, seq, topology.epoch, msg, MAX_CHUNK_PAYLOAD, dgram, |d| {
-            match socket.send_to(d, *target) {
-                Ok(_) => {
-                    stats.datagrams += 1;
-                    stats.bytes += d.len() as u64;
+            // UDP off ([stream] enabled = false): only the recording.
+            if send {
+                match socket.send_to(d, *target) {
+                    Ok(_) => {
+                        stats.datagrams += 1;
+                        stats.bytes += d.len() as u64;
+                    }
+                    Err(e) if e.kind() == ErrorKind::WouldBlock => stats.would_block += 1,
+                    Err(_) => stats.send_errors += 1,
                 }
-                Err(e) if e.kind() == ErrorKind::WouldBlock => stats.would_block += 1,
-                Err(_) => stats.send_errors += 1,
             }
             if let Some((path, w)) = recorder.as_mut() {
                 if failed.is_none() {

@@ -231,6 +231,62 @@ pub fn replay_udp(path: &Path, to: SocketAddr, speed: f64) -> Result<ReplaySumma
     Ok(s)
 }
 
+/// Serves a recording over OpenIGTLink on `addr` (see [`super::igtl`]) at
+/// the recorded pace divided by `speed`: waits up to `wait_s` for a first
+/// client, then sends every state frame to the clients connected.
+pub fn replay_igtl(path: &Path, addr: SocketAddr, speed: f64, wait_s: f64) -> Result<ReplaySummary, StreamError> {
+    if !(speed.is_finite() && speed > 0.0) {
+        return Err(StreamError::Invalid {
+            what: "replay speed",
+            msg: format!("{speed}: must be a positive number"),
+        });
+    }
+    let mut server = super::igtl::IgtlServer::bind(addr, 8, 8).map_err(|source| StreamError::Socket {
+        what: "OpenIGTLink server on",
+        addr: addr.to_string(),
+        source,
+    })?;
+    let t_wait = clock::now_ns();
+    while server.num_clients() == 0 && ((clock::now_ns() - t_wait) as f64) < wait_s * 1e9 {
+        server.poll();
+        std::thread::sleep(std::time::Duration::from_millis(10));
+    }
+    let start = clock::now_ns();
+    let mut dec = Decoder::new();
+    let mut s = ReplaySummary::default();
+    let mut first = None;
+    for r in RecordReader::open(path)? {
+        let (t, d) = r?;
+        s.datagrams += 1;
+        let t0 = *first.get_or_insert(t);
+        let rel = t.saturating_sub(t0);
+        s.duration_s = rel as f64 * 1e-9;
+        let Ok(Some(Decoded::State(st))) = dec.push(&d) else {
+            continue;
+        };
+        let Some(topo) = dec.topology() else { continue };
+        clock::sleep_until(start + (rel as f64 / speed) as i64);
+        server.set_topology(topo.epoch, &topo.triangles);
+        server.publish(&super::igtl::IgtlFrame {
+            time_s: st.time_s,
+            positions: &st.positions,
+            tool_position: st.tool_position,
+            force: st.force,
+            flags: st.flags,
+            loop_rate_hz: st.loop_rate_hz,
+            wire: None,
+        });
+        s.frames_written += 1;
+    }
+    // Let the clients drain what is queued.
+    for _ in 0..50 {
+        server.poll();
+        std::thread::sleep(std::time::Duration::from_millis(10));
+    }
+    s.decoder = dec.stats().clone();
+    Ok(s)
+}
+
 fn v3(p: &[f32; 3]) -> Vec3 {
     Vec3::new(p[0] as f64, p[1] as f64, p[2] as f64)
 }
