@@ -31,6 +31,14 @@ pub struct StateSnapshot<const R: usize> {
     pub tick_max_us: f32,
 }
 
+/// What the publisher thread returns at the end.
+pub(super) struct PublisherResult {
+    pub frames: u64,
+    pub errors: u64,
+    pub first_error: Option<String>,
+    pub igtl: Option<crate::stream::igtl::IgtlStats>,
+}
+
 /// What the publisher thread needs.
 pub(super) struct PublisherPlan<const R: usize> {
     pub publisher: crate::stream::Publisher,
@@ -50,7 +58,7 @@ pub(super) struct PublisherPlan<const R: usize> {
 /// The stream publisher (normal priority): turns loop snapshots into stream
 /// frames, x = X + ū + Φ δq at the stream's vertices, and publishes them.
 /// Never blocks the loop (it only pops rings).
-pub(super) fn publisher_thread<const R: usize>(mut p: PublisherPlan<R>) -> (u64, u64, Option<String>) {
+pub(super) fn publisher_thread<const R: usize>(mut p: PublisherPlan<R>) -> PublisherResult {
     use crate::stream::{flags as sf, StateFrame};
     let topo = p.publisher.topology().clone();
     let mut positions = vec![[0f32; 3]; topo.node_ids.len()];
@@ -159,11 +167,17 @@ pub(super) fn publisher_thread<const R: usize>(mut p: PublisherPlan<R>) -> (u64,
         }
     }
     let frames = p.publisher.stats().frames;
+    let igtl = p.publisher.igtl_stats();
     match p.publisher.finish() {
         Ok(_) => {}
         Err(e) => {
             first_error.get_or_insert_with(|| e.to_string());
         }
     }
-    (frames, errors, first_error)
+    PublisherResult {
+        frames,
+        errors,
+        first_error,
+        igtl,
+    }
 }

@@ -153,6 +153,10 @@ pub struct Report {
     pub max_depth_m: f64,
     /// Stream frames published (0 with the stream off).
     pub stream_frames: u64,
+    /// The OpenIGTLink server's counters (null when `[stream] igtl` is off):
+    /// clients accepted, refused, gone, and per client frames sent and
+    /// dropped and messages received and malformed.
+    pub igtl: Option<crate::stream::igtl::IgtlStats>,
     /// How far past the undeformed wall the simulated hand's script pushes
     /// the probe (m); None with a real device.
     pub scripted_press_depth_m: Option<f64>,
@@ -292,6 +296,14 @@ impl Report {
             .map(|(k, v)| format!("{k} {}/{}", v.overflows, v.capacity))
             .collect();
         s += &format!("  ring overflows: {}\n", rings.join(", "));
+        if let Some(g) = &self.igtl {
+            let dropped: u64 = g.clients.iter().map(|c| c.frames_dropped).sum();
+            let bad: u64 = g.clients.iter().map(|c| c.bad_messages).sum();
+            s += &format!(
+                "  OpenIGTLink: {} clients ({} refused), {} frames dropped for slow clients, {} malformed client messages\n",
+                g.accepted, g.refused, dropped, bad
+            );
+        }
         s
     }
 }

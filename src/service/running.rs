@@ -42,7 +42,7 @@ pub(super) struct Running<const R: usize> {
     dev_handle: Option<JoinHandle<(DeviceResult, Box<dyn HapticDevice>)>>,
     bg_handle: Option<JoinHandle<BackgroundStats>>,
     basis_handle: Option<JoinHandle<BasisStats>>,
-    pub_handle: Option<JoinHandle<(u64, u64, Option<String>)>>,
+    pub_handle: Option<JoinHandle<super::publisher::PublisherResult>>,
     refusals: Vec<String>,
     memory_locked: bool,
     rings: RingConfig,
@@ -106,7 +106,8 @@ impl<const R: usize> RunningService for Running<R> {
             Some(h) => join(Some(h), "basis")?,
             None => BasisStats::default(),
         };
-        let (stream_frames, stream_errors, stream_error) = join(self.pub_handle.take(), "stream")?;
+        let pr = join(self.pub_handle.take(), "stream")?;
+        let (stream_frames, stream_errors, stream_error) = (pr.frames, pr.errors, pr.first_error);
         let mut refusals = std::mem::take(&mut self.refusals);
         let (rings, memory_locked) = (self.rings, self.memory_locked);
         if let Some(e) = &stream_error {
@@ -209,6 +210,7 @@ impl<const R: usize> RunningService for Running<R> {
             device_errors: dr.errors,
             max_depth_m: lr.max_depth,
             stream_frames,
+            igtl: pr.igtl,
             scripted_press_depth_m: self.scripted_press_depth_m,
             model_timeout_ms: self.model_timeout_ms,
         })
