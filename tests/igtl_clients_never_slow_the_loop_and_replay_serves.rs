@@ -5,7 +5,7 @@
 //! client.
 
 use nvtmm::service::{Service, StartOptions};
-use nvtmm::stream::{igtl, IgtlConfig, Publisher, StateFrame, StreamConfig, Topology};
+use nvtmm::stream::{igtl, Publisher, StateFrame, StreamConfig, Topology};
 use std::io::Read;
 use std::net::TcpStream;
 use std::time::{Duration, Instant};
