@@ -9,15 +9,16 @@
 //!
 //! Elements are evaluated in parallel (rayon, fixed-size chunks) into a
 //! per-element buffer and then scattered serially into the nodes, so results
-//! are bit-for-bit reproducible whatever the thread schedule.
+//! are bit-for-bit reproducible whatever the thread schedule. The buffers
+//! (element forces, element tangents, chunk energies) are sized at
+//! construction: no call allocates.
 
-use super::{tet_pair_edges, BlockTangent, ForceModel};
+use super::{tet_pair_edges, BlockTangent, ForceModel, Scratch};
 use crate::material::{dpk1, energy_density, pk1, Lame, Law, Material};
 use crate::math::Mat3;
 use crate::math::Vec3;
 use crate::mesh::TetMesh;
 use rayon::prelude::*;
-use std::sync::{Mutex, TryLockError};
 
 /// Elements per parallel task: large enough that rayon's overhead is small
 /// next to the work, small enough to balance two to eight cores on the arch.
@@ -103,7 +104,7 @@ fn element_stiffness_by_directions(law: Law, lame: Lame, volume: f64, grads: &[V
 }
 
 /// The element-wise hyperelastic FEM force model (StVK or Neo-Hookean).
-#[derive(Debug)]
+#[derive(Debug, Clone)]
 pub struct Fem {
     law: Law,
     lame: Lame,
@@ -112,24 +113,18 @@ pub struct Fem {
     grads: Vec<[Vec3; 4]>,
     volumes: Vec<f64>,
     pair_edges: Vec<[[u32; 4]; 4]>,
-    /// Per-element nodal results, reused between calls. A second caller that
-    /// finds it busy allocates its own (correct, just slower).
-    scratch: Mutex<Vec<[Vec3; 4]>>,
+    scratch: Scratch<FemScratch>,
 }
 
-impl Clone for Fem {
-    fn clone(&self) -> Fem {
-        Fem {
-            law: self.law,
-            lame: self.lame,
-            num_nodes: self.num_nodes,
-            tets: self.tets.clone(),
-            grads: self.grads.clone(),
-            volumes: self.volumes.clone(),
-            pair_edges: self.pair_edges.clone(),
-            scratch: Mutex::new(Vec::with_capacity(self.tets.len())),
-        }
-    }
+/// Per-element results, reused between calls (see [`Scratch`]).
+#[derive(Debug, Clone)]
+struct FemScratch {
+    /// Nodal vectors of each tet (forces or force derivatives).
+    nodal: Vec<[Vec3; 4]>,
+    /// Element tangents.
+    blocks: Vec<[[Mat3; 4]; 4]>,
+    /// Energy of each chunk of `CHUNK` tets.
+    energy: Vec<f64>,
 }
 
 impl Fem {
@@ -144,7 +139,11 @@ impl Fem {
             grads: mesh.grads().to_vec(),
             volumes: mesh.volumes().to_vec(),
             pair_edges: tet_pair_edges(mesh),
-            scratch: Mutex::new(vec![[Vec3::zeros(); 4]; mesh.tets().len()]),
+            scratch: Scratch::new(FemScratch {
+                nodal: vec![[Vec3::zeros(); 4]; mesh.tets().len()],
+                blocks: vec![[[Mat3::zeros(); 4]; 4]; mesh.tets().len()],
+                energy: vec![0.0; mesh.tets().len().div_ceil(CHUNK)],
+            }),
         }
     }
 
@@ -174,8 +173,8 @@ impl Fem {
     where
         E: Fn(usize) -> [Vec3; 4] + Sync,
     {
-        let mut run = |buf: &mut Vec<[Vec3; 4]>| {
-            buf.resize(self.tets.len(), [Vec3::zeros(); 4]);
+        self.scratch.with(|sc| {
+            let buf = &mut sc.nodal;
             buf.par_chunks_mut(CHUNK).enumerate().for_each(|(c, chunk)| {
                 for (k, slot) in chunk.iter_mut().enumerate() {
                     *slot = elem(c * CHUNK + k);
@@ -186,14 +185,7 @@ impl Fem {
                     out[i as usize] += fi;
                 }
             }
-        };
-        match self.scratch.try_lock() {
-            Ok(mut buf) => run(&mut buf),
-            // Every slot is overwritten before it is read, so a buffer left
-            // behind by a panicking caller is as good as a fresh one.
-            Err(TryLockError::Poisoned(p)) => run(&mut p.into_inner()),
-            Err(TryLockError::WouldBlock) => run(&mut Vec::new()),
-        }
+        });
     }
 }
 
@@ -226,35 +218,41 @@ impl ForceModel for Fem {
 
     fn add_stiffness(&self, u: &[Vec3], k: &mut BlockTangent) {
         debug_assert_eq!(k.num_nodes(), self.num_nodes);
-        let blocks: Vec<[[Mat3; 4]; 4]> = (0..self.tets.len())
-            .into_par_iter()
-            .with_min_len(CHUNK)
-            .map(|t| element_stiffness(self.law, self.lame, self.volumes[t], &self.grads[t], &self.f_of(t, u)))
-            .collect();
-        for ((tet, pe), kt) in self.tets.iter().zip(&self.pair_edges).zip(&blocks) {
-            for p in 0..4 {
-                // K_qp = K_pqᵀ, so the upper triangle (p ≤ q) carries everything.
-                for q in p..4 {
-                    k.add_block(tet[p], tet[q], pe[p][q], &kt[p][q]);
+        self.scratch.with(|sc| {
+            let blocks = &mut sc.blocks;
+            blocks.par_chunks_mut(CHUNK).enumerate().for_each(|(c, chunk)| {
+                for (k, kt) in chunk.iter_mut().enumerate() {
+                    let t = c * CHUNK + k;
+                    *kt = element_stiffness(self.law, self.lame, self.volumes[t], &self.grads[t], &self.f_of(t, u));
+                }
+            });
+            for ((tet, pe), kt) in self.tets.iter().zip(&self.pair_edges).zip(blocks.iter()) {
+                for p in 0..4 {
+                    // K_qp = K_pqᵀ, so the upper triangle (p ≤ q) carries everything.
+                    for q in p..4 {
+                        k.add_block(tet[p], tet[q], pe[p][q], &kt[p][q]);
+                    }
                 }
             }
-        }
+        });
     }
 
     fn energy(&self, u: &[Vec3]) -> f64 {
-        // Chunk sums collected in order, then summed serially: reproducible.
-        let partial: Vec<f64> = self
-            .volumes
-            .par_chunks(CHUNK)
-            .enumerate()
-            .map(|(c, vs)| {
-                vs.iter()
-                    .enumerate()
-                    .map(|(k, v)| v * energy_density(self.law, self.lame, &self.f_of(c * CHUNK + k, u)))
-                    .sum::<f64>()
-            })
-            .collect();
-        partial.iter().sum()
+        // Chunk sums stored in order, then summed serially: reproducible.
+        self.scratch.with(|sc| {
+            sc.energy
+                .par_iter_mut()
+                .zip(self.volumes.par_chunks(CHUNK))
+                .enumerate()
+                .for_each(|(c, (e, vs))| {
+                    *e = vs
+                        .iter()
+                        .enumerate()
+                        .map(|(k, v)| v * energy_density(self.law, self.lame, &self.f_of(c * CHUNK + k, u)))
+                        .sum::<f64>();
+                });
+            sc.energy.iter().sum()
+        })
     }
 }
 

@@ -23,6 +23,45 @@ pub mod viscoelastic;
 use crate::math::Mat3;
 use crate::math::Vec3;
 use crate::mesh::TetMesh;
+use std::sync::{Mutex, PoisonError};
+
+/// Working memory a model sizes at construction and reuses on every call, so
+/// that forces, tangent-vector products and tangents allocate nothing (the
+/// background solver runs next to the RT loop; see `ImplicitEuler`).
+///
+/// The [`ForceModel`] methods take `&self`, so the buffers sit behind a
+/// mutex. A second caller at the same time waits for the first one (it never
+/// allocates its own copy); the solvers call a model from one thread at a
+/// time, so the lock is uncontended and costs one atomic operation. A buffer
+/// left behind by a panicking caller is reused: every user overwrites what it
+/// reads. Cloning a model gives the clone its own buffers.
+pub(crate) struct Scratch<T>(Mutex<T>);
+
+impl<T> Scratch<T> {
+    /// Wraps buffers sized by the caller.
+    pub(crate) fn new(buffers: T) -> Scratch<T> {
+        Scratch(Mutex::new(buffers))
+    }
+
+    /// Runs `f` with the buffers.
+    #[inline]
+    pub(crate) fn with<R>(&self, f: impl FnOnce(&mut T) -> R) -> R {
+        let mut guard = self.0.lock().unwrap_or_else(PoisonError::into_inner);
+        f(&mut guard)
+    }
+}
+
+impl<T: Clone> Clone for Scratch<T> {
+    fn clone(&self) -> Scratch<T> {
+        Scratch::new(self.with(|t| t.clone()))
+    }
+}
+
+impl<T> std::fmt::Debug for Scratch<T> {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str("Scratch")
+    }
+}
 
 /// Which force model a scene uses.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, serde::Serialize, serde::Deserialize)]

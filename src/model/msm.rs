@@ -23,6 +23,20 @@
 //! l = [`DEGENERATE_FRACTION`] · L the spring uses its rest direction for n
 //! and keeps only the axial stiffness k n nᵀ: forces and tangents stay finite
 //! (no NaN) and push the two nodes apart along the rest edge.
+//!
+//! Compression: a spring's exact Hessian is
+//! k [n nᵀ + (1 − L/l)(I − n nᵀ)]; for l < L the transverse factor
+//! 1 − L/l is negative, so the assembled tangent of a compressed mesh is
+//! indefinite and a Cholesky factorization fails. [`Msm::new`] uses the
+//! standard remedy (K.-J. Choi and H.-S. Ko, "Stable but responsive cloth",
+//! ACM Trans. Graphics 21(3), SIGGRAPH 2002): the transverse factor is
+//! clamped at zero, max(0, 1 − L/l), in both `add_df` and `add_stiffness`,
+//! which then stay each other's negative and are positive semi-definite for
+//! every spring. Forces and energy are unchanged, so converged states are the
+//! same; under compression the tangent is no longer the exact derivative of
+//! the force, and Newton converges linearly there instead of quadratically.
+//! [`Msm::with_exact_tangent`] keeps the exact Hessian (the derivative tests
+//! use it).
 
 use super::{BlockTangent, ForceModel};
 use crate::material::Material;
@@ -42,13 +56,28 @@ pub struct Msm {
     rest_dir: Vec<Vec3>,
     stiffness: Vec<f64>,
     rest: Vec<Vec3>,
+    /// Whether the tangent keeps the negative transverse stiffness of
+    /// compressed springs (see the module docs).
+    exact_tangent: bool,
 }
 
 impl Msm {
     /// Builds springs on the edges of `mesh` with Van Gelder's tetrahedral
     /// stiffness k_e = E Σ_{t ∋ e} V_t / L_e² for the Young's modulus of
     /// `material` (its Poisson ratio cannot be represented; see module docs).
+    /// The tangent drops the compressive transverse stiffness (positive
+    /// semi-definite everywhere; see the module docs).
     pub fn new(mesh: &TetMesh, material: &Material) -> Msm {
+        Msm::build(mesh, material, false)
+    }
+
+    /// As [`Msm::new`], with the spring's exact Hessian as the tangent
+    /// (indefinite under compression): for derivative checks.
+    pub fn with_exact_tangent(mesh: &TetMesh, material: &Material) -> Msm {
+        Msm::build(mesh, material, true)
+    }
+
+    fn build(mesh: &TetMesh, material: &Material, exact_tangent: bool) -> Msm {
         let rest = mesh.rest().to_vec();
         let edges = mesh.edges().to_vec();
         let mut adjacent_volume = vec![0.0; edges.len()];
@@ -72,7 +101,13 @@ impl Msm {
             rest_dir,
             stiffness,
             rest,
+            exact_tangent,
         }
+    }
+
+    /// Whether the tangent is the exact Hessian ([`Msm::with_exact_tangent`]).
+    pub fn has_exact_tangent(&self) -> bool {
+        self.exact_tangent
     }
 
     /// Spring stiffness k_e (N/m) per mesh edge.
@@ -106,7 +141,9 @@ impl Msm {
         n * (-k * (l - rl))
     }
 
-    /// The block K_bb = −∂f_b/∂x_b of edge `e` (K_aa = K_bb, K_ab = −K_bb).
+    /// The block K_bb = −∂f_b/∂x_b of edge `e` (K_aa = K_bb, K_ab = −K_bb),
+    /// with the compressive transverse part dropped unless the tangent is
+    /// exact.
     #[inline]
     fn spring_tangent(&self, e: usize, u: &[Vec3]) -> Mat3 {
         let d = self.edge_vector(e, u);
@@ -114,8 +151,14 @@ impl Msm {
         let l = d.norm();
         if l > DEGENERATE_FRACTION * rl {
             let n = d / l;
-            // k [(L/l) n nᵀ + (1 − L/l) I].
-            (n * n.transpose() * (rl / l) + Mat3::identity() * (1.0 - rl / l)) * k
+            let nn = n * n.transpose();
+            // k [n nᵀ + (1 − L/l)(I − n nᵀ)], the transverse factor clamped at 0.
+            let transverse = if self.exact_tangent {
+                1.0 - rl / l
+            } else {
+                (1.0 - rl / l).max(0.0)
+            };
+            (nn + (Mat3::identity() - nn) * transverse) * k
         } else {
             let n = self.rest_dir[e];
             n * n.transpose() * k

@@ -3,7 +3,7 @@
 //!
 //! Per tet, with shape gradients D_i, d_ij = D_i·D_j and rest volume V, the
 //! StVK energy (eq. 3–6) is a quartic polynomial of the nodal displacements
-//! (`shared/reference/tensor-mass.md`):
+//! (Picinbono, Delingette and Ayache, Graphical Models 65(5), 2003):
 //!
 //! W = Σ_ij U_iᵀ B_ij U_j + Σ_ijk (U_i·U_j)(C_ijk·U_k) + Σ_ijkl 𝒟_ijkl (U_i·U_j)(U_k·U_l)
 //!
@@ -38,7 +38,7 @@
 //! [`Fem`]: super::fem::Fem
 //! [`Viscoelastic`]: super::viscoelastic::Viscoelastic
 
-use super::{BlockTangent, ForceModel};
+use super::{BlockTangent, ForceModel, Scratch};
 use crate::material::Material;
 use crate::math::Mat3;
 use crate::math::Vec3;
@@ -73,8 +73,40 @@ pub struct Nvtmm {
     d_ptr: Vec<u32>,
     d_col: Vec<u32>,
     d_val: Vec<f64>,
-    /// For each 𝔇 entry (P, Q): the 𝒞 slot in row P of each member t of Q.
+    /// For each 𝔇 entry (P, Q): the 𝒞 slot in row P of each member t of Q
+    /// (second entry `NONE` for a vertex pair Q).
     d_slot: Vec<[u32; 2]>,
+    /// Working memory of the force, df and tangent passes.
+    scratch: Scratch<NvtmmScratch>,
+}
+
+/// Buffers sized at construction (see [`Scratch`]): no call allocates.
+#[derive(Debug, Clone)]
+struct NvtmmScratch {
+    /// s, w and their derivatives δs, δw, one entry per pair.
+    s: Vec<f64>,
+    w: Vec<f64>,
+    ds: Vec<f64>,
+    dw: Vec<f64>,
+    /// The elastic gradient (or its derivative), one entry per node.
+    grad: Vec<Vec3>,
+    /// h_{P,r} per pair P, for its members r = (a, b): (2U_a, 0) for a vertex
+    /// pair, (U_b, U_a) for an edge.
+    h: Vec<[Vec3; 2]>,
+    /// The tangent assembly's parts, one per parallel task.
+    parts: Vec<AssemblyPart>,
+}
+
+/// One parallel task of the tangent assembly: a contiguous range of pairs
+/// (balanced on 𝒞 slots, fixed at construction, so the sum is deterministic),
+/// its own block buffers, and a row of z.
+#[derive(Debug, Clone)]
+struct AssemblyPart {
+    pairs: std::ops::Range<usize>,
+    diag: Vec<Mat3>,
+    off: Vec<Mat3>,
+    /// z_Pt = Σ_Q 𝔇_PQ h_{Q,t} of the current row P (longest 𝒞 row).
+    z: Vec<Vec3>,
 }
 
 /// Members of a pair: (a, a) for a vertex pair, (low, high) for an edge.
@@ -205,7 +237,7 @@ impl Nvtmm {
                     .iter()
                     .map(|&q| {
                         let [a, b] = pair_nodes(n, &edges, q as usize);
-                        [slot_in_row(p, a), slot_in_row(p, b)]
+                        [slot_in_row(p, a), if a == b { NONE } else { slot_in_row(p, b) }]
                     })
                     .collect::<Vec<_>>()
             })
@@ -232,6 +264,40 @@ impl Nvtmm {
             }
         }
 
+        // Tangent assembly: each 𝒞 slot scatters into blocks of both its
+        // nodes, so the pairs are split into one contiguous range per thread
+        // (balanced on 𝒞 slots), each summed into its own block buffers.
+        let parts = rayon::current_num_threads().clamp(1, 16);
+        let total = c_val.len();
+        let bounds: Vec<usize> = (0..=parts)
+            .map(|c| {
+                if c == parts {
+                    np
+                } else {
+                    let goal = (total * c / parts) as u32;
+                    c_ptr[..np].partition_point(|&x| x < goal)
+                }
+            })
+            .collect();
+        let longest_row = (0..np).map(|p| (c_ptr[p + 1] - c_ptr[p]) as usize).max().unwrap_or(0);
+        let scratch = NvtmmScratch {
+            s: vec![0.0; np],
+            w: vec![0.0; np],
+            ds: vec![0.0; np],
+            dw: vec![0.0; np],
+            grad: vec![Vec3::zeros(); n],
+            h: vec![[Vec3::zeros(); 2]; np],
+            parts: bounds
+                .windows(2)
+                .map(|b| AssemblyPart {
+                    pairs: b[0]..b[1],
+                    diag: vec![Mat3::zeros(); n],
+                    off: vec![Mat3::zeros(); edges.len()],
+                    z: vec![Vec3::zeros(); longest_row],
+                })
+                .collect(),
+        };
+
         Nvtmm {
             n,
             edges,
@@ -247,6 +313,7 @@ impl Nvtmm {
             d_col,
             d_val,
             d_slot,
+            scratch: Scratch::new(scratch),
         }
     }
 
@@ -309,16 +376,6 @@ impl Nvtmm {
             *w = dot3_gather(&self.c_val[cs..ce], &self.c_col[cs..ce], u)
                 + 2.0 * dot_gather(&self.d_val[ds..de], &self.d_col[ds..de], s);
         });
-    }
-
-    /// ∂W/∂U (the elastic gradient), written into `grad`.
-    fn elastic_gradient(&self, u: &[Vec3], grad: &mut [Vec3]) {
-        let np = self.n + self.edges.len();
-        let mut s = vec![0.0; np];
-        let mut w = vec![0.0; np];
-        self.pair_products(u, &mut s);
-        self.pair_weights(u, &s, &mut w);
-        self.gradient_from(u, &s, &w, grad);
     }
 
     /// grad_r = (K₀u)_r + (𝒞ᵀs)_r + Σ_{P∋r} w_P h_{P,r}, for given s and w
@@ -432,167 +489,156 @@ impl ForceModel for Nvtmm {
     }
 
     fn add_forces(&self, u: &[Vec3], out: &mut [Vec3]) {
-        let mut grad = vec![Vec3::zeros(); self.n];
-        self.elastic_gradient(u, &mut grad);
-        out.par_iter_mut().zip(&grad).for_each(|(o, g)| *o -= g);
+        self.scratch.with(|sc| {
+            self.pair_products(u, &mut sc.s);
+            self.pair_weights(u, &sc.s, &mut sc.w);
+            self.gradient_from(u, &sc.s, &sc.w, &mut sc.grad);
+            out.par_iter_mut().zip(&sc.grad).for_each(|(o, g)| *o -= g);
+        });
     }
 
     fn add_df(&self, u: &[Vec3], du: &[Vec3], out: &mut [Vec3]) {
-        let np = self.n + self.edges.len();
-        let (mut s, mut w, mut ds, mut dw) = (vec![0.0; np], vec![0.0; np], vec![0.0; np], vec![0.0; np]);
-        self.pair_products(u, &mut s);
-        self.pair_weights(u, &s, &mut w);
-        self.pair_products_d(u, du, &mut ds);
-        self.pair_weights(du, &ds, &mut dw);
-        // δgrad = K₀δu + 𝒞ᵀδs + Σ (δw_P h_P + w_P δh_P). The two h-terms are
-        // `gradient_from` with (u, δw) and (δu, w), minus the K₀ and 𝒞ᵀ parts
-        // counted twice; assemble directly instead.
-        let mut dgrad = vec![Vec3::zeros(); self.n];
-        dgrad.par_iter_mut().enumerate().for_each(|(r, g)| {
-            let (a, b) = (self.ct_ptr[r] as usize, self.ct_ptr[r + 1] as usize);
-            *g = axpy3_gather(&self.ct_val[a..b], &self.ct_pair[a..b], &ds)
-                + u[r] * (2.0 * dw[r])
-                + du[r] * (2.0 * w[r]);
+        self.scratch.with(|sc| {
+            let NvtmmScratch {
+                s,
+                w,
+                ds,
+                dw,
+                grad: dgrad,
+                ..
+            } = sc;
+            self.pair_products(u, s);
+            self.pair_weights(u, s, w);
+            self.pair_products_d(u, du, ds);
+            self.pair_weights(du, ds, dw);
+            // δgrad = K₀δu + 𝒞ᵀδs + Σ (δw_P h_P + w_P δh_P). The two h-terms are
+            // `gradient_from` with (u, δw) and (δu, w), minus the K₀ and 𝒞ᵀ parts
+            // counted twice; assemble directly instead.
+            dgrad.par_iter_mut().enumerate().for_each(|(r, g)| {
+                let (a, b) = (self.ct_ptr[r] as usize, self.ct_ptr[r + 1] as usize);
+                *g = axpy3_gather(&self.ct_val[a..b], &self.ct_pair[a..b], ds)
+                    + u[r] * (2.0 * dw[r])
+                    + du[r] * (2.0 * w[r]);
+            });
+            self.k0.mul_add(du, dgrad);
+            for (e, &[a, b]) in self.edges.iter().enumerate() {
+                let (we, dwe) = (w[self.n + e], dw[self.n + e]);
+                let (a, b) = (a as usize, b as usize);
+                dgrad[a] += u[b] * dwe + du[b] * we;
+                dgrad[b] += u[a] * dwe + du[a] * we;
+            }
+            out.par_iter_mut().zip(&*dgrad).for_each(|(o, g)| *o -= g);
         });
-        self.k0.mul_add(du, &mut dgrad);
-        for (e, &[a, b]) in self.edges.iter().enumerate() {
-            let (we, dwe) = (w[self.n + e], dw[self.n + e]);
-            let (a, b) = (a as usize, b as usize);
-            dgrad[a] += u[b] * dwe + du[b] * we;
-            dgrad[b] += u[a] * dwe + du[a] * we;
-        }
-        out.par_iter_mut().zip(&dgrad).for_each(|(o, g)| *o -= g);
     }
 
     fn add_stiffness(&self, u: &[Vec3], kt: &mut BlockTangent) {
-        let np = self.n + self.edges.len();
-        let (mut s, mut w) = (vec![0.0; np], vec![0.0; np]);
-        self.pair_products(u, &mut s);
-        self.pair_weights(u, &s, &mut w);
-        let h = |p: usize, member: usize| -> Vec3 {
-            let [a, b] = self.pair_members(p);
-            if a == b {
-                u[a as usize] * 2.0
-            } else if member == 0 {
-                u[b as usize]
-            } else {
-                u[a as usize]
-            }
-        };
-        // z_Pt = Σ_Q 𝔇_PQ h_{Q,t}, on the 𝒞 pattern.
-        let mut z = vec![Vec3::zeros(); self.c_val.len()];
-        {
-            // Row p of z is the slice c_ptr[p]..c_ptr[p+1]; split it safely.
-            let mut rows: Vec<&mut [Vec3]> = Vec::with_capacity(np);
-            let mut rest: &mut [Vec3] = &mut z;
-            for p in 0..np {
-                let (row, tail) = rest.split_at_mut((self.c_ptr[p + 1] - self.c_ptr[p]) as usize);
-                rows.push(row);
-                rest = tail;
-            }
-            rows.into_par_iter().enumerate().for_each(|(p, row)| {
-                let base = self.c_ptr[p] as usize;
-                for i in self.d_ptr[p] as usize..self.d_ptr[p + 1] as usize {
-                    let q = self.d_col[i] as usize;
-                    let dv = self.d_val[i];
-                    let [a, b] = self.pair_members(q);
-                    let members = if a == b { 1 } else { 2 };
-                    for (m, &slot) in self.d_slot[i].iter().enumerate().take(members) {
-                        if slot != NONE {
-                            row[slot as usize - base] += h(q, m) * dv;
-                        }
-                    }
-                }
-            });
-        }
-        // Assembly: each 𝒞 slot scatters into blocks of both its nodes, so
-        // the pairs are split into one contiguous range per thread (balanced
-        // on 𝒞 slots), each summed into its own block buffers, and the
-        // buffers are added afterwards by block. The split depends on the
-        // thread count only, so the result is deterministic.
-        let ne = self.edges.len();
-        let parts = rayon::current_num_threads().clamp(1, 16);
-        let total = self.c_val.len();
-        let bounds: Vec<usize> = (0..=parts)
-            .map(|c| {
-                if c == parts {
-                    np
+        self.scratch.with(|sc| {
+            let NvtmmScratch { s, w, h, parts, .. } = sc;
+            self.pair_products(u, s);
+            self.pair_weights(u, s, w);
+            // h_{P,r} once per pair (not once per 𝔇 entry that reads it).
+            h.par_iter_mut().enumerate().for_each(|(p, hp)| {
+                let [a, b] = self.pair_members(p);
+                *hp = if a == b {
+                    [u[a as usize] * 2.0, Vec3::zeros()]
                 } else {
-                    let goal = (total * c / parts) as u32;
-                    self.c_ptr[..np].partition_point(|&x| x < goal)
-                }
-            })
-            .collect();
-        let partial: Vec<(Vec<Mat3>, Vec<Mat3>)> = (0..parts)
-            .into_par_iter()
-            .map(|c| {
-                let mut diag = vec![Mat3::zeros(); self.n];
-                let mut off = vec![Mat3::zeros(); ne];
-                let mut add = |x: u32, y: u32, e: u32, m: Mat3| {
-                    if x == y {
-                        diag[x as usize] += m;
-                    } else if x < y && e != NONE {
-                        off[e as usize] += m;
-                    }
+                    [u[b as usize], u[a as usize]]
                 };
-                for p in bounds[c]..bounds[c + 1] {
-                    let [a, b] = self.pair_members(p);
-                    let members: &[u32] = if a == b { &[a][..] } else { &[a, b][..] };
-                    let range = self.c_ptr[p] as usize..self.c_ptr[p + 1] as usize;
-                    for (slot, &zt) in range.clone().zip(&z[range]) {
-                        let t = self.c_col[slot];
-                        let cpt = self.c_val[slot];
-                        for (m, &r) in members.iter().enumerate() {
-                            let hr = h(p, m);
-                            let e = self.c_edge[slot][m];
-                            // (r, t): h_{P,r} ⊗ (𝒞_Pt + 2 z_Pt); (t, r): 𝒞_Pt ⊗ h_{P,r}.
-                            add(r, t, e, hr * (cpt + zt * 2.0).transpose());
-                            add(t, r, e, cpt * hr.transpose());
-                        }
-                    }
+            });
+            let h = &*h;
+            parts.par_iter_mut().for_each(|part| self.assemble_part(h, part));
+            // Plus K₀ and w_P ∂h_{P,r}/∂U_t: 2w I on vertices, w I on edges.
+            let (parts, w) = (&*parts, &*w);
+            kt.diag.par_iter_mut().enumerate().for_each(|(i, d)| {
+                let mut acc = self.k0.diag[i] + Mat3::identity() * (2.0 * w[i]);
+                for part in parts {
+                    acc += part.diag[i];
                 }
-                (diag, off)
-            })
-            .collect();
-        // Plus K₀ and w_P ∂h_{P,r}/∂U_t: 2w I on vertices, w I on edges.
-        kt.diag.par_iter_mut().enumerate().for_each(|(i, d)| {
-            let mut acc = self.k0.diag[i] + Mat3::identity() * (2.0 * w[i]);
-            for (pd, _) in &partial {
-                acc += pd[i];
-            }
-            *d += acc;
-        });
-        kt.off.par_iter_mut().enumerate().for_each(|(e, o)| {
-            let mut acc = self.k0.off[e] + Mat3::identity() * w[self.n + e];
-            for (_, po) in &partial {
-                acc += po[e];
-            }
-            *o += acc;
+                *d += acc;
+            });
+            kt.off.par_iter_mut().enumerate().for_each(|(e, o)| {
+                let mut acc = self.k0.off[e] + Mat3::identity() * w[self.n + e];
+                for part in parts {
+                    acc += part.off[e];
+                }
+                *o += acc;
+            });
         });
     }
 
     fn energy(&self, u: &[Vec3]) -> f64 {
-        let np = self.n + self.edges.len();
-        let mut s = vec![0.0; np];
-        self.pair_products(u, &mut s);
-        let mut k0u = vec![Vec3::zeros(); self.n];
-        self.k0.mul_add(u, &mut k0u);
-        let quad: f64 = 0.5 * u.iter().zip(&k0u).map(|(a, b)| a.dot(b)).sum::<f64>();
-        let rest: f64 = (0..np)
-            .into_par_iter()
-            .map(|p| {
-                let mut c = 0.0;
-                for i in self.c_ptr[p] as usize..self.c_ptr[p + 1] as usize {
-                    c += self.c_val[i].dot(&u[self.c_col[i] as usize]);
+        self.scratch.with(|sc| {
+            let np = self.n + self.edges.len();
+            let (s, k0u) = (&mut sc.s, &mut sc.grad);
+            self.pair_products(u, s);
+            k0u.iter_mut().for_each(|v| *v = Vec3::zeros());
+            self.k0.mul_add(u, k0u);
+            let quad: f64 = 0.5 * u.iter().zip(k0u.iter()).map(|(a, b)| a.dot(b)).sum::<f64>();
+            let s = &*s;
+            let rest: f64 = (0..np)
+                .into_par_iter()
+                .map(|p| {
+                    let mut c = 0.0;
+                    for i in self.c_ptr[p] as usize..self.c_ptr[p + 1] as usize {
+                        c += self.c_val[i].dot(&u[self.c_col[i] as usize]);
+                    }
+                    let mut l = 0.0;
+                    for i in self.d_ptr[p] as usize..self.d_ptr[p + 1] as usize {
+                        l += self.d_val[i] * s[self.d_col[i] as usize];
+                    }
+                    s[p] * (c + l)
+                })
+                .sum();
+            quad + rest
+        })
+    }
+}
+
+impl Nvtmm {
+    /// One part of the tangent: for each pair P of `part`, the row z_P·
+    /// (eq. 8) and then the blocks h_{P,r} ⊗ (𝒞_Pt + 2 z_Pt) and
+    /// 𝒞_Pt ⊗ h_{P,r}, summed into the part's own buffers.
+    fn assemble_part(&self, h: &[[Vec3; 2]], part: &mut AssemblyPart) {
+        let AssemblyPart { pairs, diag, off, z } = part;
+        diag.iter_mut().for_each(|b| *b = Mat3::zeros());
+        off.iter_mut().for_each(|b| *b = Mat3::zeros());
+        let mut add = |x: u32, y: u32, e: u32, m: Mat3| {
+            if x == y {
+                diag[x as usize] += m;
+            } else if x < y && e != NONE {
+                off[e as usize] += m;
+            }
+        };
+        for p in pairs.clone() {
+            let (base, end) = (self.c_ptr[p] as usize, self.c_ptr[p + 1] as usize);
+            // z_Pt = Σ_Q 𝔇_PQ h_{Q,t}, on row P of the 𝒞 pattern.
+            let z = &mut z[..end - base];
+            z.iter_mut().for_each(|v| *v = Vec3::zeros());
+            for i in self.d_ptr[p] as usize..self.d_ptr[p + 1] as usize {
+                let (hq, dv) = (&h[self.d_col[i] as usize], self.d_val[i]);
+                let [s0, s1] = self.d_slot[i];
+                if s0 != NONE {
+                    z[s0 as usize - base] += hq[0] * dv;
                 }
-                let mut l = 0.0;
-                for i in self.d_ptr[p] as usize..self.d_ptr[p + 1] as usize {
-                    l += self.d_val[i] * s[self.d_col[i] as usize];
+                if s1 != NONE {
+                    z[s1 as usize - base] += hq[1] * dv;
                 }
-                s[p] * (c + l)
-            })
-            .sum();
-        quad + rest
+            }
+            let [a, b] = self.pair_members(p);
+            let members = if a == b { 1 } else { 2 };
+            for (slot, &zt) in (base..end).zip(z.iter()) {
+                let t = self.c_col[slot];
+                let cpt = self.c_val[slot];
+                let row = cpt + zt * 2.0;
+                for (m, &r) in [a, b].iter().enumerate().take(members) {
+                    let hr = h[p][m];
+                    let e = self.c_edge[slot][m];
+                    // (r, t): h_{P,r} ⊗ (𝒞_Pt + 2 z_Pt); (t, r): 𝒞_Pt ⊗ h_{P,r}.
+                    add(r, t, e, hr * row.transpose());
+                    add(t, r, e, cpt * hr.transpose());
+                }
+            }
+        }
     }
 }
 

@@ -17,9 +17,11 @@
 //! stress relaxes as α(t) (eq. 11) up to the backward-Euler time error.
 //!
 //! [`Viscoelastic`] wraps any elastic [`ForceModel`] (NVTMM's tensor-mass
-//! StVK, or element FEM with StVK or Neo-Hookean) with this history.
+//! StVK, or element FEM with StVK or Neo-Hookean) with this history. Its
+//! working buffers (the elastic part before scaling, per-element history
+//! forces and stresses) are sized at construction: no call allocates.
 
-use super::{BlockTangent, ForceModel};
+use super::{BlockTangent, ForceModel, Scratch};
 use crate::material::{pk2, Lame, Law, Material, PronyTerm};
 use crate::math::Mat3;
 use crate::math::Vec3;
@@ -46,6 +48,10 @@ pub struct Prony {
     a: Vec<f64>,
     b: Vec<f64>,
     skipped_updates: usize,
+    /// Per-element history forces, reused by `add_history_forces`.
+    per_element: Scratch<Vec<[Vec3; 4]>>,
+    /// Per-element stresses at the end of a step (`None`: undefined).
+    stresses: Vec<Option<Mat3>>,
 }
 
 impl Prony {
@@ -68,6 +74,8 @@ impl Prony {
             a: vec![0.0; terms.len()],
             b: vec![0.0; terms.len()],
             skipped_updates: 0,
+            per_element: Scratch::new(vec![[Vec3::zeros(); 4]; ne]),
+            stresses: vec![None; ne],
         }
     }
 
@@ -106,18 +114,17 @@ impl Prony {
 
     /// Adds the history force f_p = V F H D_p at displacement `u`.
     pub fn add_history_forces(&self, u: &[Vec3], out: &mut [Vec3]) {
-        let per: Vec<[Vec3; 4]> = (0..self.tets.len())
-            .into_par_iter()
-            .map(|e| {
+        self.per_element.with(|per| {
+            per.par_iter_mut().enumerate().for_each(|(e, f)| {
                 let fh = self.deformation_gradient(e, u) * self.history[e] * self.volumes[e];
-                self.grads[e].map(|d| fh * d)
-            })
-            .collect();
-        for (e, f) in per.iter().enumerate() {
-            for (k, &v) in self.tets[e].iter().enumerate() {
-                out[v as usize] += f[k];
+                *f = self.grads[e].map(|d| fh * d);
+            });
+            for (e, f) in per.iter().enumerate() {
+                for (k, &v) in self.tets[e].iter().enumerate() {
+                    out[v as usize] += f[k];
+                }
             }
-        }
+        });
     }
 
     /// Adds the derivative of the history force along `du`: V dF H D_p.
@@ -157,11 +164,12 @@ impl Prony {
     /// [`Prony::skipped_updates`].
     pub fn end_step(&mut self, u: &[Vec3]) {
         let nt = self.terms.len();
-        let stresses: Vec<Option<Mat3>> = (0..self.tets.len())
-            .into_par_iter()
-            .map(|e| pk2(self.law, self.lame, &self.deformation_gradient(e, u)))
-            .collect();
-        for (e, s) in stresses.into_iter().enumerate() {
+        let mut stresses = std::mem::take(&mut self.stresses);
+        stresses
+            .par_iter_mut()
+            .enumerate()
+            .for_each(|(e, s)| *s = pk2(self.law, self.lame, &self.deformation_gradient(e, u)));
+        for (e, &s) in stresses.iter().enumerate() {
             match s {
                 Some(s) => {
                     for i in 0..nt {
@@ -172,6 +180,7 @@ impl Prony {
                 None => self.skipped_updates += 1,
             }
         }
+        self.stresses = stresses;
     }
 
     /// How many element updates were skipped because the stress was undefined.
@@ -207,6 +216,14 @@ pub struct Viscoelastic<M> {
     elastic: M,
     prony: Prony,
     scale: f64,
+    scratch: Scratch<ElasticPart>,
+}
+
+/// The elastic model's contribution before scaling by 1 − Σ A_i.
+#[derive(Debug, Clone)]
+struct ElasticPart {
+    force: Vec<Vec3>,
+    tangent: BlockTangent,
 }
 
 impl<M: ForceModel> Viscoelastic<M> {
@@ -216,6 +233,10 @@ impl<M: ForceModel> Viscoelastic<M> {
             elastic,
             prony: Prony::new(mesh, material, law, terms),
             scale: 1.0,
+            scratch: Scratch::new(ElasticPart {
+                force: vec![Vec3::zeros(); mesh.num_nodes()],
+                tangent: BlockTangent::zeros(mesh),
+            }),
         }
     }
     /// The wrapped elastic model.
@@ -238,16 +259,22 @@ impl<M: ForceModel> ForceModel for Viscoelastic<M> {
     }
 
     fn add_forces(&self, u: &[Vec3], out: &mut [Vec3]) {
-        let mut tmp = vec![Vec3::zeros(); out.len()];
-        self.elastic.add_forces(u, &mut tmp);
-        scale_into(self.scale, &tmp, out);
+        self.scratch.with(|sc| {
+            let tmp = &mut sc.force[..out.len()];
+            tmp.iter_mut().for_each(|t| *t = Vec3::zeros());
+            self.elastic.add_forces(u, tmp);
+            scale_into(self.scale, tmp, out);
+        });
         self.prony.add_history_forces(u, out);
     }
 
     fn add_df(&self, u: &[Vec3], du: &[Vec3], out: &mut [Vec3]) {
-        let mut tmp = vec![Vec3::zeros(); out.len()];
-        self.elastic.add_df(u, du, &mut tmp);
-        scale_into(self.scale, &tmp, out);
+        self.scratch.with(|sc| {
+            let tmp = &mut sc.force[..out.len()];
+            tmp.iter_mut().for_each(|t| *t = Vec3::zeros());
+            self.elastic.add_df(u, du, tmp);
+            scale_into(self.scale, tmp, out);
+        });
         self.prony.add_history_df(du, out);
     }
 
@@ -255,18 +282,12 @@ impl<M: ForceModel> ForceModel for Viscoelastic<M> {
         if self.scale == 1.0 {
             self.elastic.add_stiffness(u, k);
         } else {
-            let mut tmp = BlockTangent {
-                diag: vec![Mat3::zeros(); k.diag.len()],
-                off: vec![Mat3::zeros(); k.off.len()],
-                edges: Vec::new(),
-            };
-            self.elastic.add_stiffness(u, &mut tmp);
-            for (a, b) in k.diag.iter_mut().zip(&tmp.diag) {
-                *a += b * self.scale;
-            }
-            for (a, b) in k.off.iter_mut().zip(&tmp.off) {
-                *a += b * self.scale;
-            }
+            self.scratch.with(|sc| {
+                let tmp = &mut sc.tangent;
+                tmp.clear();
+                self.elastic.add_stiffness(u, tmp);
+                k.add_scaled(self.scale, tmp);
+            });
         }
         self.prony.add_history_stiffness(k);
     }
