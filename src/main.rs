@@ -219,7 +219,7 @@ enum BenchCmd {
 enum MeshCmd {
     /// Generate the built-in aortic arch wall mesh.
     Arch {
-        /// Target number of nodes (the result is within 1%).
+        /// Target number of nodes (the result is within 0.75 %).
         #[arg(long, default_value_t = 5832)]
         nodes: usize,
         /// Output file; the format comes from the extension (.msh .vtk .vtu .node .ply .obj .stl).

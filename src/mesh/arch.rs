@@ -209,7 +209,7 @@ pub fn centerline_length_mm(params: &ArchParams) -> f64 {
     *sample_centerline(params, 2).s.last().unwrap_or(&0.0)
 }
 
-/// Chooses the grid whose node count is closest to `target` (within 1% for
+/// Chooses the grid whose node count is closest to `target` (within 0.75 % for
 /// any target in range) with the best-shaped cells: element sizes along,
 /// around and through the wall as equal as the count allows.
 pub fn grid_for_nodes(params: &ArchParams, target: usize) -> Result<ArchGrid, ArchError> {
@@ -257,7 +257,7 @@ pub fn grid_for_nodes(params: &ArchParams, target: usize) -> Result<ArchGrid, Ar
         .ok_or(ArchError::BadGrid(format!("no grid within 0.75% of {target} nodes")))
 }
 
-/// Generates the arch with about `nodes` nodes (within 1%).
+/// Generates the arch with about `nodes` nodes (within 0.75 %).
 pub fn generate(params: &ArchParams, nodes: usize) -> Result<Arch, ArchError> {
     let grid = grid_for_nodes(params, nodes)?;
     generate_grid(params, grid)
