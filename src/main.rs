@@ -153,6 +153,21 @@ enum ExperimentCmd {
 
 #[derive(Subcommand)]
 enum BenchCmd {
+    /// Contact anywhere: the loop's tick (contact, coupled series solve, reduced step) with several patches pressed at once.
+    Contact {
+        /// Arch nodes.
+        #[arg(long, default_value_t = 5832)]
+        nodes: usize,
+        /// Contact spheres pressed at once (1..=32).
+        #[arg(long, default_value_t = 8)]
+        patches: usize,
+        /// Ticks timed (after 500 of warm-up).
+        #[arg(long, default_value_t = 20000)]
+        ticks: usize,
+        /// JSON output.
+        #[arg(long)]
+        json: bool,
+    },
     /// Time the reduced model: step_with_contact, one refresh, the basis (docs/BENCHMARKS.md).
     Reduced {
         /// Basis size (1..=64).
@@ -303,6 +318,12 @@ fn main() -> ExitCode {
         Command::Simulate { scene, out, quiet } => cli::sim::simulate(&scene, out.as_deref(), quiet),
         Command::Basis { scene, r, force } => cli::reduced::basis(&scene, r, force),
         Command::Bench(b) => match b {
+            BenchCmd::Contact {
+                nodes,
+                patches,
+                ticks,
+                json,
+            } => cli::reduced::bench_contact_cmd(nodes, patches, ticks, json),
             BenchCmd::Reduced { r, nodes, steps, json } => cli::reduced::bench_reduced_cmd(r, nodes, steps, json),
             BenchCmd::Step {
                 model,

@@ -10,6 +10,7 @@
 //! nodes within 5 mm of the top (a probe's footprint), ramped in over 20 ms; implicit Euler at dt = 1 ms, one Newton iteration (SOFA's linearised
 //! step), block IC(0)-preconditioned CG to 1e-6.
 
+pub mod contact;
 pub mod extremes;
 pub mod reduced;
 pub mod timing;

@@ -150,3 +150,18 @@ pub fn experiment_contact(quick: bool, json: bool) -> Result<()> {
     );
     Ok(())
 }
+
+/// `nvtmm bench contact`.
+pub fn bench_contact_cmd(nodes: usize, patches: usize, ticks: usize, json: bool) -> Result<()> {
+    let b = nvtmm::bench::contact::bench_contact(nodes, patches, ticks)?;
+    if json {
+        println!("{}", serde_json::to_string_pretty(&b)?);
+    } else {
+        let p = &b.tick_us;
+        println!(
+            "contact anywhere, {} nodes, r = {}, {} patches ({} touched nodes): tick p50 {:.1} µs, p99 {:.1} µs, p99.9 {:.1} µs, max {:.1} µs (table {:.2} s)",
+            b.nodes, b.r, b.patches, b.touched_nodes, p.p50, p.p99, p.p999, p.max, b.table_s
+        );
+    }
+    Ok(())
+}

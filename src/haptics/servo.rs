@@ -107,6 +107,15 @@ pub struct ServoCounters {
     pub truncated_ticks: u64,
     /// Ticks where the contact stiffness was dropped (not PSD).
     pub contact_stiffness_dropped: u64,
+    /// Most touched nodes in one tick.
+    pub contact_nodes_max: u64,
+    /// Most contact spheres (tool plus instrument points) touching at once.
+    pub contact_patches_max: u64,
+    /// Ticks where some touched nodes went without the residual compliance
+    /// (more than `contact::MAX_COMPLIANT_NODES` touched at once).
+    pub uncorrected_ticks: u64,
+    /// Ticks the residual compliance was applied (contact anywhere).
+    pub compliance_ticks: u64,
 }
 
 /// What one tick produced.
@@ -443,6 +452,16 @@ impl<const R: usize> Servo<R> {
         if self.contact.truncated {
             fl |= flags::TRUNCATED;
             self.counters.truncated_ticks += 1;
+        }
+        let c = &self.contact;
+        let touching = c.sphere_forces.iter().filter(|f| f.norm_squared() > 0.0).count() as u64;
+        self.counters.contact_patches_max = self.counters.contact_patches_max.max(touching);
+        self.counters.contact_nodes_max = self.counters.contact_nodes_max.max(c.nodes.len() as u64);
+        if c.uncorrected > 0 {
+            self.counters.uncorrected_ticks += 1;
+        }
+        if !c.nodes.is_empty() && self.model.compliance.is_some() {
+            self.counters.compliance_ticks += 1;
         }
         let (mut desired, mut finite) = step_model(&mut self.model, &self.contact, &mut self.counters);
         // A cross-fade: the old model runs on and the force blends over.

@@ -281,6 +281,16 @@ impl Report {
             "  watchdog: {} ticks held down, device silent {} ticks, non-finite {}, stale model {} ticks; contact {} ticks\n",
             w.watchdog_ticks, w.device_silent_ticks, w.nonfinite, w.model_stale_ticks, w.contact_ticks
         );
+        s += &format!(
+            "  contact anywhere: {} of {} contact ticks with the residual compliance (from the first touch: it is precomputed for every surface node), \
+             up to {} touched nodes and {} patches at once, {} ticks with nodes beyond the corrected {}\n",
+            w.compliance_ticks,
+            w.contact_ticks,
+            w.contact_nodes_max,
+            w.contact_patches_max,
+            w.uncorrected_ticks,
+            crate::haptics::contact::MAX_COMPLIANT_NODES
+        );
         if w.model_stale_ticks > 0 {
             s += &format!(
                 "    (stale model: on {} ticks ({:.1} s) the loop rendered force from a model older than {:.0} ms; \
