@@ -29,6 +29,16 @@ pub trait Lumen {
     fn probe(&self, p: Vec3, range: f64) -> Option<WallHit>;
 }
 
+/// No wall at all (a wire in free space, for tests and benchmarks).
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct NoWall;
+
+impl Lumen for NoWall {
+    fn probe(&self, _p: Vec3, _range: f64) -> Option<WallHit> {
+        None
+    }
+}
+
 /// Errors building a lumen.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum LumenError {

@@ -18,7 +18,7 @@ pub mod band;
 pub mod lumen;
 pub mod rod;
 
-pub use lumen::{CurvedTube, CurvedTubeShape, Lumen, LumenError, StraightTube, TriangleLumen, WallHit};
+pub use lumen::{CurvedTube, CurvedTubeShape, Lumen, LumenError, NoWall, StraightTube, TriangleLumen, WallHit};
 pub use rod::{StepReport, Wire, WireContact, WireError, WireFault};
 
 use crate::config::{load_toml, parse_toml, Checker, ConfigError};
