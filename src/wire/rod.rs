@@ -308,6 +308,13 @@ impl Wire {
         }
     }
 
+    /// Changes the friction coefficient (clamped to the allowed [0, 2]).
+    pub fn set_friction(&mut self, mu: f64) {
+        if mu.is_finite() {
+            self.p.friction = mu.clamp(0.0, 2.0);
+        }
+    }
+
     /// A dead load on the tip node (N), e.g. for a cantilever test.
     pub fn set_tip_load(&mut self, f: Vec3) {
         self.tip_load = f;
