@@ -47,7 +47,10 @@ fn small_tip_load_deflects_as_euler_bernoulli() {
     let expect = f * L.powi(3) / (3.0 * ei);
     let got = -tip.z;
     let err = (got - expect).abs() / expect;
-    println!("tip deflection {got:e} m, Euler–Bernoulli {expect:e} m, error {:.4} %", err * 100.0);
+    println!(
+        "tip deflection {got:e} m, Euler–Bernoulli {expect:e} m, error {:.4} %",
+        err * 100.0
+    );
     assert!(err < 0.01, "error {:.3} %", err * 100.0);
 }
 

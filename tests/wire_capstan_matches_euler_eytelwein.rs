@@ -69,7 +69,11 @@ fn capstan(theta: f64, mu: f64) -> f64 {
 
 #[test]
 fn pulling_around_a_bend_multiplies_the_force_by_e_to_the_mu_theta() {
-    for (theta, mu) in [(std::f64::consts::FRAC_PI_2, 0.3), (std::f64::consts::PI, 0.2), (std::f64::consts::PI, 0.0)] {
+    for (theta, mu) in [
+        (std::f64::consts::FRAC_PI_2, 0.3),
+        (std::f64::consts::PI, 0.2),
+        (std::f64::consts::PI, 0.0),
+    ] {
         let ratio = capstan(theta, mu);
         let expect = (mu * theta).exp();
         let err = (ratio - expect).abs() / expect;

@@ -57,6 +57,11 @@ pub struct WireParams {
     pub friction: f64,
     /// Penalty stiffness of the wall contact (N/m per node).
     pub contact_stiffness_n_per_m: f64,
+    /// The grip's limit (N): while the wire pushes back on the hand harder
+    /// than this, the hub slips and feeds no more wire in (pulling back is
+    /// always possible). Keeps a blocked wire's force bounded, as a
+    /// clinician's grip or a torque device does.
+    pub max_hub_force_n: f64,
     /// Viscous drag of the surrounding fluid (N·s/m² per unit length).
     pub drag_n_s_per_m2: f64,
     /// Time step (s).
@@ -79,7 +84,8 @@ impl Default for WireParams {
             segment_length_m: 3e-3,
             max_nodes: 128,
             friction: 0.1,
-            contact_stiffness_n_per_m: 2e5,
+            contact_stiffness_n_per_m: 1e6,
+            max_hub_force_n: 10.0,
             drag_n_s_per_m2: 1e-3,
             dt_s: 1e-3,
             newton_iterations: 3,
@@ -133,6 +139,7 @@ impl WireParams {
             1e9,
             "N/m",
         )?;
+        c.f64_in("max_hub_force_n", self.max_hub_force_n, 0.01, 1e4, "N")?;
         c.f64_in("drag_n_s_per_m2", self.drag_n_s_per_m2, 0.0, 1e3, "N·s/m²")?;
         c.f64_in("dt_s", self.dt_s, 1e-6, 0.01, "s")?;
         c.int_in("newton_iterations", self.newton_iterations, 1, 100)?;

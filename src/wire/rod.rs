@@ -77,6 +77,10 @@ pub struct StepReport {
     pub hub_torque_nm: f64,
     /// Largest remaining Newton update (m or rad) at the end.
     pub last_update: f64,
+    /// The wire slipped in the grip: the hub force reached
+    /// `max_hub_force_n` and the inserted length fell back to what the wire
+    /// took.
+    pub grip_slipped: bool,
 }
 
 /// The state that [`Wire::save_good_state`] keeps.
@@ -170,6 +174,8 @@ pub struct Wire {
     h: BandMatrix,
     hub_grad: Vec3,
     hub_dtheta: f64,
+    last_axial: f64,
+    eval_pen: f64,
     contacts: Vec<WireContact>,
 }
 
@@ -254,6 +260,8 @@ impl Wire {
             h: BandMatrix::new(4 * cap, BAND),
             hub_grad: Vec3::zeros(),
             hub_dtheta: 0.0,
+            last_axial: 0.0,
+            eval_pen: 0.0,
             contacts: Vec::with_capacity(cap),
         };
         w.lay_straight(inserted_m);
@@ -409,7 +417,16 @@ impl Wire {
     fn feed(&mut self) {
         let h = self.h_seg();
         let s = &mut self.s;
-        s.inserted = self.target;
+        // A slipping grip: no feeding in while the wire pushes back as hard
+        // as the grip holds.
+        // The feed per step is at most a quarter of the wire's diameter
+        // (220 mm/s for 0.89 mm at 1 kHz), so that a hand far ahead of a
+        // slipping wire does not feed a jump.
+        let max_feed = 0.25 * self.p.diameter_m;
+        let feed = (self.target - s.inserted).clamp(-max_feed, max_feed);
+        if feed <= 0.0 || self.last_axial < 0.999 * self.p.max_hub_force_n {
+            s.inserted += feed;
+        }
         s.u[1] = s.inserted;
         s.u[0] = s.inserted + h;
         loop {
@@ -504,8 +521,14 @@ impl Wire {
         let r_w = 0.5 * self.p.diameter_m;
         let cap_step = 0.5 * r_w;
         let mut rep = StepReport::default();
-        for it in 0..self.p.newton_iterations {
+        // Past the configured iterations, go on (up to four times as many)
+        // only while the wire is deeper than a quarter radius in the wall.
+        let max_it = 4 * self.p.newton_iterations;
+        for it in 0..max_it {
             let e0 = self.eval(lumen, true);
+            if it >= self.p.newton_iterations && self.eval_pen < 0.25 * r_w {
+                break;
+            }
             if !e0.is_finite() {
                 break;
             }
@@ -587,6 +610,19 @@ impl Wire {
         let hub_force = -self.hub_grad;
         rep.hub_axial_force_n = -hub_force.dot(&self.axis);
         rep.hub_torque_nm = -self.hub_dtheta;
+        self.last_axial = rep.hub_axial_force_n;
+        // The grip slipped: the hub edge keeps the length it can hold.
+        let k1 = self.p.youngs_modulus_pa * self.p.area() / self.s.rest[1];
+        let st = self.len[1] - self.s.rest[1];
+        if (k1 * st).abs() > self.p.max_hub_force_n {
+            let rest = self.len[1] + st.signum() * -self.p.max_hub_force_n / k1;
+            let rest = rest.max(0.25 * self.p.segment_length_m);
+            self.s.rest[1] = rest;
+            self.s.inserted = self.s.u[2] + rest;
+            self.s.u[1] = self.s.inserted;
+            self.s.u[0] = self.s.inserted + self.p.segment_length_m;
+            rep.grip_slipped = true;
+        }
         rep.contacts = self.contacts.len();
         rep.max_penetration_m = self.contacts.iter().map(|c| c.penetration).fold(0.0, f64::max);
         if !self.s.is_finite() || !rep.hub_axial_force_n.is_finite() {
@@ -643,6 +679,7 @@ impl Wire {
         let eps_v = 1e-7;
         let s = &self.s;
         let mut energy = 0.0;
+        let mut max_pen: f64 = 0.0;
 
         // Inertia and drag (free nodes), twist inertia (free edges).
         for i in 2..n {
@@ -674,20 +711,30 @@ impl Wire {
             }
         }
 
-        // Stretch (edge 0 joins two fixed nodes: constant).
+        // Stretch (edge 0 joins two fixed nodes: constant). The hub edge
+        // passes through the grip: its force is capped at the grip's limit
+        // (a Huber energy), beyond which the wire slips in the hand.
+        let f_grip = p.max_hub_force_n;
         for j in 1..n - 1 {
             let k = ea / s.rest[j];
             let st = self.len[j] - s.rest[j];
-            energy += 0.5 * k * st * st;
+            let slipping = j == 1 && (k * st).abs() > f_grip;
+            let (force, k_axial) = if slipping {
+                energy += f_grip * st.abs() - 0.5 * f_grip * f_grip / k;
+                (f_grip * st.signum(), 0.0)
+            } else {
+                energy += 0.5 * k * st * st;
+                (k * st, k)
+            };
             if assemble {
                 let t = self.tan[j];
-                let g = t * (k * st);
+                let g = t * force;
                 for c in 0..3 {
                     self.grad[4 * (j + 1) + c] += g[c];
                     self.grad[4 * j + c] -= g[c];
                 }
-                let geo = (1.0 - s.rest[j] / self.len[j]).max(0.0);
-                let km = (outer(&t, &t) * (1.0 - geo) + Mat3::identity() * geo) * k;
+                let geo = (force / self.len[j]).max(0.0);
+                let km = outer(&t, &t) * (k_axial - geo) + Mat3::identity() * geo;
                 for r in 0..3 {
                     for c in 0..3 {
                         let v = km[(r, c)];
@@ -781,6 +828,7 @@ impl Wire {
                 continue;
             }
             let nn = hit.normal;
+            max_pen = max_pen.max(pen);
             energy += 0.5 * kc * pen * pen;
             let lam = s.lam[i];
             let pm = Mat3::identity() - outer(&nn, &nn);
@@ -817,6 +865,7 @@ impl Wire {
             }
         }
 
+        self.eval_pen = max_pen;
         // The tip's dead load.
         let tip = n - 1;
         energy -= self.tip_load.dot(&(self.xt[tip] - self.x0[tip]));
