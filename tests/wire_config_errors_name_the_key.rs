@@ -23,7 +23,11 @@ fn defaults_are_valid() {
 fn impossible_values_name_the_key_and_the_range() {
     let path = Path::new("rt-config/guidewire.toml");
     let cases: [(&str, &str, &str); 9] = [
-        ("youngs_modulus_pa = -5.0", "youngs_modulus_pa", "[10000, 1000000000000] Pa"),
+        (
+            "youngs_modulus_pa = -5.0",
+            "youngs_modulus_pa",
+            "[10000, 1000000000000] Pa",
+        ),
         ("diameter_m = 0.0", "diameter_m", "[0.00001, 0.01] m"),
         ("poisson_ratio = 0.7", "poisson_ratio", "[0, 0.5]"),
         ("friction = -0.1", "friction", "[0, 2]"),

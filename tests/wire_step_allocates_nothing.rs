@@ -17,7 +17,11 @@ fn tube_mesh(a: f64, len: f64, nr: usize, nl: usize) -> (Vec<Vec3>, Vec<[u32; 3]
     for l in 0..=nl {
         for r in 0..nr {
             let phi = r as f64 / nr as f64 * std::f64::consts::TAU;
-            v.push(Vec3::new(-0.01 + len * l as f64 / nl as f64, a * phi.cos(), a * phi.sin()));
+            v.push(Vec3::new(
+                -0.01 + len * l as f64 / nl as f64,
+                a * phi.cos(),
+                a * phi.sin(),
+            ));
         }
     }
     let mut t = Vec::new();
@@ -65,7 +69,11 @@ fn wire_step_allocates_nothing() {
         for (which, lumen) in [(0, &straight as &dyn Lumen), (1, &curved as &dyn Lumen)] {
             for k in 0..1500 {
                 // In at 100 mm/s for 0.8 s, then back out.
-                let l = if k < 800 { 0.005 + 1e-4 * k as f64 } else { 0.085 - 1e-4 * (k - 800) as f64 };
+                let l = if k < 800 {
+                    0.005 + 1e-4 * k as f64
+                } else {
+                    0.085 - 1e-4 * (k - 800) as f64
+                };
                 w.set_hub(l, 0.5 * (k as f64 * 2e-3).sin() + which as f64);
                 if w.step(lumen).is_err() {
                     w.restore_good_state();
@@ -93,6 +101,9 @@ fn wire_step_allocates_nothing() {
         }
     });
     assert!(contacts > 0, "no contact was made");
-    assert!(nodes_seen.1 > nodes_seen.0 + 20, "nodes did not enter and leave: {nodes_seen:?}");
+    assert!(
+        nodes_seen.1 > nodes_seen.0 + 20,
+        "nodes did not enter and leave: {nodes_seen:?}"
+    );
     assert_eq!(count, 0, "{count} allocations in the wire's steps");
 }

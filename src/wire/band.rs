@@ -129,6 +129,7 @@ impl BandMatrix {
 
     /// Solves (L Lᵀ) x = b in place after [`BandMatrix::factor`]; `b` holds
     /// at least `size()` entries.
+    #[allow(clippy::needless_range_loop)] // the band's index arithmetic reads clearer
     pub fn solve(&self, b: &mut [f64]) {
         let (n, p) = (self.n, self.p);
         let w = p + 1;

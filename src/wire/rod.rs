@@ -150,6 +150,7 @@ pub struct Wire {
     target: f64,
     max_inserted: f64,
     tip_load: Vec3,
+    line_load: Vec3,
     s: State,
     good: State,
     // Step-start copies.
@@ -239,6 +240,7 @@ impl Wire {
             target: 0.0,
             max_inserted,
             tip_load: Vec3::zeros(),
+            line_load: Vec3::zeros(),
             s: State::new(cap),
             good: State::new(cap),
             x0: vec![Vec3::zeros(); cap],
@@ -326,6 +328,12 @@ impl Wire {
     /// A dead load on the tip node (N), e.g. for a cantilever test.
     pub fn set_tip_load(&mut self, f: Vec3) {
         self.tip_load = f;
+    }
+
+    /// A load per unit length on the inserted wire (N/m), e.g. its weight
+    /// in blood (ρ − ρ_blood) A g, or a push against a wall.
+    pub fn set_line_load(&mut self, f_per_m: Vec3) {
+        self.line_load = f_per_m;
     }
 
     /// The most that can be inserted (m).
@@ -866,6 +874,23 @@ impl Wire {
         }
 
         self.eval_pen = max_pen;
+        // The load per length, lumped on the free nodes.
+        if self.line_load != Vec3::zeros() {
+            for i in 2..n {
+                let lbar = if i == n - 1 {
+                    0.5 * s.rest[i - 1]
+                } else {
+                    0.5 * (s.rest[i - 1] + s.rest[i])
+                };
+                let f = self.line_load * lbar;
+                energy -= f.dot(&(self.xt[i] - self.x0[i]));
+                if assemble {
+                    for c in 0..3 {
+                        self.grad[4 * i + c] -= f[c];
+                    }
+                }
+            }
+        }
         // The tip's dead load.
         let tip = n - 1;
         energy -= self.tip_load.dot(&(self.xt[tip] - self.x0[tip]));
