@@ -21,7 +21,9 @@ pub enum BandError {
 }
 
 /// The lower band of a symmetric n × n matrix: entry (i, j) for
-/// i − p ≤ j ≤ i stored at `i (p + 1) + (i − j)`.
+/// i − p ≤ j ≤ i stored at `i (p + 1) + (j + p − i)`, so that a row's band
+/// is contiguous in column order (the factorisation's inner products run
+/// over two contiguous slices).
 #[derive(Debug, Clone)]
 pub struct BandMatrix {
     n: usize,
@@ -64,7 +66,7 @@ impl BandMatrix {
         if i - j > self.p {
             0.0
         } else {
-            self.a[i * (self.p + 1) + (i - j)]
+            self.a[i * (self.p + 1) + (j + self.p - i)]
         }
     }
 
@@ -75,7 +77,7 @@ impl BandMatrix {
         let (i, j) = if i >= j { (i, j) } else { (j, i) };
         debug_assert!(i - j <= self.p, "({i}, {j}) outside the band {}", self.p);
         if i - j <= self.p {
-            self.a[i * (self.p + 1) + (i - j)] += v;
+            self.a[i * (self.p + 1) + (j + self.p - i)] += v;
         }
     }
 
@@ -90,16 +92,24 @@ impl BandMatrix {
         }
     }
 
+    #[inline]
+    fn at(&self, i: usize, j: usize) -> usize {
+        i * (self.p + 1) + (j + self.p - i)
+    }
+
     /// Makes row and column `i` those of the identity (a fixed unknown).
     pub fn pin(&mut self, i: usize) {
         let p = self.p;
         for j in i.saturating_sub(p)..i {
-            self.a[i * (p + 1) + (i - j)] = 0.0;
+            let k = self.at(i, j);
+            self.a[k] = 0.0;
         }
         for r in i + 1..(i + p + 1).min(self.n) {
-            self.a[r * (p + 1) + (r - i)] = 0.0;
+            let k = self.at(r, i);
+            self.a[k] = 0.0;
         }
-        self.a[i * (p + 1)] = 1.0;
+        let k = self.at(i, i);
+        self.a[k] = 1.0;
     }
 
     /// Cholesky factorisation L Lᵀ in place (L replaces the lower band).
@@ -109,18 +119,24 @@ impl BandMatrix {
         for i in 0..n {
             let j0 = i.saturating_sub(p);
             for j in j0..=i {
-                let mut s = self.a[i * w + (i - j)];
+                // Σ_k L(i,k) L(j,k) over k in [max(j0, j − p), j).
                 let k0 = j0.max(j.saturating_sub(p));
-                for k in k0..j {
-                    s -= self.a[i * w + (i - k)] * self.a[j * w + (j - k)];
+                let len = j - k0;
+                let ri = i * w + (k0 + p - i);
+                let rj = j * w + (k0 + p - j);
+                let mut dot = 0.0;
+                for (x, y) in self.a[ri..ri + len].iter().zip(&self.a[rj..rj + len]) {
+                    dot += x * y;
                 }
+                let idx = i * w + (j + p - i);
+                let s = self.a[idx] - dot;
                 if i == j {
                     if !(s > 0.0 && s.is_finite()) {
                         return Err(BandError::NotPositive { row: i, pivot: s });
                     }
-                    self.a[i * w] = s.sqrt();
+                    self.a[idx] = s.sqrt();
                 } else {
-                    self.a[i * w + (i - j)] = s / self.a[j * w];
+                    self.a[idx] = s / self.a[j * w + p];
                 }
             }
         }
@@ -136,28 +152,27 @@ impl BandMatrix {
         for i in 0..n {
             let mut s = b[i];
             for k in i.saturating_sub(p)..i {
-                s -= self.a[i * w + (i - k)] * b[k];
+                s -= self.a[i * w + (k + p - i)] * b[k];
             }
-            b[i] = s / self.a[i * w];
+            b[i] = s / self.a[i * w + p];
         }
         for i in (0..n).rev() {
             let mut s = b[i];
             for r in i + 1..(i + w).min(n) {
-                s -= self.a[r * w + (r - i)] * b[r];
+                s -= self.a[r * w + (i + p - r)] * b[r];
             }
-            b[i] = s / self.a[i * w];
+            b[i] = s / self.a[i * w + p];
         }
     }
 
     /// y = A x for the (unfactored) symmetric matrix.
     pub fn mul(&self, x: &[f64], y: &mut [f64]) {
-        let (n, p) = (self.n, self.p);
-        let w = p + 1;
+        let n = self.n;
         y[..n].fill(0.0);
         for i in 0..n {
-            y[i] += self.a[i * w] * x[i];
-            for j in i.saturating_sub(p)..i {
-                let v = self.a[i * w + (i - j)];
+            y[i] += self.get(i, i) * x[i];
+            for j in i.saturating_sub(self.p)..i {
+                let v = self.get(i, j);
                 y[i] += v * x[j];
                 y[j] += v * x[i];
             }

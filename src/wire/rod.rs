@@ -666,11 +666,19 @@ impl Wire {
     /// geometric term dropped, Gauss–Newton bend and twist, exact contact
     /// normal and friction terms), fixed unknowns pinned.
     fn eval(&mut self, lumen: &dyn Lumen, assemble: bool) -> f64 {
+        self.eval_with(lumen, assemble, assemble)
+    }
+
+    /// [`Wire::eval`] with the gradient (`grad`) and the Hessian (`hess`,
+    /// only with `grad`) chosen separately.
+    fn eval_with(&mut self, lumen: &dyn Lumen, assemble: bool, hess: bool) -> f64 {
         self.geometry();
         let n = self.s.n;
         let dofs = 4 * n;
         if assemble {
             self.grad[..dofs].fill(0.0);
+        }
+        if hess {
             self.h.reset(dofs);
         }
         let p = &self.p;
@@ -705,7 +713,9 @@ impl Wire {
                 let g = a * km + b * kd;
                 for c in 0..3 {
                     self.grad[4 * i + c] += g[c];
-                    self.h.add(4 * i + c, 4 * i + c, km + kd);
+                    if hess {
+                        self.h.add(4 * i + c, 4 * i + c, km + kd);
+                    }
                 }
             }
         }
@@ -715,7 +725,9 @@ impl Wire {
             energy += 0.5 * kt * d * d;
             if assemble {
                 self.grad[4 * j + 3] += kt * d;
-                self.h.add(4 * j + 3, 4 * j + 3, kt);
+                if hess {
+                    self.h.add(4 * j + 3, 4 * j + 3, kt);
+                }
             }
         }
 
@@ -740,6 +752,9 @@ impl Wire {
                 for c in 0..3 {
                     self.grad[4 * (j + 1) + c] += g[c];
                     self.grad[4 * j + c] -= g[c];
+                }
+                if !hess {
+                    continue;
                 }
                 let geo = (force / self.len[j]).max(0.0);
                 let km = outer(&t, &t) * (k_axial - geo) + Mat3::identity() * geo;
@@ -818,6 +833,9 @@ impl Wire {
                 let base = 4 * (i - 1);
                 for r in 0..11 {
                     self.grad[base + r] += bend * (d1v * g1[r] + d2v * g2[r]) + twist * m * gt[r];
+                    if !hess {
+                        continue;
+                    }
                     for c in 0..=r {
                         let v = bend * (g1[r] * g1[c] + g2[r] * g2[c]) + twist * gt[r] * gt[c];
                         self.h.add(base + r, base + c, v);
@@ -866,8 +884,10 @@ impl Wire {
                 }
                 for r in 0..3 {
                     self.grad[4 * i + r] += g[r];
-                    for c in 0..=r {
-                        self.h.add(4 * i + r, 4 * i + c, hm[(r, c)]);
+                    if hess {
+                        for c in 0..=r {
+                            self.h.add(4 * i + r, 4 * i + c, hm[(r, c)]);
+                        }
                     }
                 }
             }
@@ -907,7 +927,9 @@ impl Wire {
             self.hub_dtheta = self.grad[3];
             for k in [0, 1, 2, 3, 4, 5, 6, 4 * tip + 3] {
                 self.grad[k] = 0.0;
-                self.h.pin(k);
+                if hess {
+                    self.h.pin(k);
+                }
             }
         }
         energy
@@ -917,7 +939,7 @@ impl Wire {
     fn eval_reactions(&mut self, lumen: &dyn Lumen) {
         // Reactions come from the elastic terms only; the assembled gradient
         // at the clamp holds exactly those (inertia acts on free nodes).
-        self.eval(lumen, true);
+        self.eval_with(lumen, true, false);
         let n = self.s.n;
         let r_w = 0.5 * self.p.diameter_m;
         let kc = self.p.contact_stiffness_n_per_m;
