@@ -212,6 +212,9 @@ enum BenchCmd {
         /// Steps to time per row (after 200 warm-up steps).
         #[arg(long, default_value_t = 2000)]
         steps: usize,
+        /// Newton iterations per step at most (the wire's `newton_iterations`).
+        #[arg(long, default_value_t = 3)]
+        iterations: usize,
         /// Print JSON.
         #[arg(long)]
         json: bool,
@@ -329,7 +332,12 @@ fn main() -> ExitCode {
                 json,
             ),
             BenchCmd::Extremes { quick, halvings, json } => cli::sim::bench_extremes(quick, halvings, json),
-            BenchCmd::Wire { nodes, steps, json } => cli::wire::bench_wire_cmd(nodes, steps, json),
+            BenchCmd::Wire {
+                nodes,
+                steps,
+                iterations,
+                json,
+            } => cli::wire::bench_wire_cmd(nodes, steps, iterations, json),
         },
         Command::Experiment(e) => match e {
             ExperimentCmd::Cubic { out, quick } => cli::cubic::experiment_cubic(&out, quick),

@@ -30,16 +30,29 @@ pub struct WireBench {
     pub us_max: f64,
     /// Median time per node (ns).
     pub ns_per_node: f64,
+    /// Newton iterations allowed per step.
+    pub iterations_max: usize,
     /// Mean Newton iterations per step.
     pub iterations_mean: f64,
     /// Mean contacts per step.
     pub contacts_mean: f64,
 }
 
-/// Times `steps` wire steps with `nodes` nodes, with or without the wall.
-pub fn bench_wire(nodes: usize, steps: usize, contacts: bool) -> Result<WireBench, super::BenchError> {
+/// Times `steps` wire steps with `nodes` nodes, with or without the wall, at
+/// most `iterations` Newton iterations a step.
+pub fn bench_wire(
+    nodes: usize,
+    steps: usize,
+    contacts: bool,
+    iterations: usize,
+) -> Result<WireBench, super::BenchError> {
     if !(8..=4096).contains(&nodes) {
         return Err(super::BenchError::Arg(format!("--nodes {nodes}: must be in 8..=4096")));
+    }
+    if !(1..=100).contains(&iterations) {
+        return Err(super::BenchError::Arg(format!(
+            "--iterations {iterations}: must be in 1..=100"
+        )));
     }
     if steps == 0 {
         return Err(super::BenchError::Arg("--steps must be at least 1".into()));
@@ -48,6 +61,7 @@ pub fn bench_wire(nodes: usize, steps: usize, contacts: bool) -> Result<WireBenc
         segment_length_m: 2e-3,
         max_nodes: nodes,
         length_m: 10.0,
+        newton_iterations: iterations,
         ..WireParams::default()
     };
     let mut w = Wire::new(&p, Vec3::zeros(), Vec3::x(), 1.0).map_err(|e| super::BenchError::Arg(e.to_string()))?;
@@ -88,6 +102,7 @@ pub fn bench_wire(nodes: usize, steps: usize, contacts: bool) -> Result<WireBenc
         us_p99: pct(0.99),
         us_max: pct(1.0),
         ns_per_node: pct(0.5) * 1e3 / n as f64,
+        iterations_max: iterations,
         iterations_mean: iters as f64 / steps as f64,
         contacts_mean: ncont as f64 / steps as f64,
     })

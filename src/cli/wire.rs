@@ -4,9 +4,9 @@ use nvtmm::bench::wire::bench_wire;
 
 type Result<T> = std::result::Result<T, Box<dyn std::error::Error>>;
 
-/// `nvtmm bench wire [--nodes N] [--steps S] [--json]`: without `--nodes`,
+/// `nvtmm bench wire [--nodes N] [--steps S] [--iterations K] [--json]`: without `--nodes`,
 /// sweeps 32, 64, 128, 256, 512 nodes, each in free space and on a wall.
-pub fn bench_wire_cmd(nodes: Option<usize>, steps: usize, json: bool) -> Result<()> {
+pub fn bench_wire_cmd(nodes: Option<usize>, steps: usize, iterations: usize, json: bool) -> Result<()> {
     let sizes: Vec<usize> = match nodes {
         Some(n) => vec![n],
         None => vec![32, 64, 128, 256, 512],
@@ -14,7 +14,7 @@ pub fn bench_wire_cmd(nodes: Option<usize>, steps: usize, json: bool) -> Result<
     let mut rows = Vec::new();
     for &n in &sizes {
         for contacts in [false, true] {
-            rows.push(bench_wire(n, steps, contacts)?);
+            rows.push(bench_wire(n, steps, contacts, iterations)?);
         }
     }
     if json {
