@@ -67,3 +67,44 @@ fn rolling_the_hub_turns_a_preshaped_tip() {
         assert!((turned - roll).abs() < 0.01 * roll, "{turned} vs {roll}");
     }
 }
+
+#[test]
+fn the_roll_survives_nodes_entering_and_leaving_at_the_hub() {
+    let p = WireParams {
+        segment_length_m: 2e-3,
+        tip_length_m: 0.0,
+        ..WireParams::default()
+    };
+    let l0 = 0.1;
+    let mut w = Wire::new(&p, Vec3::zeros(), Vec3::x(), l0).expect("wire");
+    let tip_edge = |w: &Wire| w.num_nodes() - 2;
+    let before = angle_about_x(w.material_frame(tip_edge(&w)).1);
+    roll_to(&mut w, l0, 1.2, 300);
+    let n0 = w.num_nodes();
+    // In by 30 mm and back out by 50 mm at 50 mm/s, roll held.
+    let mut l = l0;
+    for k in 0..1600 {
+        l += if k < 600 { 5e-5 } else { -5e-5 };
+        w.set_hub(l, 1.2);
+        w.step(&NoWall).expect("finite");
+        if k == 599 {
+            assert!(
+                w.num_nodes() >= n0 + 14,
+                "nodes did not enter: {} vs {n0}",
+                w.num_nodes()
+            );
+        }
+    }
+    for _ in 0..200 {
+        w.step(&NoWall).expect("finite");
+    }
+    assert!(
+        w.num_nodes() <= n0 - 9,
+        "nodes did not leave: {} vs {n0}",
+        w.num_nodes()
+    );
+    assert!((w.inserted() - 0.08).abs() < 1e-9, "inserted {}", w.inserted());
+    let turned = wrap(angle_about_x(w.material_frame(tip_edge(&w)).1) - before);
+    println!("after feeding in and out: tip turned {turned:.6} rad for a hub roll of 1.2 rad");
+    assert!((turned - 1.2).abs() < 0.012, "{turned}");
+}
