@@ -82,12 +82,18 @@ impl BandMatrix {
     }
 
     /// Adds the symmetric block `m` (k × k, row-major, `m[r * k + c]`) at rows
-    /// and columns `base..base + k`; only its lower triangle is read.
+    /// and columns `base..base + k`; only its lower triangle is read. `k`
+    /// must not exceed the bandwidth + 1.
     #[inline]
     pub fn add_block(&mut self, base: usize, k: usize, m: &[f64]) {
+        let (p, w) = (self.p, self.p + 1);
+        debug_assert!(k <= w);
         for r in 0..k {
-            for c in 0..=r {
-                self.add(base + r, base + c, m[r * k + c]);
+            let gi = base + r;
+            // Row gi, columns base..=gi: contiguous in this layout.
+            let start = gi * w + p - r;
+            for (dst, src) in self.a[start..=start + r].iter_mut().zip(&m[r * k..r * k + r + 1]) {
+                *dst += src;
             }
         }
     }

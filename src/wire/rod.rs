@@ -833,13 +833,15 @@ impl Wire {
                 let base = 4 * (i - 1);
                 for r in 0..11 {
                     self.grad[base + r] += bend * (d1v * g1[r] + d2v * g2[r]) + twist * m * gt[r];
-                    if !hess {
-                        continue;
+                }
+                if hess {
+                    let mut blk = [0.0; 121];
+                    for r in 0..11 {
+                        for c in 0..=r {
+                            blk[r * 11 + c] = bend * (g1[r] * g1[c] + g2[r] * g2[c]) + twist * gt[r] * gt[c];
+                        }
                     }
-                    for c in 0..=r {
-                        let v = bend * (g1[r] * g1[c] + g2[r] * g2[c]) + twist * gt[r] * gt[c];
-                        self.h.add(base + r, base + c, v);
-                    }
+                    self.h.add_block(base, 11, &blk);
                 }
             }
         }
