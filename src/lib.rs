@@ -43,3 +43,4 @@ pub mod service;
 pub mod simulate;
 pub mod solver;
 pub mod stream;
+pub mod wire;

@@ -228,6 +228,21 @@ enum BenchCmd {
         #[arg(long)]
         json: bool,
     },
+    /// Time the guidewire's step against its node count, in free space and on a wall (docs/WIRE.md).
+    Wire {
+        /// Only this node count (default: 32, 64, 128, 256, 512).
+        #[arg(long)]
+        nodes: Option<usize>,
+        /// Steps to time per row (after 200 warm-up steps).
+        #[arg(long, default_value_t = 2000)]
+        steps: usize,
+        /// Newton iterations per step at most (the wire's `newton_iterations`).
+        #[arg(long, default_value_t = 3)]
+        iterations: usize,
+        /// Print JSON.
+        #[arg(long)]
+        json: bool,
+    },
 }
 
 #[derive(Subcommand)]
@@ -347,6 +362,12 @@ fn main() -> ExitCode {
                 json,
             ),
             BenchCmd::Extremes { quick, halvings, json } => cli::sim::bench_extremes(quick, halvings, json),
+            BenchCmd::Wire {
+                nodes,
+                steps,
+                iterations,
+                json,
+            } => cli::wire::bench_wire_cmd(nodes, steps, iterations, json),
         },
         Command::Experiment(e) => match e {
             ExperimentCmd::Contact { quick, json } => cli::reduced::experiment_contact(quick, json),

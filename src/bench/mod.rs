@@ -2,7 +2,8 @@
 //! (`nvtmm bench step`, here), the stability sweep over extreme parameters
 //! ([`extremes`], `nvtmm bench extremes`), the reduced model's timings
 //! ([`reduced`], `nvtmm bench reduced`) and a timing harness for implicit
-//! steps ([`timing`]). The scripts in `tools/` call these commands.
+//! steps ([`timing`]) and the guidewire's step against its node count
+//! ([`wire`], `nvtmm bench wire`). The scripts in `tools/` call these commands.
 //!
 //! The *standard load* is what every timing here uses: the built-in arch with
 //! both ends fixed (`inlet`, `outlet_descending`) and a 0.15 N force pressing
@@ -14,6 +15,7 @@ pub mod contact;
 pub mod extremes;
 pub mod reduced;
 pub mod timing;
+pub mod wire;
 
 use crate::material::{Law, Material, PronyTerm};
 use crate::math::Vec3;

@@ -8,3 +8,4 @@ pub mod reduced;
 pub mod run;
 pub mod sim;
 pub mod stream;
+pub mod wire;

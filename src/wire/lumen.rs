@@ -1,0 +1,684 @@
+//! What the wire touches: the [`Lumen`] trait (the nearest point of the
+//! vessel's inner wall, the signed distance to it and the wall's normal) and
+//! three walls: a rigid straight tube ([`StraightTube`], optionally closed at
+//! its far end), a rigid curved tube ([`CurvedTube`]: a torus section between
+//! two straight pieces) and a triangle surface whose vertices may move every
+//! tick ([`TriangleLumen`], the inner wall of the vessel mesh, searched
+//! through a uniform grid rebuilt in O(triangles) without allocating).
+
+use crate::math::Vec3;
+
+/// The nearest wall point seen from a query point.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct WallHit {
+    /// Signed distance from the query point to the wall (m): positive inside
+    /// the lumen, negative beyond the wall.
+    pub distance: f64,
+    /// Unit normal of the wall at `point`, pointing into the lumen.
+    pub normal: Vec3,
+    /// The nearest wall point.
+    pub point: Vec3,
+}
+
+/// A vessel lumen as seen by the wire's contact.
+pub trait Lumen {
+    /// The nearest wall point to `p` if it is closer than `range` (m) — or
+    /// beyond the wall at any depth a wall of this kind can tell; `None` when
+    /// no wall is within `range`. Must not allocate (it runs in the 1 kHz
+    /// step).
+    fn probe(&self, p: Vec3, range: f64) -> Option<WallHit>;
+}
+
+/// No wall at all (a wire in free space, for tests and benchmarks).
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct NoWall;
+
+impl Lumen for NoWall {
+    fn probe(&self, _p: Vec3, _range: f64) -> Option<WallHit> {
+        None
+    }
+}
+
+/// Errors building a lumen.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum LumenError {
+    /// A geometric parameter is out of range.
+    #[error("{key}: {value}: {allowed}")]
+    Param {
+        /// Which parameter.
+        key: &'static str,
+        /// Its value.
+        value: f64,
+        /// What is allowed.
+        allowed: &'static str,
+    },
+    /// A triangle refers to a vertex that does not exist.
+    #[error("triangle {triangle} refers to vertex {vertex}, but there are {vertices} vertices")]
+    BadIndex {
+        /// The triangle.
+        triangle: usize,
+        /// The vertex index it holds.
+        vertex: u32,
+        /// How many vertices there are.
+        vertices: usize,
+    },
+    /// No triangles.
+    #[error("the surface has no triangles")]
+    Empty,
+    /// A vertex update has the wrong length or a non-finite position.
+    #[error("vertex update: {0}")]
+    Update(String),
+}
+
+fn positive(key: &'static str, value: f64) -> Result<(), LumenError> {
+    if value.is_finite() && value > 0.0 {
+        Ok(())
+    } else {
+        Err(LumenError::Param {
+            key,
+            value,
+            allowed: "must be finite and > 0",
+        })
+    }
+}
+
+fn unit(key: &'static str, v: Vec3) -> Result<Vec3, LumenError> {
+    let n = v.norm();
+    if n.is_finite() && n > 1e-12 {
+        Ok(v / n)
+    } else {
+        Err(LumenError::Param {
+            key,
+            value: n,
+            allowed: "must be a finite non-zero vector",
+        })
+    }
+}
+
+/// A unit vector perpendicular to `a` (a unit vector).
+pub(crate) fn perpendicular(a: Vec3) -> Vec3 {
+    let t = if a.x.abs() < 0.9 { Vec3::x() } else { Vec3::y() };
+    let p = t - a * a.dot(&t);
+    p / p.norm()
+}
+
+/// The wall hit of a tube of radius `a` around the centreline point `c`.
+fn tube_hit(p: Vec3, c: Vec3, a: f64, fallback: Vec3) -> WallHit {
+    let r = p - c;
+    let rho = r.norm();
+    let out = if rho > 1e-15 { r / rho } else { -fallback };
+    WallHit {
+        distance: a - rho,
+        normal: -out,
+        point: c + out * a,
+    }
+}
+
+/// A rigid straight tube: centreline from `start` along `axis`, open at the
+/// start (it continues behind it), closed by a flat cap at `length` if
+/// `closed_end`, otherwise open there too.
+#[derive(Debug, Clone, PartialEq)]
+pub struct StraightTube {
+    start: Vec3,
+    axis: Vec3,
+    length: f64,
+    radius: f64,
+    closed_end: bool,
+}
+
+impl StraightTube {
+    /// A tube of inner `radius` (m) from `start` along `axis` (normalised
+    /// here) for `length` (m).
+    pub fn new(start: Vec3, axis: Vec3, length: f64, radius: f64, closed_end: bool) -> Result<Self, LumenError> {
+        positive("length", length)?;
+        positive("radius", radius)?;
+        Ok(StraightTube {
+            start,
+            axis: unit("axis", axis)?,
+            length,
+            radius,
+            closed_end,
+        })
+    }
+}
+
+impl Lumen for StraightTube {
+    fn probe(&self, p: Vec3, _range: f64) -> Option<WallHit> {
+        let s = (p - self.start).dot(&self.axis);
+        let c = self.start + self.axis * s;
+        let side = tube_hit(p, c, self.radius, perpendicular(self.axis));
+        if self.closed_end {
+            let d = self.length - s;
+            if d < side.distance {
+                return Some(WallHit {
+                    distance: d,
+                    normal: -self.axis,
+                    point: p + self.axis * d,
+                });
+            }
+        }
+        Some(side)
+    }
+}
+
+/// A rigid curved tube: a straight inlet of length `inlet` from `start` along
+/// `tangent`, then an arc of centreline radius `bend_radius` turning by
+/// `angle` toward `toward` (a direction perpendicular to the tangent), then a
+/// straight outlet of length `outlet`; inner radius `radius` everywhere.
+#[derive(Debug, Clone, PartialEq)]
+pub struct CurvedTube {
+    start: Vec3,
+    tangent: Vec3,
+    arc_start: Vec3,
+    center: Vec3,
+    x: Vec3,
+    y: Vec3,
+    bend_radius: f64,
+    angle: f64,
+    arc_end: Vec3,
+    out_tangent: Vec3,
+    inlet: f64,
+    outlet: f64,
+    radius: f64,
+}
+
+/// The shape of a [`CurvedTube`].
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct CurvedTubeShape {
+    /// Start of the straight inlet (m).
+    pub start: Vec3,
+    /// Direction of the inlet.
+    pub tangent: Vec3,
+    /// The side the arc turns toward (its component along `tangent` is
+    /// ignored).
+    pub toward: Vec3,
+    /// Inlet length (m).
+    pub inlet: f64,
+    /// Centreline radius of the arc (m).
+    pub bend_radius: f64,
+    /// Angle the arc turns by (rad), in (0, 2π).
+    pub angle: f64,
+    /// Outlet length (m).
+    pub outlet: f64,
+    /// Inner radius of the tube (m), below `bend_radius`.
+    pub radius: f64,
+}
+
+impl CurvedTube {
+    /// Builds the tube; errors name the bad parameter.
+    pub fn new(s: &CurvedTubeShape) -> Result<Self, LumenError> {
+        positive("bend_radius", s.bend_radius)?;
+        positive("radius", s.radius)?;
+        if !(s.inlet.is_finite() && s.inlet >= 0.0) {
+            return Err(LumenError::Param {
+                key: "inlet",
+                value: s.inlet,
+                allowed: "must be finite and ≥ 0",
+            });
+        }
+        if !(s.outlet.is_finite() && s.outlet >= 0.0) {
+            return Err(LumenError::Param {
+                key: "outlet",
+                value: s.outlet,
+                allowed: "must be finite and ≥ 0",
+            });
+        }
+        if !(s.angle > 0.0 && s.angle < 2.0 * std::f64::consts::PI) {
+            return Err(LumenError::Param {
+                key: "angle",
+                value: s.angle,
+                allowed: "must be in (0, 2π) rad",
+            });
+        }
+        if s.radius >= s.bend_radius {
+            return Err(LumenError::Param {
+                key: "radius",
+                value: s.radius,
+                allowed: "must be below bend_radius",
+            });
+        }
+        let t = unit("tangent", s.tangent)?;
+        let toward = unit("toward", s.toward - t * s.toward.dot(&t))?;
+        let arc_start = s.start + t * s.inlet;
+        let center = arc_start + toward * s.bend_radius;
+        let x = -toward;
+        let y = t;
+        let (sn, cs) = s.angle.sin_cos();
+        let arc_end = center + (x * cs + y * sn) * s.bend_radius;
+        let out_tangent = -x * sn + y * cs;
+        Ok(CurvedTube {
+            start: s.start,
+            tangent: t,
+            arc_start,
+            center,
+            x,
+            y,
+            bend_radius: s.bend_radius,
+            angle: s.angle,
+            arc_end,
+            out_tangent,
+            inlet: s.inlet,
+            outlet: s.outlet,
+            radius: s.radius,
+        })
+    }
+
+    /// The point of the centreline at arc length `s` from the start (m),
+    /// clamped to the tube, and its tangent.
+    pub fn centreline(&self, s: f64) -> (Vec3, Vec3) {
+        let arc = self.bend_radius * self.angle;
+        if s <= self.inlet {
+            (self.start + self.tangent * s.max(0.0), self.tangent)
+        } else if s <= self.inlet + arc {
+            let phi = (s - self.inlet) / self.bend_radius;
+            let (sn, cs) = phi.sin_cos();
+            (
+                self.center + (self.x * cs + self.y * sn) * self.bend_radius,
+                -self.x * sn + self.y * cs,
+            )
+        } else {
+            let d = (s - self.inlet - arc).min(self.outlet);
+            (self.arc_end + self.out_tangent * d, self.out_tangent)
+        }
+    }
+
+    /// The centreline's total length (m).
+    pub fn centreline_length(&self) -> f64 {
+        self.inlet + self.bend_radius * self.angle + self.outlet
+    }
+}
+
+impl Lumen for CurvedTube {
+    fn probe(&self, p: Vec3, _range: f64) -> Option<WallHit> {
+        // The nearest centreline point among the three pieces; the straight
+        // pieces extend beyond the tube's ends, so the far ends stay open.
+        let s_in = (p - self.start).dot(&self.tangent).min(self.inlet);
+        let c_in = self.start + self.tangent * s_in;
+        let s_out = (p - self.arc_end).dot(&self.out_tangent).max(0.0);
+        let c_out = self.arc_end + self.out_tangent * s_out;
+        let q = p - self.center;
+        let phi = q.dot(&self.y).atan2(q.dot(&self.x)).clamp(0.0, self.angle);
+        let (sn, cs) = phi.sin_cos();
+        let c_arc = self.center + (self.x * cs + self.y * sn) * self.bend_radius;
+        let mut best = (c_in, self.tangent);
+        for c in [(c_arc, -self.x * sn + self.y * cs), (c_out, self.out_tangent)] {
+            if (p - c.0).norm_squared() < (p - best.0).norm_squared() {
+                best = c;
+            }
+        }
+        Some(tube_hit(p, best.0, self.radius, perpendicular(best.1)))
+    }
+}
+
+/// The closest point to `p` on triangle (a, b, c) (Ericson, *Real-Time
+/// Collision Detection*, 5.1.5).
+pub fn closest_on_triangle(p: Vec3, a: Vec3, b: Vec3, c: Vec3) -> Vec3 {
+    let ab = b - a;
+    let ac = c - a;
+    let ap = p - a;
+    let d1 = ab.dot(&ap);
+    let d2 = ac.dot(&ap);
+    if d1 <= 0.0 && d2 <= 0.0 {
+        return a;
+    }
+    let bp = p - b;
+    let d3 = ab.dot(&bp);
+    let d4 = ac.dot(&bp);
+    if d3 >= 0.0 && d4 <= d3 {
+        return b;
+    }
+    let vc = d1 * d4 - d3 * d2;
+    if vc <= 0.0 && d1 >= 0.0 && d3 <= 0.0 {
+        return a + ab * (d1 / (d1 - d3));
+    }
+    let cp = p - c;
+    let d5 = ab.dot(&cp);
+    let d6 = ac.dot(&cp);
+    if d6 >= 0.0 && d5 <= d6 {
+        return c;
+    }
+    let vb = d5 * d2 - d1 * d6;
+    if vb <= 0.0 && d2 >= 0.0 && d6 <= 0.0 {
+        return a + ac * (d2 / (d2 - d6));
+    }
+    let va = d3 * d6 - d5 * d4;
+    if va <= 0.0 && (d4 - d3) >= 0.0 && (d5 - d6) >= 0.0 {
+        return b + (c - b) * ((d4 - d3) / ((d4 - d3) + (d5 - d6)));
+    }
+    let denom = 1.0 / (va + vb + vc);
+    a + ab * (vb * denom) + ac * (vc * denom)
+}
+
+/// A triangle surface as the lumen's wall: triangles wound so that their
+/// normals ((b − a) × (c − a)) point into the lumen. Vertices may move every
+/// tick ([`TriangleLumen::update_vertices`]); the search grid is rebuilt then
+/// in O(triangles) into buffers sized at construction.
+///
+/// Each triangle is filed in the grid cell of its centroid; a query searches
+/// the cells within the query range plus the largest centroid-to-vertex
+/// distance, so it is exact for any range.
+#[derive(Debug, Clone)]
+pub struct TriangleLumen {
+    verts: Vec<Vec3>,
+    tris: Vec<[u32; 3]>,
+    dims: [usize; 3],
+    lo: Vec3,
+    inv_cell: Vec3,
+    cell: Vec3,
+    reach: f64,
+    cell_start: Vec<u32>,
+    items: Vec<u32>,
+    tri_cell: Vec<u32>,
+}
+
+impl TriangleLumen {
+    /// A lumen from vertex positions and triangles (indices into them).
+    pub fn new(vertices: &[Vec3], triangles: &[[u32; 3]]) -> Result<Self, LumenError> {
+        if triangles.is_empty() {
+            return Err(LumenError::Empty);
+        }
+        for (t, tri) in triangles.iter().enumerate() {
+            for &v in tri {
+                if v as usize >= vertices.len() {
+                    return Err(LumenError::BadIndex {
+                        triangle: t,
+                        vertex: v,
+                        vertices: vertices.len(),
+                    });
+                }
+            }
+        }
+        check_finite(vertices)?;
+        // Cells about twice the mean triangle size, at most 64 a side.
+        let (lo, hi) = bounds(vertices);
+        let ext = (hi - lo).map(|e| e.max(1e-9));
+        let mean_edge: f64 = triangles
+            .iter()
+            .map(|t| (vertices[t[1] as usize] - vertices[t[0] as usize]).norm())
+            .sum::<f64>()
+            / triangles.len() as f64;
+        let target = (2.0 * mean_edge).max(1e-9);
+        let dims = [0, 1, 2].map(|k| ((ext[k] / target).ceil() as usize).clamp(1, 64));
+        let cells = dims[0] * dims[1] * dims[2];
+        let mut l = TriangleLumen {
+            verts: vertices.to_vec(),
+            tris: triangles.to_vec(),
+            dims,
+            lo,
+            inv_cell: Vec3::zeros(),
+            cell: Vec3::zeros(),
+            reach: 0.0,
+            cell_start: vec![0; cells + 1],
+            items: vec![0; triangles.len()],
+            tri_cell: vec![0; triangles.len()],
+        };
+        l.rebuild();
+        Ok(l)
+    }
+
+    /// The current vertex positions.
+    pub fn vertices(&self) -> &[Vec3] {
+        &self.verts
+    }
+
+    /// The triangles.
+    pub fn triangles(&self) -> &[[u32; 3]] {
+        &self.tris
+    }
+
+    /// Moves the vertices (same count as at construction) and rebuilds the
+    /// grid. Allocates nothing.
+    pub fn update_vertices(&mut self, vertices: &[Vec3]) -> Result<(), LumenError> {
+        if vertices.len() != self.verts.len() {
+            return Err(LumenError::Update(format!(
+                "{} vertices given, the surface has {}",
+                vertices.len(),
+                self.verts.len()
+            )));
+        }
+        check_finite(vertices)?;
+        self.verts.copy_from_slice(vertices);
+        self.rebuild();
+        Ok(())
+    }
+
+    fn cell_of(&self, p: Vec3) -> [usize; 3] {
+        [0, 1, 2].map(|k| {
+            let f = ((p[k] - self.lo[k]) * self.inv_cell[k]).floor();
+            (f.max(0.0) as usize).min(self.dims[k] - 1)
+        })
+    }
+
+    fn rebuild(&mut self) {
+        let (lo, hi) = bounds(&self.verts);
+        self.lo = lo;
+        for k in 0..3 {
+            let ext = (hi[k] - lo[k]).max(1e-9);
+            self.cell[k] = ext / self.dims[k] as f64;
+            self.inv_cell[k] = 1.0 / self.cell[k];
+        }
+        let [nx, ny, _] = self.dims;
+        self.cell_start.fill(0);
+        let mut reach: f64 = 0.0;
+        for t in 0..self.tris.len() {
+            let [a, b, c] = self.tris[t].map(|i| self.verts[i as usize]);
+            let g = (a + b + c) / 3.0;
+            reach = reach.max((a - g).norm()).max((b - g).norm()).max((c - g).norm());
+            let [i, j, k] = self.cell_of(g);
+            let id = i + nx * (j + ny * k);
+            self.tri_cell[t] = id as u32;
+            self.cell_start[id + 1] += 1;
+        }
+        self.reach = reach;
+        // Counting sort: prefix sums give each cell's start; filling moves
+        // each start to its end, which a shift turns back into starts.
+        for i in 0..self.cell_start.len() - 1 {
+            self.cell_start[i + 1] += self.cell_start[i];
+        }
+        for t in 0..self.tris.len() {
+            let id = self.tri_cell[t] as usize;
+            let slot = self.cell_start[id] as usize;
+            self.items[slot] = t as u32;
+            self.cell_start[id] += 1;
+        }
+        for i in (1..self.cell_start.len()).rev() {
+            self.cell_start[i] = self.cell_start[i - 1];
+        }
+        self.cell_start[0] = 0;
+    }
+}
+
+fn bounds(v: &[Vec3]) -> (Vec3, Vec3) {
+    let mut lo = Vec3::repeat(f64::INFINITY);
+    let mut hi = Vec3::repeat(f64::NEG_INFINITY);
+    for p in v {
+        lo = lo.inf(p);
+        hi = hi.sup(p);
+    }
+    (lo, hi)
+}
+
+fn check_finite(v: &[Vec3]) -> Result<(), LumenError> {
+    match v.iter().position(|p| !p.iter().all(|c| c.is_finite())) {
+        Some(i) => Err(LumenError::Update(format!("vertex {i} is not finite"))),
+        None => Ok(()),
+    }
+}
+
+impl Lumen for TriangleLumen {
+    fn probe(&self, p: Vec3, range: f64) -> Option<WallHit> {
+        let r = range.max(0.0) + self.reach;
+        let a = self.cell_of(p - Vec3::repeat(r));
+        let b = self.cell_of(p + Vec3::repeat(r));
+        // Entirely outside the grid's box on some axis: nothing in range.
+        for k in 0..3 {
+            let lo = self.lo[k] - r;
+            let hi = self.lo[k] + self.cell[k] * self.dims[k] as f64 + r;
+            if p[k] < lo || p[k] > hi {
+                return None;
+            }
+        }
+        let [nx, ny, _] = self.dims;
+        let mut best: Option<(f64, Vec3, usize)> = None;
+        for k in a[2]..=b[2] {
+            for j in a[1]..=b[1] {
+                for i in a[0]..=b[0] {
+                    let id = i + nx * (j + ny * k);
+                    let (s, e) = (self.cell_start[id] as usize, self.cell_start[id + 1] as usize);
+                    for &t in &self.items[s..e] {
+                        let [va, vb, vc] = self.tris[t as usize].map(|i| self.verts[i as usize]);
+                        let q = closest_on_triangle(p, va, vb, vc);
+                        let d2 = (p - q).norm_squared();
+                        if best.is_none_or(|(bd, _, _)| d2 < bd) {
+                            best = Some((d2, q, t as usize));
+                        }
+                    }
+                }
+            }
+        }
+        let (d2, q, t) = best?;
+        let d = d2.sqrt();
+        if d > range.max(0.0) {
+            // Beyond range on the lumen side is "no wall"; beyond the wall is
+            // always reported.
+            let [va, vb, vc] = self.tris[t].map(|i| self.verts[i as usize]);
+            let nf = (vb - va).cross(&(vc - va));
+            if (p - q).dot(&nf) >= 0.0 {
+                return None;
+            }
+        }
+        let [va, vb, vc] = self.tris[t].map(|i| self.verts[i as usize]);
+        let nf = (vb - va).cross(&(vc - va));
+        let nfn = nf.norm();
+        let face = if nfn > 0.0 { nf / nfn } else { Vec3::z() };
+        let side = (p - q).dot(&face);
+        let (distance, normal) = if d > 1e-12 {
+            let s = if side >= 0.0 { 1.0 } else { -1.0 };
+            (s * d, (p - q) / d * s)
+        } else {
+            (0.0, face)
+        };
+        Some(WallHit {
+            distance,
+            normal,
+            point: q,
+        })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A closed-ring tube surface (radius a around the x axis from 0 to len),
+    /// wound inward.
+    fn tube_mesh(a: f64, len: f64, nr: usize, nl: usize) -> (Vec<Vec3>, Vec<[u32; 3]>) {
+        let mut v = Vec::new();
+        for l in 0..=nl {
+            for r in 0..nr {
+                let phi = r as f64 / nr as f64 * std::f64::consts::TAU;
+                v.push(Vec3::new(len * l as f64 / nl as f64, a * phi.cos(), a * phi.sin()));
+            }
+        }
+        let mut t = Vec::new();
+        for l in 0..nl {
+            for r in 0..nr {
+                let i = |l: usize, r: usize| (l * nr + r % nr) as u32;
+                // Inward normals: (b − a) × (c − a) toward the axis.
+                t.push([i(l, r), i(l + 1, r), i(l, r + 1)]);
+                t.push([i(l, r + 1), i(l + 1, r), i(l + 1, r + 1)]);
+            }
+        }
+        (v, t)
+    }
+
+    #[test]
+    fn triangle_lumen_matches_brute_force_and_the_tube() {
+        let (v, t) = tube_mesh(5e-3, 0.05, 32, 20);
+        let mut lum = TriangleLumen::new(&v, &t).unwrap();
+        let mut s = 7u64;
+        let mut rnd = || {
+            s = s.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+            ((s >> 11) as f64 / (1u64 << 53) as f64) - 0.5
+        };
+        for pass in 0..2 {
+            let a = if pass == 0 { 5e-3 } else { 4e-3 };
+            for _ in 0..300 {
+                let p = Vec3::new(0.01 + 0.03 * (rnd() + 0.5), 0.012 * rnd(), 0.012 * rnd());
+                let brute = lum
+                    .triangles()
+                    .iter()
+                    .map(|tr| {
+                        let [a, b, c] = tr.map(|i| lum.vertices()[i as usize]);
+                        (p - closest_on_triangle(p, a, b, c)).norm()
+                    })
+                    .fold(f64::INFINITY, f64::min);
+                let h = lum.probe(p, 1.0).unwrap();
+                assert!((h.distance.abs() - brute).abs() < 1e-12, "{} vs {brute}", h.distance);
+                // Inside the (faceted) tube: positive; well outside: negative.
+                let rho = (p.y * p.y + p.z * p.z).sqrt();
+                if rho < 0.9 * a {
+                    assert!(h.distance > 0.0);
+                    assert!(h.normal.dot(&Vec3::new(0.0, -p.y, -p.z)) > 0.0);
+                }
+                if rho > 1.1 * a {
+                    assert!(h.distance < 0.0, "pass {pass} p {p:?} rho {rho} h {h:?}");
+                }
+                // A small range: inside points far from the wall see nothing.
+                if h.distance > 1e-3 {
+                    assert!(lum.probe(p, 0.5e-3).is_none());
+                }
+            }
+            if pass == 0 {
+                // Move the wall: shrink the radius to 4 mm.
+                let moved: Vec<Vec3> = v.iter().map(|p| Vec3::new(p.x, p.y * 0.8, p.z * 0.8)).collect();
+                lum.update_vertices(&moved).unwrap();
+            }
+        }
+        assert!(lum.update_vertices(&v[..3]).is_err());
+    }
+
+    #[test]
+    fn tubes_report_signed_distance_and_inward_normal() {
+        let t = StraightTube::new(Vec3::zeros(), Vec3::x(), 0.1, 2e-3, true).unwrap();
+        let h = t.probe(Vec3::new(0.05, 1.5e-3, 0.0), 0.0).unwrap();
+        assert!((h.distance - 0.5e-3).abs() < 1e-15);
+        assert!((h.normal - Vec3::new(0.0, -1.0, 0.0)).norm() < 1e-12);
+        let h = t.probe(Vec3::new(0.1005, 0.0, 0.0), 0.0).unwrap();
+        assert!((h.distance + 0.5e-3).abs() < 1e-12);
+        assert!((h.normal + Vec3::x()).norm() < 1e-12);
+
+        let c = CurvedTube::new(&CurvedTubeShape {
+            start: Vec3::zeros(),
+            tangent: Vec3::x(),
+            toward: Vec3::y(),
+            inlet: 0.01,
+            bend_radius: 0.05,
+            angle: std::f64::consts::PI,
+            outlet: 0.01,
+            radius: 3e-3,
+        })
+        .unwrap();
+        // The arc's midpoint is at (0.01 + 0.05, 0.05, 0); a point 2 mm
+        // toward the bend centre from it is 1 mm from the inner wall.
+        let h = c.probe(Vec3::new(0.058, 0.05, 0.0), 0.0).unwrap();
+        assert!((h.distance - 1e-3).abs() < 1e-12, "{}", h.distance);
+        let (e, te) = c.centreline(c.centreline_length());
+        assert!((e - Vec3::new(0.0, 0.1, 0.0)).norm() < 1e-12, "{e}");
+        assert!((te + Vec3::x()).norm() < 1e-12);
+        assert!(CurvedTube::new(&CurvedTubeShape {
+            radius: 0.06,
+            ..CurvedTubeShape {
+                start: Vec3::zeros(),
+                tangent: Vec3::x(),
+                toward: Vec3::y(),
+                inlet: 0.0,
+                bend_radius: 0.05,
+                angle: 1.0,
+                outlet: 0.0,
+                radius: 0.0,
+            }
+        })
+        .is_err());
+    }
+}

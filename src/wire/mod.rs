@@ -1,0 +1,164 @@
+//! The guidewire: an elastic rod with bending and twist, nearly
+//! inextensible, driven at its hub (insertion and roll) and touching the
+//! vessel's inner wall along its whole length with Coulomb friction.
+//!
+//! - [`WireParams`]: the wire's configuration (`[wire]` keys), validated with
+//!   errors naming the key and the allowed range.
+//! - [`rod::Wire`]: the discrete elastic rod (centreline nodes plus one twist
+//!   angle per edge), its implicit step, its driving (`set_hub`) and its
+//!   contacts; every buffer sized at construction, `step` allocates nothing.
+//! - [`lumen`]: what the wire touches (rigid tubes, a moving triangle
+//!   surface).
+//! - [`band`]: the banded Cholesky solve behind the implicit step.
+//!
+//! The formulation and why it was chosen: docs/WIRE.md. The service wiring
+//! (device angles, report keys, the stream's polyline) lives elsewhere.
+
+pub mod band;
+pub mod lumen;
+pub mod rod;
+
+pub use lumen::{CurvedTube, CurvedTubeShape, Lumen, LumenError, NoWall, StraightTube, TriangleLumen, WallHit};
+pub use rod::{StepReport, Wire, WireContact, WireError, WireFault};
+
+use crate::config::{load_toml, parse_toml, Checker, ConfigError};
+use std::path::Path;
+
+/// The wire's configuration. SI units; defaults describe a 0.035" nitinol
+/// guidewire with a soft angled tip.
+#[derive(Debug, Clone, PartialEq, serde::Deserialize, serde::Serialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct WireParams {
+    /// Total wire length (m): the inserted length never exceeds it.
+    pub length_m: f64,
+    /// Outer diameter (m); 0.89 mm is 0.035".
+    pub diameter_m: f64,
+    /// Young's modulus (Pa): nitinol ≈ 40–80 GPa, stainless steel ≈ 200 GPa.
+    pub youngs_modulus_pa: f64,
+    /// Poisson's ratio, giving the shear modulus G = E / (2 (1 + ν)).
+    pub poisson_ratio: f64,
+    /// Density (kg/m³).
+    pub density_kg_m3: f64,
+    /// Length of the soft, pre-shaped distal segment (m); 0 for none.
+    pub tip_length_m: f64,
+    /// Rest curvature of the distal segment (1/m): a J tip is a half turn
+    /// (curvature π / tip length), an angled tip a short segment turning by
+    /// its angle (curvature = angle / tip length).
+    pub tip_curvature_per_m: f64,
+    /// Bending and twisting stiffness of the distal segment relative to the
+    /// shaft.
+    pub tip_stiffness_factor: f64,
+    /// Rest length of a segment (m).
+    pub segment_length_m: f64,
+    /// Capacity in nodes (hub and one node behind it included): the inserted
+    /// length is at most about (max_nodes − 1.5) segments.
+    pub max_nodes: usize,
+    /// Coulomb friction coefficient against the wall.
+    pub friction: f64,
+    /// Penalty stiffness of the wall contact (N/m per node).
+    pub contact_stiffness_n_per_m: f64,
+    /// The grip's limit (N): while the wire pushes back on the hand harder
+    /// than this, the hub slips and feeds no more wire in (pulling back is
+    /// always possible). Keeps a blocked wire's force bounded, as a
+    /// clinician's grip or a torque device does.
+    pub max_hub_force_n: f64,
+    /// Viscous drag of the surrounding fluid (N·s/m² per unit length).
+    pub drag_n_s_per_m2: f64,
+    /// Time step (s).
+    pub dt_s: f64,
+    /// Newton iterations per step at most.
+    pub newton_iterations: usize,
+}
+
+impl Default for WireParams {
+    fn default() -> Self {
+        WireParams {
+            length_m: 1.5,
+            diameter_m: 0.89e-3,
+            youngs_modulus_pa: 60e9,
+            poisson_ratio: 0.33,
+            density_kg_m3: 6450.0,
+            tip_length_m: 0.02,
+            tip_curvature_per_m: 40.0,
+            tip_stiffness_factor: 0.1,
+            segment_length_m: 3e-3,
+            max_nodes: 128,
+            friction: 0.1,
+            contact_stiffness_n_per_m: 1e6,
+            max_hub_force_n: 10.0,
+            drag_n_s_per_m2: 1e-3,
+            dt_s: 1e-3,
+            newton_iterations: 3,
+        }
+    }
+}
+
+impl WireParams {
+    /// Reads and validates a TOML file holding these keys.
+    pub fn load(path: &Path) -> Result<WireParams, ConfigError> {
+        let p: WireParams = load_toml(path)?;
+        p.validate(path)?;
+        Ok(p)
+    }
+
+    /// Parses and validates TOML text (`path` is used in messages).
+    pub fn from_toml_str(text: &str, path: &Path) -> Result<WireParams, ConfigError> {
+        let p: WireParams = parse_toml(text, path)?;
+        p.validate(path)?;
+        Ok(p)
+    }
+
+    /// Checks every key against its allowed range; errors name `path`, the
+    /// key and the range.
+    pub fn validate(&self, path: &Path) -> Result<(), ConfigError> {
+        let c = Checker::new(path);
+        c.f64_in("length_m", self.length_m, 1e-3, 10.0, "m")?;
+        c.f64_in("diameter_m", self.diameter_m, 1e-5, 1e-2, "m")?;
+        c.f64_in("youngs_modulus_pa", self.youngs_modulus_pa, 1e4, 1e12, "Pa")?;
+        c.f64_in("poisson_ratio", self.poisson_ratio, 0.0, 0.5, "")?;
+        c.f64_in("density_kg_m3", self.density_kg_m3, 1.0, 3e4, "kg/m³")?;
+        c.f64_in("tip_length_m", self.tip_length_m, 0.0, self.length_m, "m")?;
+        c.f64_in("tip_curvature_per_m", self.tip_curvature_per_m, -2e3, 2e3, "1/m")?;
+        c.f64_in("tip_stiffness_factor", self.tip_stiffness_factor, 1e-4, 10.0, "")?;
+        c.f64_in("segment_length_m", self.segment_length_m, 1e-4, 0.1, "m")?;
+        if self.segment_length_m < self.diameter_m {
+            return Err(c.err(
+                "segment_length_m",
+                format!(
+                    "{}: must be at least diameter_m ({} m) and at most 0.1 m",
+                    self.segment_length_m, self.diameter_m
+                ),
+            ));
+        }
+        c.int_in("max_nodes", self.max_nodes, 4, 4096)?;
+        c.f64_in("friction", self.friction, 0.0, 2.0, "")?;
+        c.f64_in(
+            "contact_stiffness_n_per_m",
+            self.contact_stiffness_n_per_m,
+            1.0,
+            1e9,
+            "N/m",
+        )?;
+        c.f64_in("max_hub_force_n", self.max_hub_force_n, 0.01, 1e4, "N")?;
+        c.f64_in("drag_n_s_per_m2", self.drag_n_s_per_m2, 0.0, 1e3, "N·s/m²")?;
+        c.f64_in("dt_s", self.dt_s, 1e-6, 0.01, "s")?;
+        c.int_in("newton_iterations", self.newton_iterations, 1, 100)?;
+        Ok(())
+    }
+
+    /// Cross-section area (m²).
+    pub fn area(&self) -> f64 {
+        std::f64::consts::PI * self.diameter_m * self.diameter_m / 4.0
+    }
+
+    /// Bending stiffness E I of the shaft (N·m²), I = π d⁴ / 64.
+    pub fn bending_stiffness(&self) -> f64 {
+        self.youngs_modulus_pa * std::f64::consts::PI * self.diameter_m.powi(4) / 64.0
+    }
+
+    /// Twisting stiffness G J of the shaft (N·m²), J = π d⁴ / 32.
+    pub fn twisting_stiffness(&self) -> f64 {
+        self.youngs_modulus_pa / (2.0 * (1.0 + self.poisson_ratio)) * std::f64::consts::PI * self.diameter_m.powi(4)
+            / 32.0
+    }
+}

@@ -1,0 +1,1096 @@
+//! The discrete elastic rod (after Bergou et al., *Discrete Elastic Rods*,
+//! 2008 and *Discrete Viscous Threads*, 2010): nodes on the centreline, one
+//! twist angle per edge measured from a reference frame carried along by
+//! parallel transport in time. Energies per edge (stretch) and per interior
+//! node (bend, twist); an implicit step minimising the incremental potential
+//! with Newton iterations on a banded Hessian, a line search on the energy
+//! and a cap on how far a node moves per iteration (no tunnelling).
+//!
+//! Layout: node 0 is a ghost behind the access point, node 1 the hub at the
+//! access point (both fixed: together they clamp the wire along the
+//! insertion axis), nodes 2… run to the tip (the last node). Edge j joins
+//! nodes j and j + 1; edge 0 (ghost–hub) carries the hub's roll. The material
+//! coordinate of a node is its arc length from the tip, so the pre-shaped
+//! tip stays with the material as nodes enter and leave at the hub.
+
+use super::band::BandMatrix;
+use super::lumen::{perpendicular, Lumen};
+use super::WireParams;
+use crate::config::ConfigError;
+use crate::math::{Mat3, Vec3};
+use std::path::Path;
+
+/// Half-bandwidth of the Hessian: a node's bend/twist stencil spans
+/// x_{i−1}, θ_{i−1}, x_i, θ_i, x_{i+1}, i.e. 11 consecutive unknowns.
+const BAND: usize = 10;
+
+/// Errors building a wire.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum WireError {
+    /// A configuration value is out of range.
+    #[error(transparent)]
+    Config(#[from] ConfigError),
+    /// The access point or the insertion axis is unusable.
+    #[error("hub: {0}")]
+    Hub(&'static str),
+}
+
+/// Why a step failed (the state is then unusable: restore the last good one).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, thiserror::Error)]
+pub enum WireFault {
+    /// A position or twist became NaN or infinite.
+    #[error("the wire state is not finite")]
+    NonFinite,
+}
+
+/// One wire–wall contact after a step. The force on the wall is the
+/// opposite of the force on the wire: −(normal_force · normal + friction).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct WireContact {
+    /// Node index (1 is the hub, the last node the tip).
+    pub node: usize,
+    /// The nearest wall point (m).
+    pub point: Vec3,
+    /// Wall normal into the lumen.
+    pub normal: Vec3,
+    /// Normal force of the wall on the wire (N, ≥ 0, along `normal`).
+    pub normal_force: f64,
+    /// Friction force of the wall on the wire (N, tangent to the wall).
+    pub friction: Vec3,
+    /// How far the wire's surface is beyond the wall (m, ≥ 0).
+    pub penetration: f64,
+}
+
+/// What a step did.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct StepReport {
+    /// Newton iterations taken.
+    pub iterations: usize,
+    /// Contacts after the step.
+    pub contacts: usize,
+    /// Deepest penetration of the wire's surface into the wall (m).
+    pub max_penetration_m: f64,
+    /// Axial force the wire exerts on the hand (N), positive when it resists
+    /// insertion (pushes the hand back).
+    pub hub_axial_force_n: f64,
+    /// Roll torque the wire exerts on the hand about the axis (N·m).
+    pub hub_torque_nm: f64,
+    /// Largest remaining Newton update (m or rad) at the end.
+    pub last_update: f64,
+    /// The wire slipped in the grip: the hub force reached
+    /// `max_hub_force_n` and the inserted length fell back to what the wire
+    /// took.
+    pub grip_slipped: bool,
+}
+
+/// The state that [`Wire::save_good_state`] keeps.
+#[derive(Debug, Clone)]
+struct State {
+    n: usize,
+    x: Vec<Vec3>,
+    v: Vec<Vec3>,
+    theta: Vec<f64>,
+    d1: Vec<Vec3>,
+    ref_twist: Vec<f64>,
+    u: Vec<f64>,
+    rest: Vec<f64>,
+    lam: Vec<f64>,
+    inserted: f64,
+    roll: f64,
+}
+
+impl State {
+    fn new(cap: usize) -> State {
+        State {
+            n: 0,
+            x: vec![Vec3::zeros(); cap],
+            v: vec![Vec3::zeros(); cap],
+            theta: vec![0.0; cap],
+            d1: vec![Vec3::zeros(); cap],
+            ref_twist: vec![0.0; cap],
+            u: vec![0.0; cap],
+            rest: vec![0.0; cap],
+            lam: vec![0.0; cap],
+            inserted: 0.0,
+            roll: 0.0,
+        }
+    }
+
+    fn copy_from(&mut self, o: &State) {
+        self.n = o.n;
+        self.x.copy_from_slice(&o.x);
+        self.v.copy_from_slice(&o.v);
+        self.theta.copy_from_slice(&o.theta);
+        self.d1.copy_from_slice(&o.d1);
+        self.ref_twist.copy_from_slice(&o.ref_twist);
+        self.u.copy_from_slice(&o.u);
+        self.rest.copy_from_slice(&o.rest);
+        self.lam.copy_from_slice(&o.lam);
+        self.inserted = o.inserted;
+        self.roll = o.roll;
+    }
+
+    fn is_finite(&self) -> bool {
+        let n = self.n;
+        self.x[..n].iter().all(|p| p.iter().all(|c| c.is_finite()))
+            && self.theta[..n].iter().all(|t| t.is_finite())
+            && self.v[..n].iter().all(|p| p.iter().all(|c| c.is_finite()))
+    }
+}
+
+/// The guidewire. Build with [`Wire::new`], drive with [`Wire::set_hub`],
+/// advance with [`Wire::step`].
+#[derive(Debug, Clone)]
+pub struct Wire {
+    p: WireParams,
+    cap: usize,
+    hub: Vec3,
+    axis: Vec3,
+    d1_hub: Vec3,
+    target: f64,
+    max_inserted: f64,
+    tip_load: Vec3,
+    line_load: Vec3,
+    s: State,
+    good: State,
+    // Step-start copies.
+    x0: Vec<Vec3>,
+    th0: Vec<f64>,
+    d10: Vec<Vec3>,
+    t0: Vec<Vec3>,
+    rt0: Vec<f64>,
+    xtilde: Vec<Vec3>,
+    // Trial state and its geometry.
+    xt: Vec<Vec3>,
+    tht: Vec<f64>,
+    tan: Vec<Vec3>,
+    len: Vec<f64>,
+    d1c: Vec<Vec3>,
+    m1: Vec<Vec3>,
+    m2: Vec<Vec3>,
+    rt: Vec<f64>,
+    // Newton.
+    grad: Vec<f64>,
+    dx: Vec<f64>,
+    h: BandMatrix,
+    hub_grad: Vec3,
+    hub_dtheta: f64,
+    last_axial: f64,
+    eval_pen: f64,
+    contacts: Vec<WireContact>,
+}
+
+/// Parallel transport of `d` from tangent `a` to tangent `b` (unit vectors).
+fn transport(d: Vec3, a: Vec3, b: Vec3) -> Vec3 {
+    let c = a.cross(&b);
+    let s = c.norm();
+    if s < 1e-14 {
+        if a.dot(&b) > 0.0 {
+            return d;
+        }
+        // Reversed tangent: keep d, made perpendicular to b.
+        let q = d - b * d.dot(&b);
+        let n = q.norm();
+        return if n > 1e-14 { q / n } else { perpendicular(b) };
+    }
+    let bn = c / s;
+    let n1 = a.cross(&bn);
+    let n2 = b.cross(&bn);
+    d.dot(&a) * b + d.dot(&n1) * n2 + d.dot(&bn) * bn
+}
+
+/// Rotates `v` about the unit `axis` by `angle` (Rodrigues).
+fn rotate(v: Vec3, axis: Vec3, angle: f64) -> Vec3 {
+    let (s, c) = angle.sin_cos();
+    v * c + axis.cross(&v) * s + axis * axis.dot(&v) * (1.0 - c)
+}
+
+/// Signed angle from `u` to `v` about `axis`.
+fn signed_angle(u: Vec3, v: Vec3, axis: Vec3) -> f64 {
+    u.cross(&v).dot(&axis).atan2(u.dot(&v))
+}
+
+fn outer(a: &Vec3, b: &Vec3) -> Mat3 {
+    a * b.transpose()
+}
+
+impl Wire {
+    /// A wire from `params`, its hub at `access_point` with the insertion
+    /// `axis` (pointing into the body), `inserted_m` metres inserted (straight
+    /// along the axis) and roll 0.
+    pub fn new(params: &WireParams, access_point: Vec3, axis: Vec3, inserted_m: f64) -> Result<Wire, WireError> {
+        params.validate(Path::new("(wire)"))?;
+        let an = axis.norm();
+        if !(an.is_finite() && an > 1e-12) {
+            return Err(WireError::Hub("the insertion axis must be a finite non-zero vector"));
+        }
+        if !access_point.iter().all(|c| c.is_finite()) {
+            return Err(WireError::Hub("the access point must be finite"));
+        }
+        let axis = axis / an;
+        let cap = params.max_nodes;
+        let h = params.segment_length_m;
+        let max_inserted = ((cap - 3) as f64 * h + 1.5 * h).min(params.length_m);
+        let mut w = Wire {
+            p: params.clone(),
+            cap,
+            hub: access_point,
+            axis,
+            d1_hub: perpendicular(axis),
+            target: 0.0,
+            max_inserted,
+            tip_load: Vec3::zeros(),
+            line_load: Vec3::zeros(),
+            s: State::new(cap),
+            good: State::new(cap),
+            x0: vec![Vec3::zeros(); cap],
+            th0: vec![0.0; cap],
+            d10: vec![Vec3::zeros(); cap],
+            t0: vec![Vec3::zeros(); cap],
+            rt0: vec![0.0; cap],
+            xtilde: vec![Vec3::zeros(); cap],
+            xt: vec![Vec3::zeros(); cap],
+            tht: vec![0.0; cap],
+            tan: vec![Vec3::zeros(); cap],
+            len: vec![0.0; cap],
+            d1c: vec![Vec3::zeros(); cap],
+            m1: vec![Vec3::zeros(); cap],
+            m2: vec![Vec3::zeros(); cap],
+            rt: vec![0.0; cap],
+            grad: vec![0.0; 4 * cap],
+            dx: vec![0.0; 4 * cap],
+            h: BandMatrix::new(4 * cap, BAND),
+            hub_grad: Vec3::zeros(),
+            hub_dtheta: 0.0,
+            last_axial: 0.0,
+            eval_pen: 0.0,
+            contacts: Vec::with_capacity(cap),
+        };
+        w.lay_straight(inserted_m);
+        w.save_good_state();
+        Ok(w)
+    }
+
+    /// Places the wire straight along the axis with `inserted` metres in.
+    fn lay_straight(&mut self, inserted: f64) {
+        let h = self.p.segment_length_m;
+        let l = inserted.clamp(0.5 * h, self.max_inserted);
+        let k = ((l - 0.5 * h) / h).floor().max(0.0) as usize;
+        let k = k.min(self.cap - 3);
+        let n = k + 3;
+        let s = &mut self.s;
+        s.n = n;
+        s.inserted = l;
+        self.target = l;
+        s.u[0] = l + h;
+        s.u[1] = l;
+        for i in 2..n {
+            s.u[i] = (n - 1 - i) as f64 * h;
+        }
+        for i in 0..n {
+            s.x[i] = self.hub + self.axis * (l - s.u[i]);
+            s.v[i] = Vec3::zeros();
+            s.theta[i] = s.roll;
+            s.d1[i] = self.d1_hub;
+            s.ref_twist[i] = 0.0;
+            s.lam[i] = 0.0;
+        }
+        for j in 0..n - 1 {
+            s.rest[j] = s.u[j] - s.u[j + 1];
+        }
+    }
+
+    /// The parameters.
+    pub fn params(&self) -> &WireParams {
+        &self.p
+    }
+
+    /// Drives the hub: `inserted_m` metres of wire inside (clamped to what the
+    /// wire's length and node capacity allow), rolled by `roll_rad` about the
+    /// insertion axis. Takes effect at the next [`Wire::step`].
+    pub fn set_hub(&mut self, inserted_m: f64, roll_rad: f64) {
+        let h = self.p.segment_length_m;
+        if inserted_m.is_finite() {
+            self.target = inserted_m.clamp(0.5 * h, self.max_inserted);
+        }
+        if roll_rad.is_finite() {
+            self.s.roll = roll_rad;
+        }
+    }
+
+    /// Changes the friction coefficient (clamped to the allowed [0, 2]).
+    pub fn set_friction(&mut self, mu: f64) {
+        if mu.is_finite() {
+            self.p.friction = mu.clamp(0.0, 2.0);
+        }
+    }
+
+    /// A dead load on the tip node (N), e.g. for a cantilever test.
+    pub fn set_tip_load(&mut self, f: Vec3) {
+        self.tip_load = f;
+    }
+
+    /// A load per unit length on the inserted wire (N/m), e.g. its weight
+    /// in blood (ρ − ρ_blood) A g, or a push against a wall.
+    pub fn set_line_load(&mut self, f_per_m: Vec3) {
+        self.line_load = f_per_m;
+    }
+
+    /// The most that can be inserted (m).
+    pub fn max_inserted(&self) -> f64 {
+        self.max_inserted
+    }
+
+    /// The inserted length (m).
+    pub fn inserted(&self) -> f64 {
+        self.s.inserted
+    }
+
+    /// The hub's roll (rad).
+    pub fn roll(&self) -> f64 {
+        self.s.roll
+    }
+
+    /// Active nodes (ghost and hub included).
+    pub fn num_nodes(&self) -> usize {
+        self.s.n
+    }
+
+    /// Node positions (m): index 0 is the ghost behind the hub, 1 the hub,
+    /// the last the tip.
+    pub fn positions(&self) -> &[Vec3] {
+        &self.s.x[..self.s.n]
+    }
+
+    /// The inserted part as a polyline, hub to tip.
+    pub fn inserted_polyline(&self) -> &[Vec3] {
+        &self.s.x[1..self.s.n]
+    }
+
+    /// The tip position (m).
+    pub fn tip(&self) -> Vec3 {
+        self.s.x[self.s.n - 1]
+    }
+
+    /// Material coordinate (arc length from the tip, m) of each node.
+    pub fn material_coordinates(&self) -> &[f64] {
+        &self.s.u[..self.s.n]
+    }
+
+    /// Tangent and material frame (t, m1, m2) of edge `j` (0 ≤ j < nodes − 1).
+    pub fn material_frame(&self, j: usize) -> (Vec3, Vec3, Vec3) {
+        let s = &self.s;
+        let e = s.x[j + 1] - s.x[j];
+        let t = e / e.norm();
+        let d2 = t.cross(&s.d1[j]);
+        let (sn, cs) = s.theta[j].sin_cos();
+        (t, s.d1[j] * cs + d2 * sn, -s.d1[j] * sn + d2 * cs)
+    }
+
+    /// The contacts of the last step.
+    pub fn contacts(&self) -> &[WireContact] {
+        &self.contacts
+    }
+
+    /// Whether every position, velocity and twist is finite.
+    pub fn is_finite(&self) -> bool {
+        self.s.is_finite()
+    }
+
+    /// Remembers the current state as the last good one (copies into
+    /// buffers sized at construction: no allocation).
+    pub fn save_good_state(&mut self) {
+        self.good.copy_from(&self.s);
+    }
+
+    /// Returns to the last good state (velocities zeroed), e.g. after a
+    /// [`WireFault`]; the hub keeps its commanded insertion and roll.
+    pub fn restore_good_state(&mut self) {
+        let roll = self.s.roll;
+        self.s.copy_from(&self.good);
+        self.s.roll = roll;
+        for v in &mut self.s.v[..self.s.n] {
+            *v = Vec3::zeros();
+        }
+        self.contacts.clear();
+    }
+
+    fn h_seg(&self) -> f64 {
+        self.p.segment_length_m
+    }
+
+    /// Feeds or withdraws material at the hub toward the target insertion:
+    /// the hub edge's rest length follows it; nodes are added when it grows
+    /// past 1.6 segments and removed when it shrinks below half a segment.
+    fn feed(&mut self) {
+        let h = self.h_seg();
+        let s = &mut self.s;
+        // A slipping grip: no feeding in while the wire pushes back as hard
+        // as the grip holds.
+        // The feed per step is at most a quarter of the wire's diameter
+        // (220 mm/s for 0.89 mm at 1 kHz), so that a hand far ahead of a
+        // slipping wire does not feed a jump.
+        let max_feed = 0.25 * self.p.diameter_m;
+        let feed = (self.target - s.inserted).clamp(-max_feed, max_feed);
+        if feed <= 0.0 || self.last_axial < 0.999 * self.p.max_hub_force_n {
+            s.inserted += feed;
+        }
+        s.u[1] = s.inserted;
+        s.u[0] = s.inserted + h;
+        loop {
+            let r = s.u[1] - s.u[2];
+            if r > 1.6 * h && s.n < self.cap {
+                let n = s.n;
+                // Shift nodes 2.. (and edges 1..) up by one.
+                for i in (2..n).rev() {
+                    s.x[i + 1] = s.x[i];
+                    s.v[i + 1] = s.v[i];
+                    s.u[i + 1] = s.u[i];
+                    s.lam[i + 1] = s.lam[i];
+                    s.ref_twist[i + 1] = s.ref_twist[i];
+                }
+                for j in (1..n - 1).rev() {
+                    s.theta[j + 1] = s.theta[j];
+                    s.d1[j + 1] = s.d1[j];
+                    s.rest[j + 1] = s.rest[j];
+                }
+                let frac = (r - h) / r;
+                s.x[2] = s.x[1] + (s.x[3] - s.x[1]) * frac;
+                s.v[2] = s.v[3] * frac;
+                s.u[2] = s.u[3] + h;
+                s.lam[2] = 0.0;
+                s.ref_twist[2] = 0.0;
+                s.rest[2] = h;
+                s.n = n + 1;
+            } else if r < 0.5 * h && s.n > 3 {
+                let n = s.n;
+                // Merge edges 1 and 2: the new hub edge keeps edge 2's twist,
+                // its frame carried to the new tangent, and the two
+                // reference twists add up.
+                let t_old = (s.x[3] - s.x[2]).normalize();
+                let t_new = (s.x[3] - s.x[1]).normalize();
+                let d1 = transport(s.d1[2], t_old, t_new);
+                let theta = s.theta[2];
+                let rt = s.ref_twist[1] + s.ref_twist[2];
+                for i in 2..n - 1 {
+                    s.x[i] = s.x[i + 1];
+                    s.v[i] = s.v[i + 1];
+                    s.u[i] = s.u[i + 1];
+                    s.lam[i] = s.lam[i + 1];
+                    s.ref_twist[i] = s.ref_twist[i + 1];
+                }
+                for j in 1..n - 2 {
+                    s.theta[j] = s.theta[j + 1];
+                    s.d1[j] = s.d1[j + 1];
+                    s.rest[j] = s.rest[j + 1];
+                }
+                s.d1[1] = d1;
+                s.theta[1] = theta;
+                // Re-measure the hub's reference twist continuously.
+                let ut = rotate(transport(self.d1_hub, self.axis, t_new), t_new, rt);
+                s.ref_twist[1] = rt + signed_angle(ut, d1, t_new);
+                s.n = n - 1;
+            } else {
+                break;
+            }
+        }
+        s.rest[0] = h;
+        s.rest[1] = s.u[1] - s.u[2];
+        s.x[0] = self.hub - self.axis * h;
+        s.x[1] = self.hub;
+        s.theta[0] = s.roll;
+        s.d1[0] = self.d1_hub;
+    }
+
+    /// Copies the state as the step's start and sets the inertial target.
+    fn begin_step(&mut self) {
+        let n = self.s.n;
+        let dt = self.p.dt_s;
+        for i in 0..n {
+            self.x0[i] = self.s.x[i];
+            self.xtilde[i] = self.s.x[i] + self.s.v[i] * dt;
+            self.th0[i] = self.s.theta[i];
+            self.d10[i] = self.s.d1[i];
+            self.rt0[i] = self.s.ref_twist[i];
+            self.xt[i] = self.s.x[i];
+            self.tht[i] = self.s.theta[i];
+        }
+        for j in 0..n - 1 {
+            let e = self.s.x[j + 1] - self.s.x[j];
+            self.t0[j] = e / e.norm();
+        }
+    }
+
+    /// Advances the wire by one time step against `lumen`.
+    pub fn step(&mut self, lumen: &dyn Lumen) -> Result<StepReport, WireFault> {
+        self.feed();
+        self.begin_step();
+        let n = self.s.n;
+        let r_w = 0.5 * self.p.diameter_m;
+        let cap_step = 0.5 * r_w;
+        let mut rep = StepReport::default();
+        // Past the configured iterations, go on (up to four times as many)
+        // only while the wire is deeper than a quarter radius in the wall.
+        let max_it = 4 * self.p.newton_iterations;
+        for it in 0..max_it {
+            let e0 = self.eval(lumen, true);
+            if it >= self.p.newton_iterations && self.eval_pen < 0.25 * r_w {
+                break;
+            }
+            if !e0.is_finite() {
+                break;
+            }
+            let dofs = 4 * n;
+            if self.h.factor().is_err() {
+                break;
+            }
+            for k in 0..dofs {
+                self.dx[k] = -self.grad[k];
+            }
+            self.h.solve(&mut self.dx[..dofs]);
+            // Cap the largest node move (no tunnelling) and twist change.
+            let mut mx: f64 = 0.0;
+            let mut mt: f64 = 0.0;
+            for i in 0..n {
+                let d = Vec3::new(self.dx[4 * i], self.dx[4 * i + 1], self.dx[4 * i + 2]);
+                mx = mx.max(d.norm());
+                mt = mt.max(self.dx[4 * i + 3].abs());
+            }
+            let scale = (cap_step / mx.max(1e-300)).min(0.5 / mt.max(1e-300)).min(1.0);
+            if !scale.is_finite() {
+                break;
+            }
+            let slope: f64 = (0..dofs).map(|k| self.grad[k] * self.dx[k]).sum::<f64>() * scale;
+            let mut alpha = scale;
+            let mut accepted = false;
+            for _ in 0..12 {
+                for i in 0..n {
+                    let d = Vec3::new(self.dx[4 * i], self.dx[4 * i + 1], self.dx[4 * i + 2]);
+                    self.xt[i] = self.s.x[i] + d * alpha;
+                    self.tht[i] = self.s.theta[i] + self.dx[4 * i + 3] * alpha;
+                }
+                let e1 = self.eval(lumen, false);
+                if e1.is_finite() && e1 <= e0 + 1e-4 * (alpha / scale) * slope.min(0.0) + 1e-12 * e0.abs() {
+                    accepted = true;
+                    break;
+                }
+                alpha *= 0.5;
+            }
+            rep.iterations = it + 1;
+            if !accepted {
+                for i in 0..n {
+                    self.xt[i] = self.s.x[i];
+                    self.tht[i] = self.s.theta[i];
+                }
+                break;
+            }
+            // Accept, and carry the reference frames to the new iterate: the
+            // bend gradient below is exact where the frames were transported
+            // from, so each iteration's gradient is exact.
+            for i in 0..n {
+                self.s.x[i] = self.xt[i];
+                self.s.theta[i] = self.tht[i];
+                self.d10[i] = self.d1c[i];
+                self.t0[i] = self.tan[i];
+                self.rt0[i] = self.rt[i];
+            }
+            rep.last_update = alpha * mx.max(mt);
+            if alpha * mx < 1e-10 && alpha * mt < 1e-8 {
+                break;
+            }
+        }
+        // Final geometry, reactions and contacts at the accepted state.
+        for i in 0..n {
+            self.xt[i] = self.s.x[i];
+            self.tht[i] = self.s.theta[i];
+        }
+        self.eval_reactions(lumen);
+        let dt = self.p.dt_s;
+        for i in 0..n {
+            self.s.v[i] = (self.s.x[i] - self.x0[i]) / dt;
+            self.s.ref_twist[i] = self.rt[i];
+        }
+        for j in 0..n - 1 {
+            self.s.d1[j] = self.d1c[j];
+        }
+        self.s.v[0] = Vec3::zeros();
+        self.s.v[1] = Vec3::zeros();
+        let hub_force = -self.hub_grad;
+        rep.hub_axial_force_n = -hub_force.dot(&self.axis);
+        rep.hub_torque_nm = -self.hub_dtheta;
+        self.last_axial = rep.hub_axial_force_n;
+        // The grip slipped: the hub edge keeps the length it can hold.
+        let k1 = self.p.youngs_modulus_pa * self.p.area() / self.s.rest[1];
+        let st = self.len[1] - self.s.rest[1];
+        if (k1 * st).abs() > self.p.max_hub_force_n {
+            let rest = self.len[1] + st.signum() * -self.p.max_hub_force_n / k1;
+            let rest = rest.max(0.25 * self.p.segment_length_m);
+            self.s.rest[1] = rest;
+            self.s.inserted = self.s.u[2] + rest;
+            self.s.u[1] = self.s.inserted;
+            self.s.u[0] = self.s.inserted + self.p.segment_length_m;
+            rep.grip_slipped = true;
+        }
+        rep.contacts = self.contacts.len();
+        rep.max_penetration_m = self.contacts.iter().map(|c| c.penetration).fold(0.0, f64::max);
+        if !self.s.is_finite() || !rep.hub_axial_force_n.is_finite() {
+            return Err(WireFault::NonFinite);
+        }
+        Ok(rep)
+    }
+
+    /// Frames, curvature and twist at the trial state.
+    fn geometry(&mut self) {
+        let n = self.s.n;
+        for j in 0..n - 1 {
+            let e = self.xt[j + 1] - self.xt[j];
+            let l = e.norm();
+            self.len[j] = l;
+            self.tan[j] = e / l;
+            self.d1c[j] = transport(self.d10[j], self.t0[j], self.tan[j]);
+            let d2 = self.tan[j].cross(&self.d1c[j]);
+            let (sn, cs) = self.tht[j].sin_cos();
+            self.m1[j] = self.d1c[j] * cs + d2 * sn;
+            self.m2[j] = -self.d1c[j] * sn + d2 * cs;
+        }
+        for i in 1..n - 1 {
+            let ut = transport(self.d1c[i - 1], self.tan[i - 1], self.tan[i]);
+            let ut = rotate(ut, self.tan[i], self.rt0[i]);
+            self.rt[i] = self.rt0[i] + signed_angle(ut, self.d1c[i], self.tan[i]);
+        }
+    }
+
+    /// The incremental potential at the trial state (`xt`, `tht`); with
+    /// `assemble`, also its gradient (`grad`) and a positive semi-definite
+    /// approximation of its Hessian (`h`: exact stretch with the compressive
+    /// geometric term dropped, Gauss–Newton bend and twist, exact contact
+    /// normal and friction terms), fixed unknowns pinned.
+    fn eval(&mut self, lumen: &dyn Lumen, assemble: bool) -> f64 {
+        self.eval_with(lumen, assemble, assemble)
+    }
+
+    /// [`Wire::eval`] with the gradient (`grad`) and the Hessian (`hess`,
+    /// only with `grad`) chosen separately.
+    fn eval_with(&mut self, lumen: &dyn Lumen, assemble: bool, hess: bool) -> f64 {
+        self.geometry();
+        let n = self.s.n;
+        let dofs = 4 * n;
+        if assemble {
+            self.grad[..dofs].fill(0.0);
+        }
+        if hess {
+            self.h.reset(dofs);
+        }
+        let p = &self.p;
+        let dt = p.dt_s;
+        let area = p.area();
+        let ea = p.youngs_modulus_pa * area;
+        let ei = p.bending_stiffness();
+        let gj = p.twisting_stiffness();
+        let rho_a = p.density_kg_m3 * area;
+        let rho_j = p.density_kg_m3 * std::f64::consts::PI * p.diameter_m.powi(4) / 32.0;
+        let r_w = 0.5 * p.diameter_m;
+        let kc = p.contact_stiffness_n_per_m;
+        let mu = p.friction;
+        let eps_v = 1e-7;
+        let s = &self.s;
+        let mut energy = 0.0;
+        let mut max_pen: f64 = 0.0;
+
+        // Inertia and drag (free nodes), twist inertia (free edges).
+        for i in 2..n {
+            let lbar = if i == n - 1 {
+                0.5 * s.rest[i - 1]
+            } else {
+                0.5 * (s.rest[i - 1] + s.rest[i])
+            };
+            let km = rho_a * lbar / (dt * dt);
+            let kd = p.drag_n_s_per_m2 * lbar / dt;
+            let a = self.xt[i] - self.xtilde[i];
+            let b = self.xt[i] - self.x0[i];
+            energy += 0.5 * km * a.norm_squared() + 0.5 * kd * b.norm_squared();
+            if assemble {
+                let g = a * km + b * kd;
+                for c in 0..3 {
+                    self.grad[4 * i + c] += g[c];
+                    if hess {
+                        self.h.add(4 * i + c, 4 * i + c, km + kd);
+                    }
+                }
+            }
+        }
+        for j in 1..n - 1 {
+            let kt = rho_j * s.rest[j] / (dt * dt);
+            let d = self.tht[j] - self.th0[j];
+            energy += 0.5 * kt * d * d;
+            if assemble {
+                self.grad[4 * j + 3] += kt * d;
+                if hess {
+                    self.h.add(4 * j + 3, 4 * j + 3, kt);
+                }
+            }
+        }
+
+        // Stretch (edge 0 joins two fixed nodes: constant). The hub edge
+        // passes through the grip: its force is capped at the grip's limit
+        // (a Huber energy), beyond which the wire slips in the hand.
+        let f_grip = p.max_hub_force_n;
+        for j in 1..n - 1 {
+            let k = ea / s.rest[j];
+            let st = self.len[j] - s.rest[j];
+            let slipping = j == 1 && (k * st).abs() > f_grip;
+            let (force, k_axial) = if slipping {
+                energy += f_grip * st.abs() - 0.5 * f_grip * f_grip / k;
+                (f_grip * st.signum(), 0.0)
+            } else {
+                energy += 0.5 * k * st * st;
+                (k * st, k)
+            };
+            if assemble {
+                let t = self.tan[j];
+                let g = t * force;
+                for c in 0..3 {
+                    self.grad[4 * (j + 1) + c] += g[c];
+                    self.grad[4 * j + c] -= g[c];
+                }
+                if !hess {
+                    continue;
+                }
+                let geo = (force / self.len[j]).max(0.0);
+                let km = outer(&t, &t) * (k_axial - geo) + Mat3::identity() * geo;
+                for r in 0..3 {
+                    for c in 0..3 {
+                        let v = km[(r, c)];
+                        if c <= r {
+                            self.h.add(4 * j + r, 4 * j + c, v);
+                            self.h.add(4 * (j + 1) + r, 4 * (j + 1) + c, v);
+                        }
+                        self.h.add(4 * (j + 1) + r, 4 * j + c, -v);
+                    }
+                }
+            }
+        }
+
+        // Bend and twist at interior nodes 1..n−2.
+        for i in 1..n - 1 {
+            let lbar = if i == 1 {
+                0.5 * s.rest[1]
+            } else {
+                0.5 * (s.rest[i - 1] + s.rest[i])
+            };
+            let (factor, k0) = {
+                let u = s.u[i];
+                if u < p.tip_length_m {
+                    (p.tip_stiffness_factor, p.tip_curvature_per_m)
+                } else {
+                    (1.0, 0.0)
+                }
+            };
+            let kb_rest = 2.0 * (0.5 * k0 * lbar).tan();
+            let (te, tf) = (self.tan[i - 1], self.tan[i]);
+            let (le, lf) = (self.len[i - 1], self.len[i]);
+            let chi = (1.0 + te.dot(&tf)).max(1e-12);
+            let kb = te.cross(&tf) * (2.0 / chi);
+            let (m1e, m1f, m2e, m2f) = (self.m1[i - 1], self.m1[i], self.m2[i - 1], self.m2[i]);
+            let k1 = 0.5 * kb.dot(&(m2e + m2f));
+            let k2 = -0.5 * kb.dot(&(m1e + m1f));
+            let bend = ei * factor / lbar;
+            let (d1v, d2v) = (k1 - kb_rest, k2);
+            energy += 0.5 * bend * (d1v * d1v + d2v * d2v);
+            let twist = gj * factor / lbar;
+            let m = self.tht[i] - self.tht[i - 1] + self.rt[i];
+            energy += 0.5 * twist * m * m;
+            if assemble {
+                let tt = (te + tf) / chi;
+                let td1 = (m1e + m1f) / chi;
+                let td2 = (m2e + m2f) / chi;
+                let dk1de = (-tt * k1 + tf.cross(&td2)) / le;
+                let dk1df = (-tt * k1 - te.cross(&td2)) / lf;
+                let dk2de = (-tt * k2 - tf.cross(&td1)) / le;
+                let dk2df = (-tt * k2 + te.cross(&td1)) / lf;
+                let mut g1 = [0.0; 11];
+                let mut g2 = [0.0; 11];
+                let mut gt = [0.0; 11];
+                for c in 0..3 {
+                    g1[c] = -dk1de[c];
+                    g1[4 + c] = dk1de[c] - dk1df[c];
+                    g1[8 + c] = dk1df[c];
+                    g2[c] = -dk2de[c];
+                    g2[4 + c] = dk2de[c] - dk2df[c];
+                    g2[8 + c] = dk2df[c];
+                    let a = kb[c] / (2.0 * le);
+                    let b = kb[c] / (2.0 * lf);
+                    gt[c] = -a;
+                    gt[4 + c] = a - b;
+                    gt[8 + c] = b;
+                }
+                g1[3] = -0.5 * kb.dot(&m1e);
+                g1[7] = -0.5 * kb.dot(&m1f);
+                g2[3] = -0.5 * kb.dot(&m2e);
+                g2[7] = -0.5 * kb.dot(&m2f);
+                gt[3] = -1.0;
+                gt[7] = 1.0;
+                let base = 4 * (i - 1);
+                for r in 0..11 {
+                    self.grad[base + r] += bend * (d1v * g1[r] + d2v * g2[r]) + twist * m * gt[r];
+                }
+                if hess {
+                    let mut blk = [0.0; 121];
+                    for r in 0..11 {
+                        for c in 0..=r {
+                            blk[r * 11 + c] = bend * (g1[r] * g1[c] + g2[r] * g2[c]) + twist * gt[r] * gt[c];
+                        }
+                    }
+                    self.h.add_block(base, 11, &blk);
+                }
+            }
+        }
+
+        // Wall contact and friction on free nodes.
+        for i in 2..n {
+            let Some(hit) = lumen.probe(self.xt[i], r_w + 2.0 * r_w) else {
+                continue;
+            };
+            let pen = r_w - hit.distance;
+            if pen <= 0.0 {
+                continue;
+            }
+            let nn = hit.normal;
+            max_pen = max_pen.max(pen);
+            energy += 0.5 * kc * pen * pen;
+            let lam = s.lam[i];
+            let pm = Mat3::identity() - outer(&nn, &nn);
+            let ut = pm * (self.xt[i] - self.x0[i]);
+            let un = ut.norm();
+            if mu > 0.0 && lam > 0.0 {
+                energy += mu
+                    * lam
+                    * if un < eps_v {
+                        0.5 * un * un / eps_v
+                    } else {
+                        un - 0.5 * eps_v
+                    };
+            }
+            if assemble {
+                let mut g = -nn * (kc * pen);
+                let mut hm = outer(&nn, &nn) * kc;
+                if mu > 0.0 && lam > 0.0 {
+                    if un < eps_v {
+                        g += ut * (mu * lam / eps_v);
+                        hm += pm * (mu * lam / eps_v);
+                    } else {
+                        let uh = ut / un;
+                        g += uh * (mu * lam);
+                        hm += (pm - outer(&uh, &uh)) * (mu * lam / un);
+                    }
+                }
+                for r in 0..3 {
+                    self.grad[4 * i + r] += g[r];
+                    if hess {
+                        for c in 0..=r {
+                            self.h.add(4 * i + r, 4 * i + c, hm[(r, c)]);
+                        }
+                    }
+                }
+            }
+        }
+
+        self.eval_pen = max_pen;
+        // The load per length, lumped on the free nodes.
+        if self.line_load != Vec3::zeros() {
+            for i in 2..n {
+                let lbar = if i == n - 1 {
+                    0.5 * s.rest[i - 1]
+                } else {
+                    0.5 * (s.rest[i - 1] + s.rest[i])
+                };
+                let f = self.line_load * lbar;
+                energy -= f.dot(&(self.xt[i] - self.x0[i]));
+                if assemble {
+                    for c in 0..3 {
+                        self.grad[4 * i + c] -= f[c];
+                    }
+                }
+            }
+        }
+        // The tip's dead load.
+        let tip = n - 1;
+        energy -= self.tip_load.dot(&(self.xt[tip] - self.x0[tip]));
+        if assemble {
+            for c in 0..3 {
+                self.grad[4 * tip + c] -= self.tip_load[c];
+            }
+            // Reactions at the clamp, then pin the fixed unknowns.
+            self.hub_grad = Vec3::new(
+                self.grad[0] + self.grad[4],
+                self.grad[1] + self.grad[5],
+                self.grad[2] + self.grad[6],
+            );
+            self.hub_dtheta = self.grad[3];
+            for k in [0, 1, 2, 3, 4, 5, 6, 4 * tip + 3] {
+                self.grad[k] = 0.0;
+                if hess {
+                    self.h.pin(k);
+                }
+            }
+        }
+        energy
+    }
+
+    /// Reactions at the hub and the contact list at the trial state.
+    fn eval_reactions(&mut self, lumen: &dyn Lumen) {
+        // Reactions come from the elastic terms only; the assembled gradient
+        // at the clamp holds exactly those (inertia acts on free nodes).
+        self.eval_with(lumen, true, false);
+        let n = self.s.n;
+        let r_w = 0.5 * self.p.diameter_m;
+        let kc = self.p.contact_stiffness_n_per_m;
+        let mu = self.p.friction;
+        let eps_v = 1e-7;
+        self.contacts.clear();
+        for i in 2..n {
+            let Some(hit) = lumen.probe(self.xt[i], 3.0 * r_w) else {
+                self.s.lam[i] = 0.0;
+                continue;
+            };
+            let pen = r_w - hit.distance;
+            if pen <= 0.0 {
+                self.s.lam[i] = 0.0;
+                continue;
+            }
+            let nn = hit.normal;
+            let lam_prev = self.s.lam[i];
+            let ut = (Mat3::identity() - outer(&nn, &nn)) * (self.xt[i] - self.x0[i]);
+            let un = ut.norm();
+            let friction = if mu > 0.0 && lam_prev > 0.0 {
+                if un < eps_v {
+                    -ut * (mu * lam_prev / eps_v)
+                } else {
+                    -ut / un * (mu * lam_prev)
+                }
+            } else {
+                Vec3::zeros()
+            };
+            let lam = kc * pen;
+            self.s.lam[i] = lam;
+            if self.contacts.len() < self.contacts.capacity() {
+                self.contacts.push(WireContact {
+                    node: i,
+                    point: hit.point,
+                    normal: nn,
+                    normal_force: lam,
+                    friction,
+                    penetration: pen,
+                });
+            }
+        }
+    }
+
+    /// The incremental potential at the current state against `lumen` as if
+    /// a step were starting now, with its gradient (for tests of the
+    /// energy's derivatives).
+    #[doc(hidden)]
+    pub fn energy_and_gradient_at(
+        &mut self,
+        lumen: &dyn Lumen,
+        x: &[Vec3],
+        theta: &[f64],
+        rebase: bool,
+    ) -> (f64, Vec<f64>) {
+        let n = self.s.n;
+        self.xt[..n].copy_from_slice(&x[..n]);
+        self.tht[..n].copy_from_slice(&theta[..n]);
+        if rebase {
+            self.geometry();
+            for i in 0..n {
+                self.d10[i] = self.d1c[i];
+                self.t0[i] = self.tan[i];
+                self.rt0[i] = self.rt[i];
+            }
+        }
+        let e = self.eval(lumen, true);
+        (e, self.grad[..4 * n].to_vec())
+    }
+
+    /// Starts a step without taking it (for tests of the energy's
+    /// derivatives: sets the step-start frames and inertial target).
+    #[doc(hidden)]
+    pub fn begin_step_for_tests(&mut self) {
+        self.feed();
+        self.begin_step();
+    }
+
+    /// Current twist angles of the edges (rad).
+    pub fn twists(&self) -> &[f64] {
+        &self.s.theta[..self.s.n]
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::wire::lumen::StraightTube;
+
+    /// The assembled gradient is that of the energy (central differences),
+    /// on a bent, twisted, pre-shaped wire touching a tube wall with friction.
+    #[test]
+    fn gradient_matches_finite_differences() {
+        let p = WireParams {
+            segment_length_m: 2e-3,
+            max_nodes: 16,
+            tip_length_m: 8e-3,
+            tip_curvature_per_m: 60.0,
+            youngs_modulus_pa: 1e9,
+            ..WireParams::default()
+        };
+        let mut w = Wire::new(&p, Vec3::zeros(), Vec3::x(), 0.02).unwrap();
+        let tube = StraightTube::new(Vec3::new(-0.01, 0.0, 0.0), Vec3::x(), 0.1, 1.2e-3, false).unwrap();
+        // A few steps to bend it against the wall and get friction going.
+        w.set_tip_load(Vec3::new(0.0, 0.05, 0.02));
+        w.set_hub(0.021, 0.3);
+        for _ in 0..5 {
+            w.step(&tube).unwrap();
+        }
+        w.set_hub(0.0215, 0.5);
+        w.begin_step_for_tests();
+        let n = w.num_nodes();
+        let mut x: Vec<Vec3> = w.positions().to_vec();
+        let mut th: Vec<f64> = w.twists().to_vec();
+        // Perturb the free unknowns a little off the start state.
+        for i in 2..n {
+            x[i] += Vec3::new((i as f64).sin(), (i as f64 * 1.3).cos(), (i as f64 * 0.7).sin()) * 2e-5;
+            if i < n - 1 {
+                th[i] += 0.05 * (i as f64).cos();
+            }
+        }
+        let (_, g) = w.energy_and_gradient_at(&tube, &x, &th, true);
+        let mut worst: f64 = 0.0;
+        let mut scale: f64 = 0.0;
+        for i in 2..n {
+            for c in 0..4 {
+                if c == 3 && i == n - 1 {
+                    continue;
+                }
+                let hstep = if c == 3 { 1e-7 } else { 1e-10 };
+                let mut xp = x.clone();
+                let mut tp = th.clone();
+                let mut xm = x.clone();
+                let mut tm = th.clone();
+                if c == 3 {
+                    tp[i] += hstep;
+                    tm[i] -= hstep;
+                } else {
+                    xp[i][c] += hstep;
+                    xm[i][c] -= hstep;
+                }
+                let (ep, _) = w.energy_and_gradient_at(&tube, &xp, &tp, false);
+                let (em, _) = w.energy_and_gradient_at(&tube, &xm, &tm, false);
+                let fd = (ep - em) / (2.0 * hstep);
+                let a = g[4 * i + c];
+                worst = worst.max((fd - a).abs());
+                scale = scale.max(a.abs());
+            }
+        }
+        assert!(worst < 1e-4 * scale, "worst {worst:e} of {scale:e}");
+    }
+}
