@@ -6,7 +6,7 @@
 //! anything runs; errors name the file, the key and the allowed range. See the
 //! README ("Scenes") for the format, and `rt-config/scenes/` for examples.
 //!
-//! [`Scene::build`] (in [`build`]) turns a scene into the mesh, the model, the
+//! [`Scene::build`] (in `build`) turns a scene into the mesh, the model, the
 //! fixed nodes and the loads the solver needs; the checks live in
 //! `validate`; running it lives in [`crate::simulate`]. Parsing and errors
 //! go through [`crate::config`], like every other configuration file.

@@ -1,6 +1,6 @@
 //! A started service: the threads, the rings between them and what the
-//! report needs at the end. [`start_with`] builds the rings and starts the
-//! threads at the reduced capacity R; [`Running::stop`] stops them, joins
+//! report needs at the end. `start_with` builds the rings and starts the
+//! threads at the reduced capacity R; `Running::stop` stops them, joins
 //! them and assembles the [`Report`].
 
 use super::background::{

@@ -5,7 +5,7 @@
 //! external loads ([`loads`]), the Newton-based backward Euler integrator
 //! ([`implicit_euler`]) and the linear solvers for its Newton systems
 //! ([`linear`]: preconditioned CG on the assembled blocks, faer sparse
-//! Cholesky), and a step-timing harness ([`bench`](mod@bench)). Force models live in [`crate::model`] and know nothing about
+//! Cholesky; the step-timing harness is in [`crate::bench::timing`]). Force models live in [`crate::model`] and know nothing about
 //! time; the reduced (modal) model and the haptic loop are elsewhere. The
 //! formulation, sign conventions and measurements are in `docs/SOLVERS.md`.
 //!
