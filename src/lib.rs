@@ -7,7 +7,7 @@
 //! implicit Euler on a P1 tetrahedral mesh of an aortic arch, with mass-spring
 //! and FEM baselines.
 //!
-//! The product around it (see `shared/DESIGN.md`):
+//! The product around it (docs/ARCHITECTURE.md in the repository):
 //!
 //! ```text
 //!  device I/O (1 kHz)  --pose ring-->  haptic loop (1 kHz, reduced NVTMM, passivity QP)

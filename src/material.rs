@@ -32,7 +32,7 @@ pub struct Material {
 }
 
 impl Material {
-    /// Porcine-aorta-like defaults (see `shared/reference/aorta.md`):
+    /// Porcine-aorta-like defaults (docs/MODELS.md, "Material", has the sources):
     /// E = 65 kPa instantaneous, ν = 0.45, ρ = 1050 kg/m³.
     pub fn aorta() -> Material {
         Material {

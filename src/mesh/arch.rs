@@ -1,7 +1,9 @@
 //! The built-in procedural aortic arch: a vessel wall swept along an
 //! anatomically plausible centreline, meshed with conforming P1 tets.
 //!
-//! Shape (after `shared/reference/aorta.md`, in mm): z points to the head, +x
+//! Shape (after the defaults of the procedural aortic-arch generator of
+//! Karstensen et al., IJCARS 2023, and adult imaging studies; docs/MODELS.md,
+//! "The built-in arch", in mm): z points to the head, +x
 //! to the patient's left, the ascending aorta is anterior (−y). The centreline
 //! runs from the descending end (0, 0, 0), where the wire enters, up the
 //! descending aorta (bowing to (18, 0) at z = 128), over a circular arch of

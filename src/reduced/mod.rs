@@ -1,4 +1,4 @@
-//! The reduced model the haptic loop runs (see `shared/DESIGN.md`, "The
+//! The reduced model the haptic loop runs (docs/ARCHITECTURE.md, "The
 //! reduced model"): a modal basis of the full model linearized at a
 //! displacement, and linear dynamics in the basis coordinates.
 //!
