@@ -27,6 +27,7 @@
 //! assert!((arch.mesh.num_nodes() as f64 - 1458.0).abs() / 1458.0 < 0.01);
 //! ```
 #![warn(missing_docs)]
+#![warn(clippy::undocumented_unsafe_blocks)]
 
 pub mod bench;
 pub mod config;

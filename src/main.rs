@@ -1,4 +1,5 @@
 //! The `nvtmm` command line.
+#![warn(clippy::undocumented_unsafe_blocks)]
 
 use clap::{Parser, Subcommand};
 use std::path::PathBuf;

@@ -107,6 +107,7 @@ pub struct Fig5Result {
     pub outputs: Vec<PathBuf>,
 }
 
+#[derive(Default)]
 struct Trace {
     t: Vec<f64>,
     force: Vec<f64>,
@@ -194,17 +195,23 @@ fn metrics(model: &str, tr: &Trace, p: &Fig5Params) -> Fig5Metrics {
         .rev()
         .find(|&&i| (tr.disp[i] - final_d).abs() > band)
         .copied();
-    let (settle, settled) = match last_out {
-        None => (0.0, true),
-        Some(i) if i + 1 < n => (tr.t[i + 1] - p.t_load, true),
-        Some(_) => (p.duration - p.t_load, false),
-    };
     let last_second: Vec<f64> = (0..n)
         .filter(|&i| tr.t[i] >= p.duration - 1.0)
         .map(|i| tr.disp[i])
         .collect();
     let osc = last_second.iter().cloned().fold(f64::NEG_INFINITY, f64::max)
         - last_second.iter().cloned().fold(f64::INFINITY, f64::min);
+    // Settled means it stays in the band from then on: for at least a tenth
+    // of the loaded time (and 0.2 s), with no swing wider than the band in
+    // the last second. A curve whose last sample alone is in the band is
+    // still swinging.
+    let hold = (0.1 * (p.duration - p.t_load)).max(0.2);
+    let quiet = !osc.is_finite() || osc <= 2.0 * band;
+    let (settle, settled) = match last_out {
+        None => (0.0, quiet),
+        Some(i) if i + 1 < n && p.duration - tr.t[i + 1] >= hold && quiet => (tr.t[i + 1] - p.t_load, true),
+        Some(_) => (p.duration - p.t_load, false),
+    };
     Fig5Metrics {
         model: model.into(),
         overshoot: if final_d > 0.0 {
@@ -302,4 +309,41 @@ pub fn run(p: &Fig5Params, out: &Path) -> Result<Fig5Result, ExperimentError> {
     std::fs::write(&json, serde_json::to_string_pretty(&res).unwrap_or_default())
         .map_err(|e| ExperimentError::io(&json, e))?;
     Ok(res)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn params() -> Fig5Params {
+        Fig5Params {
+            duration: 10.0,
+            t_load: 3.0,
+            ..Fig5Params::paper()
+        }
+    }
+
+    fn trace(f: impl Fn(f64) -> f64) -> Trace {
+        let mut tr = Trace::default();
+        for k in 0..=1000 {
+            let t = k as f64 * 0.01;
+            tr.t.push(t);
+            tr.disp.push(f(t));
+            tr.force.push(1.0);
+        }
+        tr
+    }
+
+    #[test]
+    fn a_curve_swinging_until_its_last_sample_has_not_settled() {
+        let p = params();
+        // 1 mm ± 0.4 mm at 3 Hz to the end; the last sample sits on the mean.
+        let swinging = trace(|t| if t < 3.0 { 0.0 } else { 1e-3 + 4e-4 * (2.0 * std::f64::consts::PI * 3.0 * (10.0 - t)).sin() });
+        let m = metrics("tmm", &swinging, &p);
+        assert!(!m.settled, "{m:?}");
+        // A decaying curve that is quiet for the last seconds has settled.
+        let decaying = trace(|t| if t < 3.0 { 0.0 } else { 1e-3 * (1.0 - (-(t - 3.0) / 0.3).exp()) });
+        let m = metrics("nvtmm", &decaying, &p);
+        assert!(m.settled && m.settle_time_s < 2.0, "{m:?}");
+    }
 }
