@@ -82,7 +82,9 @@ fn every_relative_link_in_markdown_and_doc_comments_resolves_inside_the_reposito
         // Plain mentions of docs/*.md in doc comments must exist too.
         for (i, _) in docs.match_indices("docs/") {
             let tail = &docs[i..];
-            let end = tail.find(|c: char| !(c.is_ascii_alphanumeric() || "/._-".contains(c))).unwrap_or(tail.len());
+            let end = tail
+                .find(|c: char| !(c.is_ascii_alphanumeric() || "/._-".contains(c)))
+                .unwrap_or(tail.len());
             let mention = tail[..end].trim_end_matches('.');
             if mention.ends_with(".md") {
                 checked += 1;
@@ -92,7 +94,11 @@ fn every_relative_link_in_markdown_and_doc_comments_resolves_inside_the_reposito
             }
         }
     }
-    eprintln!("{checked} links checked in {} Markdown and {} Rust files", files.len(), sources.len());
+    eprintln!(
+        "{checked} links checked in {} Markdown and {} Rust files",
+        files.len(),
+        sources.len()
+    );
     assert!(checked > 50, "the scan found the links ({checked})");
     assert!(broken.is_empty(), "broken links:\n{}", broken.join("\n"));
 }

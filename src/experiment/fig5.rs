@@ -338,11 +338,23 @@ mod tests {
     fn a_curve_swinging_until_its_last_sample_has_not_settled() {
         let p = params();
         // 1 mm ± 0.4 mm at 3 Hz to the end; the last sample sits on the mean.
-        let swinging = trace(|t| if t < 3.0 { 0.0 } else { 1e-3 + 4e-4 * (2.0 * std::f64::consts::PI * 3.0 * (10.0 - t)).sin() });
+        let swinging = trace(|t| {
+            if t < 3.0 {
+                0.0
+            } else {
+                1e-3 + 4e-4 * (2.0 * std::f64::consts::PI * 3.0 * (10.0 - t)).sin()
+            }
+        });
         let m = metrics("tmm", &swinging, &p);
         assert!(!m.settled, "{m:?}");
         // A decaying curve that is quiet for the last seconds has settled.
-        let decaying = trace(|t| if t < 3.0 { 0.0 } else { 1e-3 * (1.0 - (-(t - 3.0) / 0.3).exp()) });
+        let decaying = trace(|t| {
+            if t < 3.0 {
+                0.0
+            } else {
+                1e-3 * (1.0 - (-(t - 3.0) / 0.3).exp())
+            }
+        });
         let m = metrics("nvtmm", &decaying, &p);
         assert!(m.settled && m.settle_time_s < 2.0, "{m:?}");
     }

@@ -10,7 +10,8 @@
 //! formulation, sign conventions and measurements are in `docs/SOLVERS.md`.
 //!
 //! ```
-//! use nvtmm::mesh::{arch::{generate, ArchParams}, Vec3};
+//! use nvtmm::math::Vec3;
+//! use nvtmm::mesh::arch::{generate, ArchParams};
 //! use nvtmm::solver::loads::{nodes_in_box, Loads, NodalLoad, TimeProfile};
 //! use nvtmm::solver::{ImplicitEuler, ImplicitEulerParams, LinearSolverKind, TissueState};
 //!
