@@ -83,7 +83,7 @@
 //! pool.
 
 //!
-//! The code: [`params`] (the limits, their checks), [`filter`] (the filter,
+//! The code: `params` (the limits, their checks), `filter` (the filter,
 //! its statistics, the solve), `polish` (the active-set polishing of
 //! near-degenerate solver answers).
 
