@@ -40,7 +40,7 @@ pub struct PassivityParams {
     /// Weight w of the rate slack (N): an exact penalty, keep it above twice
     /// the largest `‖F_des − F‖` you expect.
     pub rate_slack_weight_n: f64,
-    /// Energy in the tank at start and after [`PassivityFilter::reset`] (J).
+    /// Energy in the tank at start and after [`super::PassivityFilter::reset`] (J).
     pub tank_initial_j: f64,
     /// Reserve the output never draws on (J); covers the one-tick prediction
     /// error of the energy row.
