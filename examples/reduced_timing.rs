@@ -70,15 +70,51 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     );
     for r in [8, 16, 32] {
         let t = Instant::now();
-        let cold =
-            ModalBasis::compute(mesh, &model, &rest, &mass, &fixed, r, None).map_err(|e| format!("rest: {e}"))?;
+        let cold = ModalBasis::compute(&nvtmm::reduced::BasisSpec {
+            stiffness: nvtmm::reduced::Stiffness::Model {
+                mesh,
+                model: &model,
+                u: &rest,
+            },
+            mass: &mass,
+            fixed: &fixed,
+            r,
+            statics: nvtmm::reduced::Statics::None,
+            warm: None,
+            params: nvtmm::reduced::BasisParams::default(),
+        })
+        .map_err(|e| format!("rest: {e}"))?;
         let t_cold = t.elapsed().as_secs_f64();
         let t = Instant::now();
-        let warm = ModalBasis::compute(mesh, &model, &pressed, &mass, &fixed, r, Some(&cold))
-            .map_err(|e| format!("pressed: {e}"))?;
+        let warm = ModalBasis::compute(&nvtmm::reduced::BasisSpec {
+            stiffness: nvtmm::reduced::Stiffness::Model {
+                mesh,
+                model: &model,
+                u: &pressed,
+            },
+            mass: &mass,
+            fixed: &fixed,
+            r,
+            statics: nvtmm::reduced::Statics::None,
+            warm: Some(&cold),
+            params: nvtmm::reduced::BasisParams::default(),
+        })
+        .map_err(|e| format!("pressed: {e}"))?;
         let t_warm = t.elapsed().as_secs_f64();
         let t = Instant::now();
-        let again = ModalBasis::compute(mesh, &model, &pressed, &mass, &fixed, r, None)?;
+        let again = ModalBasis::compute(&nvtmm::reduced::BasisSpec {
+            stiffness: nvtmm::reduced::Stiffness::Model {
+                mesh,
+                model: &model,
+                u: &pressed,
+            },
+            mass: &mass,
+            fixed: &fixed,
+            r,
+            statics: nvtmm::reduced::Statics::None,
+            warm: None,
+            params: nvtmm::reduced::BasisParams::default(),
+        })?;
         let t_again = t.elapsed().as_secs_f64();
         // The same refresh at a looser tolerance, where the start matters.
         let loose = BasisParams {
@@ -86,17 +122,53 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             ..BasisParams::default()
         };
         let t = Instant::now();
-        let lw = ModalBasis::compute_with(mesh, &model, &pressed, &mass, &fixed, r, &[], Some(&cold), &loose)?;
+        let lw = ModalBasis::compute(&nvtmm::reduced::BasisSpec {
+            stiffness: nvtmm::reduced::Stiffness::Model {
+                mesh,
+                model: &model,
+                u: &pressed,
+            },
+            mass: &mass,
+            fixed: &fixed,
+            r,
+            statics: nvtmm::reduced::Statics::All(&[]),
+            warm: Some(&cold),
+            params: loose,
+        })?;
         let t_lw = t.elapsed().as_secs_f64();
         let t = Instant::now();
-        let lc = ModalBasis::compute_with(mesh, &model, &pressed, &mass, &fixed, r, &[], None, &loose)?;
+        let lc = ModalBasis::compute(&nvtmm::reduced::BasisSpec {
+            stiffness: nvtmm::reduced::Stiffness::Model {
+                mesh,
+                model: &model,
+                u: &pressed,
+            },
+            mass: &mass,
+            fixed: &fixed,
+            r,
+            statics: nvtmm::reduced::Statics::All(&[]),
+            warm: None,
+            params: loose,
+        })?;
         let t_lc = t.elapsed().as_secs_f64();
         println!(
             "r = {r:2}, tol 1e-6 at pressed u: warm {t_lw:.3} s ({} it) vs cold {t_lc:.3} s ({} it)",
             lw.iterations, lc.iterations
         );
         let t = Instant::now();
-        let aug = ModalBasis::compute_augmented(mesh, &model, &rest, &mass, &fixed, r, &[node], None)?;
+        let aug = ModalBasis::compute(&nvtmm::reduced::BasisSpec {
+            stiffness: nvtmm::reduced::Stiffness::Model {
+                mesh,
+                model: &model,
+                u: &rest,
+            },
+            mass: &mass,
+            fixed: &fixed,
+            r,
+            statics: nvtmm::reduced::Statics::All(&[node]),
+            warm: None,
+            params: nvtmm::reduced::BasisParams::default(),
+        })?;
         let t_aug = t.elapsed().as_secs_f64();
         let step = match r {
             8 => time_steps::<8>(&cold, node)?,

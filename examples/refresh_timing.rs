@@ -21,7 +21,20 @@ fn main() {
     let load = standard_load(&arch, 0.1);
     let u0 = vec![Vec3::zeros(); mesh.num_nodes()];
     let t = Instant::now();
-    let basis = ModalBasis::compute(mesh, &model, &u0, &mass, &load.fixed, r, None).expect("basis");
+    let basis = ModalBasis::compute(&nvtmm::reduced::BasisSpec {
+        stiffness: nvtmm::reduced::Stiffness::Model {
+            mesh,
+            model: &model,
+            u: &u0,
+        },
+        mass: &mass,
+        fixed: &load.fixed,
+        r,
+        statics: nvtmm::reduced::Statics::None,
+        warm: None,
+        params: nvtmm::reduced::BasisParams::default(),
+    })
+    .expect("basis");
     println!("basis {:.3} s", t.elapsed().as_secs_f64());
     let u: Vec<Vec3> = mesh
         .rest()

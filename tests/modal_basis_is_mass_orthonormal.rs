@@ -61,7 +61,20 @@ fn stiffness(s: &Setup) -> DMatrix<f64> {
 fn modes_are_mass_orthonormal_eigenvectors_matching_a_dense_solve() {
     let s = setup();
     let r = 16;
-    let basis = ModalBasis::compute(&s.arch.mesh, &s.model, &s.u, &s.mass, &s.fixed, r, None).expect("basis");
+    let basis = ModalBasis::compute(&nvtmm::reduced::BasisSpec {
+        stiffness: nvtmm::reduced::Stiffness::Model {
+            mesh: &s.arch.mesh,
+            model: &s.model,
+            u: &s.u,
+        },
+        mass: &s.mass,
+        fixed: &s.fixed,
+        r,
+        statics: nvtmm::reduced::Statics::None,
+        warm: None,
+        params: nvtmm::reduced::BasisParams::default(),
+    })
+    .expect("basis");
     assert_eq!(basis.len(), r);
     assert_eq!(basis.num_static, 0);
     let (m, free) = dof_mass(&s);
@@ -128,8 +141,34 @@ fn modes_are_mass_orthonormal_eigenvectors_matching_a_dense_solve() {
 #[test]
 fn warm_start_converges_faster_to_the_same_modes() {
     let s = setup();
-    let cold = ModalBasis::compute(&s.arch.mesh, &s.model, &s.u, &s.mass, &s.fixed, 12, None).expect("cold");
-    let warm = ModalBasis::compute(&s.arch.mesh, &s.model, &s.u, &s.mass, &s.fixed, 12, Some(&cold)).expect("warm");
+    let cold = ModalBasis::compute(&nvtmm::reduced::BasisSpec {
+        stiffness: nvtmm::reduced::Stiffness::Model {
+            mesh: &s.arch.mesh,
+            model: &s.model,
+            u: &s.u,
+        },
+        mass: &s.mass,
+        fixed: &s.fixed,
+        r: 12,
+        statics: nvtmm::reduced::Statics::None,
+        warm: None,
+        params: nvtmm::reduced::BasisParams::default(),
+    })
+    .expect("cold");
+    let warm = ModalBasis::compute(&nvtmm::reduced::BasisSpec {
+        stiffness: nvtmm::reduced::Stiffness::Model {
+            mesh: &s.arch.mesh,
+            model: &s.model,
+            u: &s.u,
+        },
+        mass: &s.mass,
+        fixed: &s.fixed,
+        r: 12,
+        statics: nvtmm::reduced::Statics::None,
+        warm: Some(&cold),
+        params: nvtmm::reduced::BasisParams::default(),
+    })
+    .expect("warm");
     println!("cold {} iterations, warm {}", cold.iterations, warm.iterations);
     assert!(warm.iterations < cold.iterations);
     for (a, b) in cold.omega2.iter().zip(&warm.omega2) {
@@ -141,8 +180,20 @@ fn warm_start_converges_faster_to_the_same_modes() {
 fn augmented_basis_is_mass_orthonormal_with_diagonal_stiffness() {
     let s = setup();
     let contact = [s.arch.node(s.arch.top_ring, 0, s.arch.grid.layers - 1) as u32];
-    let basis = ModalBasis::compute_augmented(&s.arch.mesh, &s.model, &s.u, &s.mass, &s.fixed, 8, &contact, None)
-        .expect("augmented");
+    let basis = ModalBasis::compute(&nvtmm::reduced::BasisSpec {
+        stiffness: nvtmm::reduced::Stiffness::Model {
+            mesh: &s.arch.mesh,
+            model: &s.model,
+            u: &s.u,
+        },
+        mass: &s.mass,
+        fixed: &s.fixed,
+        r: 8,
+        statics: nvtmm::reduced::Statics::All(&contact),
+        warm: None,
+        params: nvtmm::reduced::BasisParams::default(),
+    })
+    .expect("augmented");
     assert_eq!(basis.num_static, 3);
     assert_eq!(basis.len(), 11);
     let (m, _) = dof_mass(&s);
@@ -169,18 +220,54 @@ fn augmented_basis_is_mass_orthonormal_with_diagonal_stiffness() {
 fn bad_inputs_are_errors() {
     let s = setup();
     let n = s.arch.mesh.num_nodes();
-    let e = ModalBasis::compute(&s.arch.mesh, &s.model, &s.u, &s.mass, &[n as u32], 4, None);
+    let e = ModalBasis::compute(&nvtmm::reduced::BasisSpec {
+        stiffness: nvtmm::reduced::Stiffness::Model {
+            mesh: &s.arch.mesh,
+            model: &s.model,
+            u: &s.u,
+        },
+        mass: &s.mass,
+        fixed: &[n as u32],
+        r: 4,
+        statics: nvtmm::reduced::Statics::None,
+        warm: None,
+        params: nvtmm::reduced::BasisParams::default(),
+    });
     assert!(
         matches!(e, Err(nvtmm::reduced::ReducedError::NodeOutOfRange { .. })),
         "{e:?}"
     );
-    let e = ModalBasis::compute(&s.arch.mesh, &s.model, &s.u, &s.mass, &s.fixed, 0, None);
+    let e = ModalBasis::compute(&nvtmm::reduced::BasisSpec {
+        stiffness: nvtmm::reduced::Stiffness::Model {
+            mesh: &s.arch.mesh,
+            model: &s.model,
+            u: &s.u,
+        },
+        mass: &s.mass,
+        fixed: &s.fixed,
+        r: 0,
+        statics: nvtmm::reduced::Statics::None,
+        warm: None,
+        params: nvtmm::reduced::BasisParams::default(),
+    });
     assert!(
         matches!(e, Err(nvtmm::reduced::ReducedError::BadModeCount { .. })),
         "{e:?}"
     );
     // Nothing fixed: K is singular (rigid motions).
-    let e = ModalBasis::compute(&s.arch.mesh, &s.model, &s.u, &s.mass, &[], 4, None);
+    let e = ModalBasis::compute(&nvtmm::reduced::BasisSpec {
+        stiffness: nvtmm::reduced::Stiffness::Model {
+            mesh: &s.arch.mesh,
+            model: &s.model,
+            u: &s.u,
+        },
+        mass: &s.mass,
+        fixed: &[],
+        r: 4,
+        statics: nvtmm::reduced::Statics::None,
+        warm: None,
+        params: nvtmm::reduced::BasisParams::default(),
+    });
     assert!(
         matches!(e, Err(nvtmm::reduced::ReducedError::NotPositiveDefinite)),
         "{e:?}"
@@ -189,12 +276,36 @@ fn bad_inputs_are_errors() {
         tol: 0.0,
         max_iterations: 10,
     };
-    let e = ModalBasis::compute_with(&s.arch.mesh, &s.model, &s.u, &s.mass, &s.fixed, 4, &[], None, &params);
+    let e = ModalBasis::compute(&nvtmm::reduced::BasisSpec {
+        stiffness: nvtmm::reduced::Stiffness::Model {
+            mesh: &s.arch.mesh,
+            model: &s.model,
+            u: &s.u,
+        },
+        mass: &s.mass,
+        fixed: &s.fixed,
+        r: 4,
+        statics: nvtmm::reduced::Statics::All(&[]),
+        warm: None,
+        params,
+    });
     assert!(
         matches!(e, Err(nvtmm::reduced::ReducedError::BadParameter { name: "tol", .. })),
         "{e:?}"
     );
-    let e = ModalBasis::compute(&s.arch.mesh, &s.model, &s.u, &s.mass[1..], &s.fixed, 4, None);
+    let e = ModalBasis::compute(&nvtmm::reduced::BasisSpec {
+        stiffness: nvtmm::reduced::Stiffness::Model {
+            mesh: &s.arch.mesh,
+            model: &s.model,
+            u: &s.u,
+        },
+        mass: &s.mass[1..],
+        fixed: &s.fixed,
+        r: 4,
+        statics: nvtmm::reduced::Statics::None,
+        warm: None,
+        params: nvtmm::reduced::BasisParams::default(),
+    });
     assert!(
         matches!(e, Err(nvtmm::reduced::ReducedError::SizeMismatch { .. })),
         "{e:?}"

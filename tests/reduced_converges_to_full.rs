@@ -102,7 +102,20 @@ fn reduced_static_response_converges_to_full() {
     let mut warm: Option<ModalBasis> = None;
     for r in [4, 8, 16, 32] {
         let t = Instant::now();
-        let basis = ModalBasis::compute(mesh, &s.model, &s.u0, &s.mass, &s.fixed, r, warm.as_ref()).expect("basis");
+        let basis = ModalBasis::compute(&nvtmm::reduced::BasisSpec {
+            stiffness: nvtmm::reduced::Stiffness::Model {
+                mesh,
+                model: &s.model,
+                u: &s.u0,
+            },
+            mass: &s.mass,
+            fixed: &s.fixed,
+            r,
+            statics: nvtmm::reduced::Statics::None,
+            warm: warm.as_ref(),
+            params: nvtmm::reduced::BasisParams::default(),
+        })
+        .expect("basis");
         let secs = t.elapsed().as_secs_f64();
         let e = reduced_error(&s, &basis);
         println!(
@@ -121,8 +134,20 @@ fn reduced_static_response_converges_to_full() {
     assert!(errors[3] <= 0.4, "error at r = 32 is {:.3e}", errors[3]);
 
     for r in [4, 8] {
-        let basis =
-            ModalBasis::compute_augmented(mesh, &s.model, &s.u0, &s.mass, &s.fixed, r, &[s.node], None).expect("basis");
+        let basis = ModalBasis::compute(&nvtmm::reduced::BasisSpec {
+            stiffness: nvtmm::reduced::Stiffness::Model {
+                mesh,
+                model: &s.model,
+                u: &s.u0,
+            },
+            mass: &s.mass,
+            fixed: &s.fixed,
+            r,
+            statics: nvtmm::reduced::Statics::All(&[s.node]),
+            warm: None,
+            params: nvtmm::reduced::BasisParams::default(),
+        })
+        .expect("basis");
         let e = reduced_error(&s, &basis);
         println!("r = {r:2} + 3 attachment modes: error {e:.4e}");
         // The point load's static response lies in the span of the loaded
@@ -134,7 +159,20 @@ fn reduced_static_response_converges_to_full() {
 #[test]
 fn damped_reduced_dynamics_settle_to_the_static_solution() {
     let s = setup();
-    let basis = ModalBasis::compute(&s.arch.mesh, &s.model, &s.u0, &s.mass, &s.fixed, 8, None).expect("basis");
+    let basis = ModalBasis::compute(&nvtmm::reduced::BasisSpec {
+        stiffness: nvtmm::reduced::Stiffness::Model {
+            mesh: &s.arch.mesh,
+            model: &s.model,
+            u: &s.u0,
+        },
+        mass: &s.mass,
+        fixed: &s.fixed,
+        r: 8,
+        statics: nvtmm::reduced::Statics::None,
+        warm: None,
+        params: nvtmm::reduced::BasisParams::default(),
+    })
+    .expect("basis");
     // Critically damped lowest mode: α = 2 ω₁.
     let params = DynamicsParams {
         dt: 1e-3,

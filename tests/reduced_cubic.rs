@@ -50,7 +50,20 @@ fn beam() -> Beam {
 
 fn modes(b: &Beam, r: usize) -> ModalBasis {
     let u0 = vec![Vec3::zeros(); b.mesh.num_nodes()];
-    ModalBasis::compute(&b.mesh, &b.model, &u0, &b.mass, &b.fixed, r, None).expect("basis")
+    ModalBasis::compute(&nvtmm::reduced::BasisSpec {
+        stiffness: nvtmm::reduced::Stiffness::Model {
+            mesh: &b.mesh,
+            model: &b.model,
+            u: &u0,
+        },
+        mass: &b.mass,
+        fixed: &b.fixed,
+        r,
+        statics: nvtmm::reduced::Statics::None,
+        warm: None,
+        params: nvtmm::reduced::BasisParams::default(),
+    })
+    .expect("basis")
 }
 
 fn flat(v: &[Vec3]) -> DVector<f64> {
@@ -196,18 +209,22 @@ fn rms_error(a: &[f64], reference: &[f64]) -> f64 {
 /// the tip), enriched with modal derivatives of all 6 to 16 columns.
 fn derivative_basis(b: &Beam) -> ModalBasis {
     let u0 = vec![Vec3::zeros(); b.mesh.num_nodes()];
-    let basis = ModalBasis::compute_contact(
-        &b.mesh,
-        &b.model,
-        &u0,
-        &b.mass,
-        &b.fixed,
-        6,
-        &b.tip,
-        3,
-        None,
-        &BasisParams::default(),
-    )
+    let basis = ModalBasis::compute(&nvtmm::reduced::BasisSpec {
+        stiffness: nvtmm::reduced::Stiffness::Model {
+            mesh: &b.mesh,
+            model: &b.model,
+            u: &u0,
+        },
+        mass: &b.mass,
+        fixed: &b.fixed,
+        r: 6,
+        statics: nvtmm::reduced::Statics::Compressed {
+            contact: &b.tip,
+            max_static: 3,
+        },
+        warm: None,
+        params: BasisParams::default(),
+    })
     .expect("basis");
     with_modal_derivatives(&b.mesh, &b.model, &b.mass, &basis, 6, 16).expect("derivatives")
 }
@@ -239,18 +256,22 @@ fn cubic_dynamics_follow_the_full_model_better_than_the_linear_one_under_a_large
     // Without the derivatives the exact polynomial locks (too stiff): the
     // reason the enrichment exists.
     let u0 = vec![Vec3::zeros(); b.mesh.num_nodes()];
-    let plain = ModalBasis::compute_contact(
-        &b.mesh,
-        &b.model,
-        &u0,
-        &b.mass,
-        &b.fixed,
-        16,
-        &b.tip,
-        8,
-        None,
-        &BasisParams::default(),
-    )
+    let plain = ModalBasis::compute(&nvtmm::reduced::BasisSpec {
+        stiffness: nvtmm::reduced::Stiffness::Model {
+            mesh: &b.mesh,
+            model: &b.model,
+            u: &u0,
+        },
+        mass: &b.mass,
+        fixed: &b.fixed,
+        r: 16,
+        statics: nvtmm::reduced::Statics::Compressed {
+            contact: &b.tip,
+            max_static: 8,
+        },
+        warm: None,
+        params: BasisParams::default(),
+    })
     .expect("basis");
     let (full, _, cub) = tip_histories(&b, &plain, 0.05);
     assert!(rms_error(&cub, &full) > 0.3, "{}", rms_error(&cub, &full));

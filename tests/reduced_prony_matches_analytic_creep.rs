@@ -22,7 +22,20 @@ fn reduced_prony_creep_matches_the_standard_linear_solid() {
     let fixed = mesh.node_set("x_min").unwrap().to_vec();
     let tip = mesh.node_set("x_max").unwrap().to_vec();
     let u0 = vec![Vec3::zeros(); mesh.num_nodes()];
-    let basis = ModalBasis::compute(&mesh, &model, &u0, &mass, &fixed, 12, None).unwrap();
+    let basis = ModalBasis::compute(&nvtmm::reduced::BasisSpec {
+        stiffness: nvtmm::reduced::Stiffness::Model {
+            mesh: &mesh,
+            model: &model,
+            u: &u0,
+        },
+        mass: &mass,
+        fixed: &fixed,
+        r: 12,
+        statics: nvtmm::reduced::Statics::None,
+        warm: None,
+        params: nvtmm::reduced::BasisParams::default(),
+    })
+    .unwrap();
     let w1 = basis.omega2[0].sqrt();
     let params = DynamicsParams {
         dt: 1e-3,

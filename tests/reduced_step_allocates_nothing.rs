@@ -27,7 +27,20 @@ fn reduced_step_allocates_nothing() {
     fixed.extend_from_slice(mesh.node_set("outlet_descending").expect("outlet"));
     let u0 = vec![Vec3::zeros(); mesh.num_nodes()];
     let node = arch.node(arch.top_ring, 0, arch.grid.layers - 1) as u32;
-    let basis = ModalBasis::compute_augmented(mesh, &model, &u0, &mass, &fixed, 8, &[node], None).expect("basis");
+    let basis = ModalBasis::compute(&nvtmm::reduced::BasisSpec {
+        stiffness: nvtmm::reduced::Stiffness::Model {
+            mesh,
+            model: &model,
+            u: &u0,
+        },
+        mass: &mass,
+        fixed: &fixed,
+        r: 8,
+        statics: nvtmm::reduced::Statics::All(&[node]),
+        warm: None,
+        params: nvtmm::reduced::BasisParams::default(),
+    })
+    .expect("basis");
     let params = DynamicsParams {
         dt: 1e-3,
         alpha: 5.0,

@@ -257,16 +257,18 @@ fn swap_mid_contact(new_basis: bool) {
         // warm-started from the basis in use.
         let mut k = BlockTangent::zeros(&p.mesh);
         model.add_stiffness(&state.u, &mut k);
-        let nb = ModalBasis::compute_contact_from_tangent(
-            &k,
-            &p.mass,
-            &p.fixed,
-            R,
-            &p.contact,
-            R / 2,
-            Some(&p.basis),
-            &BasisParams::default(),
-        )
+        let nb = ModalBasis::compute(&nvtmm::reduced::BasisSpec {
+            stiffness: nvtmm::reduced::Stiffness::Tangent(&k),
+            mass: &p.mass,
+            fixed: &p.fixed,
+            r: R,
+            statics: nvtmm::reduced::Statics::Compressed {
+                contact: &p.contact,
+                max_static: R / 2,
+            },
+            warm: Some(&p.basis),
+            params: BasisParams::default(),
+        })
         .unwrap();
         bg.refresher = Refresher::new(&p.mesh, &nb, &p.mass);
         bg.rows = basis_rows::<R>(&nb).unwrap();

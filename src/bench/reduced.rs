@@ -6,7 +6,7 @@
 //! footprint: the outer-wall nodes within [`PROBE_RADIUS_M`](crate::bench::PROBE_RADIUS_M) of the arch top
 //! ([`arch_top_node`](crate::bench::arch_top_node)). Measured:
 //!
-//! - `basis_s`: [`ModalBasis::compute_contact`] with r columns, up to ⌊r/2⌋
+//! - `basis_s`: [`ModalBasis::compute`] (`Statics::Compressed`) with r columns, up to ⌊r/2⌋
 //!   of them static modes of the region, default tolerance, cold start;
 //! - `us_per_step`, `us_per_step_p99`: median and 99th percentile of one
 //!   [`ReducedDynamics::step_with_contact`] (the haptic loop's step), over
@@ -110,18 +110,22 @@ fn run<const R: usize>(r: usize, nodes: usize, steps: usize) -> Result<ReducedBe
     let contact = probe_region(&arch);
     let u0 = vec![Vec3::zeros(); mesh.num_nodes()];
     let t0 = Instant::now();
-    let basis = ModalBasis::compute_contact(
-        mesh,
-        &model,
-        &u0,
-        &mass,
-        &fixed,
+    let basis = ModalBasis::compute(&crate::reduced::BasisSpec {
+        stiffness: crate::reduced::Stiffness::Model {
+            mesh,
+            model: &model,
+            u: &u0,
+        },
+        mass: &mass,
+        fixed: &fixed,
         r,
-        &contact,
-        r / 2,
-        None,
-        &BasisParams::default(),
-    )
+        statics: crate::reduced::Statics::Compressed {
+            contact: &contact,
+            max_static: r / 2,
+        },
+        warm: None,
+        params: BasisParams::default(),
+    })
     .map_err(|e| format!("basis: {e}"))?;
     let basis_s = t0.elapsed().as_secs_f64();
     let params = bench_dynamics_params();
@@ -188,18 +192,22 @@ fn run<const R: usize>(r: usize, nodes: usize, steps: usize) -> Result<ReducedBe
     // The background basis refresh: the same basis recomputed at the
     // pressed state, warm-started from the rest basis.
     let t = Instant::now();
-    let warm = ModalBasis::compute_contact(
-        mesh,
-        &model,
-        &u,
-        &mass,
-        &fixed,
+    let warm = ModalBasis::compute(&crate::reduced::BasisSpec {
+        stiffness: crate::reduced::Stiffness::Model {
+            mesh,
+            model: &model,
+            u: &u,
+        },
+        mass: &mass,
+        fixed: &fixed,
         r,
-        &contact,
-        r / 2,
-        Some(&basis),
-        &BasisParams::default(),
-    )
+        statics: crate::reduced::Statics::Compressed {
+            contact: &contact,
+            max_static: r / 2,
+        },
+        warm: Some(&basis),
+        params: BasisParams::default(),
+    })
     .map_err(|e| format!("warm basis: {e}"))?;
     let basis_warm_s = t.elapsed().as_secs_f64();
     Ok(ReducedBench {

@@ -237,7 +237,20 @@ impl Setup {
         let n = mesh.num_nodes();
         let mass = mesh.lumped_mass(mat.density);
         let zeros = vec![Vec3::zeros(); n];
-        let basis = ModalBasis::compute(mesh, &model, &zeros, &mass, &fixed, r, None).map_err(|x| x.to_string())?;
+        let basis = ModalBasis::compute(&crate::reduced::BasisSpec {
+            stiffness: crate::reduced::Stiffness::Model {
+                mesh,
+                model: &model,
+                u: &zeros,
+            },
+            mass: &mass,
+            fixed: &fixed,
+            r,
+            statics: crate::reduced::Statics::None,
+            warm: None,
+            params: crate::reduced::BasisParams::default(),
+        })
+        .map_err(|x| x.to_string())?;
         let mut k = BlockTangent::zeros(mesh);
         model.add_stiffness(&zeros, &mut k);
         let (table, stats) = LocalCompliance::compute(mesh, &k, &basis, compliance)?;

@@ -12,7 +12,7 @@
 //!   benchmark).
 //! - Reference: the full NVTMM (StVK), implicit Euler with Newton to a
 //!   relative residual of 1e-8 (sparse Cholesky).
-//! - Two bases per r: "modes+static" (`ModalBasis::compute_contact`, r
+//! - Two bases per r: "modes+static" (`ModalBasis::compute` with `Statics::Compressed`, r
 //!   columns, ⌊r/2⌋ static modes of the patch, as the haptic loop uses) and
 //!   "+derivatives" (⌈r/2⌉ such columns enriched to r with the modal
 //!   derivatives the patch load excites most,
@@ -365,8 +365,23 @@ pub fn run(out: &Path, quick: bool) -> Result<CubicResults, ExperimentError> {
     let bp = BasisParams::default();
     let contact_basis = |r: usize| -> Result<(ModalBasis, f64), ExperimentError> {
         let t = Instant::now();
-        let b = ModalBasis::compute_contact(&s.mesh, &s.model, &u0, &s.mass, &s.fixed, r, &s.patch, r / 2, None, &bp)
-            .map_err(|e| ExperimentError::Setup(format!("basis r = {r}: {e}")))?;
+        let b = ModalBasis::compute(&crate::reduced::BasisSpec {
+            stiffness: crate::reduced::Stiffness::Model {
+                mesh: &s.mesh,
+                model: &s.model,
+                u: &u0,
+            },
+            mass: &s.mass,
+            fixed: &s.fixed,
+            r,
+            statics: crate::reduced::Statics::Compressed {
+                contact: &s.patch,
+                max_static: r / 2,
+            },
+            warm: None,
+            params: bp,
+        })
+        .map_err(|e| ExperimentError::Setup(format!("basis r = {r}: {e}")))?;
         Ok((b, t.elapsed().as_secs_f64()))
     };
     let mut load_pattern = vec![Vec3::zeros(); s.mesh.num_nodes()];
@@ -432,8 +447,23 @@ pub fn run(out: &Path, quick: bool) -> Result<CubicResults, ExperimentError> {
             let patch = probe_region(&arch);
             let z = vec![Vec3::zeros(); mesh.num_nodes()];
             let t = Instant::now();
-            let b = ModalBasis::compute_contact(mesh, &model, &z, &mass, &fixed, r, &patch, r / 2, None, &bp)
-                .map_err(|e| ExperimentError::Setup(format!("basis {n} nodes: {e}")))?;
+            let b = ModalBasis::compute(&crate::reduced::BasisSpec {
+                stiffness: crate::reduced::Stiffness::Model {
+                    mesh,
+                    model: &model,
+                    u: &z,
+                },
+                mass: &mass,
+                fixed: &fixed,
+                r,
+                statics: crate::reduced::Statics::Compressed {
+                    contact: &patch,
+                    max_static: r / 2,
+                },
+                warm: None,
+                params: bp,
+            })
+            .map_err(|e| ExperimentError::Setup(format!("basis {n} nodes: {e}")))?;
             let basis_s = t.elapsed().as_secs_f64();
             let c = CubicStvk::new(mesh, &mat, &b).map_err(|e| ExperimentError::Setup(e.to_string()))?;
             precompute.push(PrecomputeRow {

@@ -136,26 +136,42 @@ pub fn run(out: &Path, quick: bool) -> Result<(Vec<ReducedRow>, Vec<RoiRow>), Ex
     let params = BasisParams::default();
     let rmax = rs[rs.len() - 1];
     let t0 = Instant::now();
-    let modes = ModalBasis::compute_with(mesh, &model, &u0, &mass, &fixed, rmax, &[], None, &params)
-        .map_err(|e| ExperimentError::Setup(format!("basis: {e}")))?;
+    let modes = ModalBasis::compute(&crate::reduced::BasisSpec {
+        stiffness: crate::reduced::Stiffness::Model {
+            mesh,
+            model: &model,
+            u: &u0,
+        },
+        mass: &mass,
+        fixed: &fixed,
+        r: rmax,
+        statics: crate::reduced::Statics::All(&[]),
+        warm: None,
+        params,
+    })
+    .map_err(|e| ExperimentError::Setup(format!("basis: {e}")))?;
     let modes_s = t0.elapsed().as_secs_f64();
     let mut rows = Vec::new();
     for &r in rs {
         for contact_modes in [false, true] {
             let t = Instant::now();
             let basis = if contact_modes {
-                ModalBasis::compute_contact(
-                    mesh,
-                    &model,
-                    &u0,
-                    &mass,
-                    &fixed,
+                ModalBasis::compute(&crate::reduced::BasisSpec {
+                    stiffness: crate::reduced::Stiffness::Model {
+                        mesh,
+                        model: &model,
+                        u: &u0,
+                    },
+                    mass: &mass,
+                    fixed: &fixed,
                     r,
-                    &patch,
-                    r / 2,
-                    Some(&modes),
-                    &params,
-                )
+                    statics: crate::reduced::Statics::Compressed {
+                        contact: &patch,
+                        max_static: r / 2,
+                    },
+                    warm: Some(&modes),
+                    params,
+                })
                 .map_err(|e| ExperimentError::Setup(format!("basis r = {r}: {e}")))?
             } else {
                 ModalBasis {
@@ -202,9 +218,20 @@ pub fn run(out: &Path, quick: bool) -> Result<(Vec<ReducedRow>, Vec<RoiRow>), Ex
         let t = Instant::now();
         let m = mesh.lumped_mass(mat.density);
         let u0 = vec![Vec3::zeros(); mesh.num_nodes()];
-        ModalBasis::compute_contact(mesh, model, &u0, &m, fixed, 16, patch, 8, None, &params)
-            .map(|_| t.elapsed().as_secs_f64())
-            .map_err(|e| ExperimentError::Setup(format!("roi basis: {e}")))
+        ModalBasis::compute(&crate::reduced::BasisSpec {
+            stiffness: crate::reduced::Stiffness::Model { mesh, model, u: &u0 },
+            mass: &m,
+            fixed,
+            r: 16,
+            statics: crate::reduced::Statics::Compressed {
+                contact: patch,
+                max_static: 8,
+            },
+            warm: None,
+            params,
+        })
+        .map(|_| t.elapsed().as_secs_f64())
+        .map_err(|e| ExperimentError::Setup(format!("roi basis: {e}")))
     };
     let whole_top = u_whole[top as usize];
     roi_rows.push(RoiRow {

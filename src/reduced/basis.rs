@@ -19,7 +19,7 @@
 //! already.
 //!
 //! Static (attachment) modes K⁻¹ e_d for the DOFs of given contact nodes can
-//! be added ([`ModalBasis::compute_augmented`]): they make the reduced model's
+//! be added ([`Statics::All`] in a [`BasisSpec`]): they make the reduced model's
 //! stiffness at those nodes exact, which a few vibration modes alone cannot.
 
 use crate::math::Vec3;
@@ -182,118 +182,135 @@ pub struct ModalBasis {
     pub iterations: usize,
 }
 
+/// Where the stiffness K of a basis comes from.
+#[derive(Clone, Copy)]
+pub enum Stiffness<'a> {
+    /// `model.add_stiffness(u)` on `mesh`.
+    Model {
+        /// The mesh.
+        mesh: &'a TetMesh,
+        /// The force model.
+        model: &'a dyn ForceModel,
+        /// The displacement to linearize at (one entry per node).
+        u: &'a [Vec3],
+    },
+    /// An already assembled tangent (e.g. the one the full implicit step just
+    /// built): a background refresh needs neither the model nor an assembly.
+    Tangent(&'a BlockTangent),
+}
+
+/// Static (attachment) modes K⁻¹ e_d added for a contact region.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Statics<'a> {
+    /// Vibration modes only.
+    None,
+    /// Every attachment direction of the free nodes of the region, on top of
+    /// the `r` modes (M-orthonormalized against them; directions already in
+    /// the span dropped), the whole rotated to its Ritz vectors.
+    All(&'a [u32]),
+    /// Exactly `r` columns: the attachment responses of the free region
+    /// nodes compressed to their `k = min(3 · free nodes, max_static)`
+    /// dominant directions (best rank-k approximation of the region's
+    /// compliance in the M inner product), and `r − k` vibration modes; see
+    /// [`static_split`].
+    Compressed {
+        /// The region's nodes.
+        contact: &'a [u32],
+        /// Most static directions kept.
+        max_static: usize,
+    },
+}
+
+/// What basis to compute ([`ModalBasis::compute`]).
+#[derive(Clone, Copy)]
+pub struct BasisSpec<'a> {
+    /// K.
+    pub stiffness: Stiffness<'a>,
+    /// Lumped mass per node (kg).
+    pub mass: &'a [f64],
+    /// Fixed nodes (their rows of Φ are zero).
+    pub fixed: &'a [u32],
+    /// Number of vibration modes (with [`Statics::Compressed`], of columns).
+    pub r: usize,
+    /// Static modes of a contact region.
+    pub statics: Statics<'a>,
+    /// A basis from a nearby state on the same mesh to start from.
+    pub warm: Option<&'a ModalBasis>,
+    /// Tolerance and iteration limit.
+    pub params: BasisParams,
+}
+
+impl<'a> BasisSpec<'a> {
+    /// `r` vibration modes of `model` linearized at `u`, default tolerance,
+    /// no static modes, no warm start.
+    pub fn modes(
+        mesh: &'a TetMesh,
+        model: &'a dyn ForceModel,
+        u: &'a [Vec3],
+        mass: &'a [f64],
+        fixed: &'a [u32],
+        r: usize,
+    ) -> BasisSpec<'a> {
+        BasisSpec {
+            stiffness: Stiffness::Model { mesh, model, u },
+            mass,
+            fixed,
+            r,
+            statics: Statics::None,
+            warm: None,
+            params: BasisParams::default(),
+        }
+    }
+}
+
 impl ModalBasis {
-    /// The `r` lowest vibration modes of K(u) φ = ω² M φ, K from
-    /// `model.add_stiffness(u, ..)`, `mass` the lumped mass per node, the
-    /// nodes in `fixed` removed. `warm` (a basis from a nearby u on the same
-    /// mesh) starts the iteration from its columns.
-    pub fn compute(
-        mesh: &TetMesh,
-        model: &dyn ForceModel,
-        u: &[Vec3],
-        mass: &[f64],
-        fixed: &[u32],
-        r: usize,
-        warm: Option<&ModalBasis>,
-    ) -> Result<ModalBasis, ReducedError> {
-        ModalBasis::compute_augmented(mesh, model, u, mass, fixed, r, &[], warm)
-    }
-
-    /// As [`ModalBasis::compute`], then adds the static modes K⁻¹ e_d for the
-    /// three DOFs of each free node in `contact` (fixed contact nodes are
-    /// skipped), M-orthonormalizes them against the modes (directions already
-    /// in the span are dropped) and rotates the whole basis to its Ritz
-    /// vectors, so that ΦᵀKΦ stays diagonal.
-    #[allow(clippy::too_many_arguments)]
-    pub fn compute_augmented(
-        mesh: &TetMesh,
-        model: &dyn ForceModel,
-        u: &[Vec3],
-        mass: &[f64],
-        fixed: &[u32],
-        r: usize,
-        contact: &[u32],
-        warm: Option<&ModalBasis>,
-    ) -> Result<ModalBasis, ReducedError> {
-        ModalBasis::compute_with(mesh, model, u, mass, fixed, r, contact, warm, &BasisParams::default())
-    }
-
-    /// As [`ModalBasis::compute_augmented`] with a chosen tolerance and
-    /// iteration limit: a looser tolerance is what lets a warm start pay off
-    /// when the basis is refreshed often.
-    #[allow(clippy::too_many_arguments)]
-    pub fn compute_with(
-        mesh: &TetMesh,
-        model: &dyn ForceModel,
-        u: &[Vec3],
-        mass: &[f64],
-        fixed: &[u32],
-        r: usize,
-        contact: &[u32],
-        warm: Option<&ModalBasis>,
-        params: &BasisParams,
-    ) -> Result<ModalBasis, ReducedError> {
-        compute_inner(mesh, model, u, mass, fixed, r, contact, None, warm, params)
-    }
-
-    /// A basis of exactly `r_total` columns for a contact region: the static
-    /// (attachment) responses K⁻¹ e_d of the free `contact` nodes are
-    /// M-orthogonalized against the vibration modes and compressed to their
-    /// `k` = min(3 · free contact nodes, `max_static`) dominant directions
-    /// (the leading eigenvectors of their Gram matrix in the M inner
-    /// product: the best rank-k approximation of the compliance seen from the
-    /// region), and `r_total − k` vibration modes fill the rest. With
-    /// `max_static = 0` or no contact nodes this is [`ModalBasis::compute_with`]
-    /// with `r_total` modes. See [`static_split`] for the split.
-    #[allow(clippy::too_many_arguments)]
-    pub fn compute_contact(
-        mesh: &TetMesh,
-        model: &dyn ForceModel,
-        u: &[Vec3],
-        mass: &[f64],
-        fixed: &[u32],
-        r_total: usize,
-        contact: &[u32],
-        max_static: usize,
-        warm: Option<&ModalBasis>,
-        params: &BasisParams,
-    ) -> Result<ModalBasis, ReducedError> {
-        let k = tangent_at(mesh, model, u)?;
-        ModalBasis::compute_contact_from_tangent(&k, mass, fixed, r_total, contact, max_static, warm, params)
-    }
-
-    /// As [`ModalBasis::compute_contact`] on an already assembled tangent
-    /// `k` (e.g. the one the full implicit step just built), so a background
-    /// basis refresh needs neither the force model nor an assembly of its
-    /// own. Warm-start it from the previous basis.
-    #[allow(clippy::too_many_arguments)]
-    pub fn compute_contact_from_tangent(
-        k: &BlockTangent,
-        mass: &[f64],
-        fixed: &[u32],
-        r_total: usize,
-        contact: &[u32],
-        max_static: usize,
-        warm: Option<&ModalBasis>,
-        params: &BasisParams,
-    ) -> Result<ModalBasis, ReducedError> {
-        let n = k.num_nodes();
-        let mut is_fixed = vec![false; n];
-        for &f in fixed {
-            if let Some(x) = is_fixed.get_mut(f as usize) {
-                *x = true;
+    /// Computes the basis a [`BasisSpec`] asks for: the `r` lowest
+    /// vibration modes of K φ = ω² M φ (fixed nodes removed, Φᵀ M Φ = I),
+    /// optionally with static (attachment) modes of a contact region (see
+    /// [`Statics`]), warm-started from a nearby basis if one is given.
+    pub fn compute(spec: &BasisSpec<'_>) -> Result<ModalBasis, ReducedError> {
+        let owned;
+        let k = match spec.stiffness {
+            Stiffness::Model { mesh, model, u } => {
+                owned = tangent_at(mesh, model, u)?;
+                &owned
+            }
+            Stiffness::Tangent(k) => k,
+        };
+        match spec.statics {
+            Statics::None => compute_from_tangent(k, spec.mass, spec.fixed, spec.r, &[], None, spec.warm, &spec.params),
+            Statics::All(contact) => {
+                compute_from_tangent(k, spec.mass, spec.fixed, spec.r, contact, None, spec.warm, &spec.params)
+            }
+            Statics::Compressed { contact, max_static } => {
+                let n = k.num_nodes();
+                let mut is_fixed = vec![false; n];
+                for &f in spec.fixed {
+                    if let Some(x) = is_fixed.get_mut(f as usize) {
+                        *x = true;
+                    }
+                }
+                let mut free_contact: Vec<u32> = contact
+                    .iter()
+                    .copied()
+                    .filter(|&c| !is_fixed.get(c as usize).copied().unwrap_or(false))
+                    .collect();
+                free_contact.sort_unstable();
+                free_contact.dedup();
+                let (modes, k_static) = static_split(spec.r, free_contact.len(), max_static);
+                let contact_used: &[u32] = if k_static == 0 { &[] } else { contact };
+                compute_from_tangent(
+                    k,
+                    spec.mass,
+                    spec.fixed,
+                    modes,
+                    contact_used,
+                    Some(k_static),
+                    spec.warm,
+                    &spec.params,
+                )
             }
         }
-        let mut free_contact: Vec<u32> = contact
-            .iter()
-            .copied()
-            .filter(|&c| !is_fixed.get(c as usize).copied().unwrap_or(false))
-            .collect();
-        free_contact.sort_unstable();
-        free_contact.dedup();
-        let (modes, k_static) = static_split(r_total, free_contact.len(), max_static);
-        let contact_used: &[u32] = if k_static == 0 { &[] } else { contact };
-        compute_from_tangent(k, mass, fixed, modes, contact_used, Some(k_static), warm, params)
     }
 
     /// Number of basis vectors (columns).
@@ -354,26 +371,6 @@ pub fn static_split(r_total: usize, free_contact_nodes: usize, max_static: usize
     (r_total - k, k)
 }
 
-/// The body of [`ModalBasis::compute_with`] and
-/// [`ModalBasis::compute_contact`]: `max_static` None keeps every attachment
-/// direction.
-#[allow(clippy::too_many_arguments)]
-fn compute_inner(
-    mesh: &TetMesh,
-    model: &dyn ForceModel,
-    u: &[Vec3],
-    mass: &[f64],
-    fixed: &[u32],
-    r: usize,
-    contact: &[u32],
-    max_static: Option<usize>,
-    warm: Option<&ModalBasis>,
-    params: &BasisParams,
-) -> Result<ModalBasis, ReducedError> {
-    let k = tangent_at(mesh, model, u)?;
-    compute_from_tangent(&k, mass, fixed, r, contact, max_static, warm, params)
-}
-
 /// The tangent K(u) of `model`, after checking u's length.
 fn tangent_at(mesh: &TetMesh, model: &dyn ForceModel, u: &[Vec3]) -> Result<BlockTangent, ReducedError> {
     let n = mesh.num_nodes();
@@ -389,7 +386,8 @@ fn tangent_at(mesh: &TetMesh, model: &dyn ForceModel, u: &[Vec3]) -> Result<Bloc
     Ok(k)
 }
 
-/// [`compute_inner`] on an assembled tangent.
+/// The basis on an assembled tangent: `max_static` None keeps every
+/// attachment direction of `contact`.
 #[allow(clippy::too_many_arguments)]
 fn compute_from_tangent(
     k: &BlockTangent,

@@ -107,7 +107,7 @@ pub struct BasisRequest<'a> {
     pub r: usize,
     /// Contact nodes (empty: no static modes).
     pub contact: &'a [u32],
-    /// Static-mode budget for [`ModalBasis::compute_contact`].
+    /// Static-mode budget for [`Statics::Compressed`](crate::reduced::basis::Statics::Compressed).
     pub max_static: usize,
     /// Stopping rule.
     pub params: BasisParams,
@@ -167,18 +167,22 @@ impl BasisRequest<'_> {
     /// Computes the basis (no cache).
     pub fn compute(&self) -> Result<ModalBasis, ReducedError> {
         let u = vec![Vec3::zeros(); self.mesh.num_nodes()];
-        ModalBasis::compute_contact(
-            self.mesh,
-            self.model,
-            &u,
-            self.mass,
-            self.fixed,
-            self.r,
-            self.contact,
-            self.max_static,
-            None,
-            &self.params,
-        )
+        ModalBasis::compute(&crate::reduced::BasisSpec {
+            stiffness: crate::reduced::Stiffness::Model {
+                mesh: self.mesh,
+                model: self.model,
+                u: &u,
+            },
+            mass: self.mass,
+            fixed: self.fixed,
+            r: self.r,
+            statics: crate::reduced::Statics::Compressed {
+                contact: self.contact,
+                max_static: self.max_static,
+            },
+            warm: None,
+            params: self.params,
+        })
     }
 }
 

@@ -29,7 +29,7 @@ pub mod derivatives;
 pub mod dynamics;
 pub mod refresh;
 
-pub use basis::{static_split, BasisParams, ModalBasis, ReducedError};
+pub use basis::{static_split, BasisParams, BasisSpec, ModalBasis, ReducedError, Statics, Stiffness};
 pub use cubic::{CubicReducedDynamics, CubicStepError, CubicStvk};
 pub use dynamics::{basis_rows, BasisRows, DynamicsParams, NodeOutOfRange, ReducedDynamics};
 pub use refresh::Refresher;

@@ -237,7 +237,20 @@ mod tests {
         let mass = mesh.lumped_mass(mat.density);
         let fixed = mesh.node_set("x_min").unwrap().to_vec();
         let u0 = vec![Vec3::zeros(); mesh.num_nodes()];
-        let basis = ModalBasis::compute(&mesh, &model, &u0, &mass, &fixed, 6, None).unwrap();
+        let basis = ModalBasis::compute(&crate::reduced::BasisSpec {
+            stiffness: crate::reduced::Stiffness::Model {
+                mesh: &mesh,
+                model: &model,
+                u: &u0,
+            },
+            mass: &mass,
+            fixed: &fixed,
+            r: 6,
+            statics: crate::reduced::Statics::None,
+            warm: None,
+            params: crate::reduced::BasisParams::default(),
+        })
+        .unwrap();
         let mut r = Refresher::new(&mesh, &basis, &mass);
         // At rest K_r = diag(ω²).
         let k0 = r.reduced_stiffness(&model, &u0);

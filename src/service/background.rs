@@ -9,7 +9,7 @@
 //! from the state the basis was computed at, the background thread hands
 //! the tangent its last step assembled to a basis thread ([`basis_thread`]),
 //! which recomputes the modal basis there warm-started from the previous
-//! one ([`ModalBasis::compute_contact_from_tangent`]) and sends back a new
+//! one ([`ModalBasis::compute`] from the step's tangent) and sends back a new
 //! [`Refresher`] and basis rows. The next model built carries the loop's
 //! state over to the new basis, δq₁ = Φ₁ᵀ M Φ₀ δq₀ + Φ₁ᵀ M (ū₀ − ū₁), and
 //! the loop cross-fades as at every swap.
@@ -158,16 +158,18 @@ pub fn basis_thread<const R: usize>(
             continue;
         };
         let t = std::time::Instant::now();
-        let basis = ModalBasis::compute_contact_from_tangent(
-            &job.tangent,
-            &w.mass,
-            &w.fixed,
-            w.r,
-            &w.contact,
-            w.max_static,
-            Some(&w.current),
-            &w.params,
-        );
+        let basis = ModalBasis::compute(&crate::reduced::BasisSpec {
+            stiffness: crate::reduced::Stiffness::Tangent(&job.tangent),
+            mass: &w.mass,
+            fixed: &w.fixed,
+            r: w.r,
+            statics: crate::reduced::Statics::Compressed {
+                contact: &w.contact,
+                max_static: w.max_static,
+            },
+            warm: Some(&w.current),
+            params: w.params,
+        });
         let Ok(basis) = basis else {
             stats.failures += 1;
             continue;

@@ -272,18 +272,22 @@ pub fn contact_plate(mat: &Material, fixed_sets: &[&str], r: usize) -> ContactPl
         .filter(|&i| (mesh.rest()[i as usize] - center).norm() <= 5e-3)
         .collect();
     let zeros = vec![Vec3::zeros(); mesh.num_nodes()];
-    let basis = nvtmm::reduced::ModalBasis::compute_contact(
-        &mesh,
-        &model,
-        &zeros,
-        &mass,
-        &fixed,
+    let basis = nvtmm::reduced::ModalBasis::compute(&nvtmm::reduced::BasisSpec {
+        stiffness: nvtmm::reduced::Stiffness::Model {
+            mesh: &mesh,
+            model: &model,
+            u: &zeros,
+        },
+        mass: &mass,
+        fixed: &fixed,
         r,
-        &contact,
-        r / 2,
-        None,
-        &nvtmm::reduced::BasisParams::default(),
-    )
+        statics: nvtmm::reduced::Statics::Compressed {
+            contact: &contact,
+            max_static: r / 2,
+        },
+        warm: None,
+        params: nvtmm::reduced::BasisParams::default(),
+    })
     .expect("plate basis");
     ContactPlate {
         mesh,
