@@ -53,6 +53,17 @@ pub struct ServoParams {
     pub device_timeout_s: f64,
     /// Model age that raises the stale-model flag (s); infinite to disable.
     pub model_timeout_s: f64,
+    /// Model age at which the force ramps down (s; ≥ `model_timeout_s`):
+    /// the background thread has stopped refreshing (stalled or lost).
+    /// Infinite to disable.
+    pub model_max_age_s: f64,
+    /// Fastest plausible stylus motion (m/s): a sample that moved farther
+    /// from the last accepted one than this speed allows (plus 1 mm) is a
+    /// wild pose, dropped, and a fault.
+    pub max_speed_m_s: f64,
+    /// Farthest plausible stylus position from the device origin (m): a
+    /// sample beyond it is a wild pose.
+    pub max_reach_m: f64,
     /// Consecutive deadline misses that ramp the force down.
     pub overrun_streak: u32,
     /// Full-to-zero ramp time on a fault (s).
@@ -84,6 +95,11 @@ pub mod flags {
     pub const TRUNCATED: u32 = 1 << 7;
     /// The loop runs under SCHED_FIFO.
     pub const RT_GRANTED: u32 = 1 << 8;
+    /// The device sent an implausible pose (beyond the reach, or a jump
+    /// faster than the speed limit); it was dropped.
+    pub const BAD_POSE: u32 = 1 << 9;
+    /// The model is older than the maximum age: the force ramps down.
+    pub const MODEL_EXPIRED: u32 = 1 << 10;
 }
 
 /// Counters of the loop (read at the end).
@@ -99,6 +115,10 @@ pub struct ServoCounters {
     pub device_silent_ticks: u64,
     /// Ticks with a stale model.
     pub model_stale_ticks: u64,
+    /// Ticks with a model past its maximum age (force ramped down).
+    pub model_expired_ticks: u64,
+    /// Samples dropped as wild poses.
+    pub bad_pose_samples: u64,
     /// Ticks with the watchdog gain below 1 because of a fault.
     pub watchdog_ticks: u64,
     /// Ticks in contact.
@@ -186,6 +206,7 @@ pub struct Servo<const R: usize> {
     gain: f64,
     last_seq: u64,
     last_fresh_s: f64,
+    last_pose: Option<(Vec3, f64)>,
     counters: ServoCounters,
     tool: Vec3,
     now_s: f64,
@@ -219,6 +240,7 @@ impl<const R: usize> Servo<R> {
             gain: 0.0,
             last_seq: 0,
             last_fresh_s: now_s,
+            last_pose: None,
             counters: ServoCounters::default(),
             tool: Vec3::zeros(),
             now_s,
@@ -408,14 +430,21 @@ impl<const R: usize> Servo<R> {
         let mut fl = 0u32;
         let p = self.params;
         if let Some(s) = sample {
-            if s.is_finite() {
+            if !s.is_finite() {
+                fl |= flags::NONFINITE;
+            } else if self.implausible(s.position, now_s) {
+                fl |= flags::BAD_POSE;
+                if s.seq != self.last_seq {
+                    self.last_seq = s.seq;
+                    self.counters.bad_pose_samples += 1;
+                }
+            } else {
                 if s.seq != self.last_seq {
                     self.last_seq = s.seq;
                     self.last_fresh_s = now_s;
                 }
+                self.last_pose = Some((s.position, now_s));
                 self.tool = s.position + p.device_origin;
-            } else {
-                fl |= flags::NONFINITE;
             }
         }
         if now_s - self.last_fresh_s > p.device_timeout_s {
@@ -425,9 +454,14 @@ impl<const R: usize> Servo<R> {
         if overrun_streak >= p.overrun_streak {
             fl |= flags::OVERRUN;
         }
-        if now_s - self.model.created_s > p.model_timeout_s && self.model.epoch > 0 {
+        let age = now_s - self.model.created_s;
+        if age > p.model_timeout_s && self.model.epoch > 0 {
             fl |= flags::MODEL_STALE;
             self.counters.model_stale_ticks += 1;
+            if age > p.model_max_age_s {
+                fl |= flags::MODEL_EXPIRED;
+                self.counters.model_expired_ticks += 1;
+            }
         }
 
         // Contact against the surface as the current state deforms it.
@@ -500,6 +534,20 @@ impl<const R: usize> Servo<R> {
         }
     }
 
+    /// Whether a finite `position` (device frame) is a wild pose: beyond the
+    /// reach, or farther from the last accepted pose than the speed limit
+    /// allows in the time since (plus 1 mm of encoder noise).
+    fn implausible(&self, position: Vec3, now_s: f64) -> bool {
+        let p = &self.params;
+        if position.norm() > p.max_reach_m {
+            return true;
+        }
+        match self.last_pose {
+            Some((x, t)) => (position - x).norm() > p.max_speed_m_s * (now_s - t).max(p.dt) + 1e-3,
+            None => false,
+        }
+    }
+
     /// Applies the watchdog to the (filtered) force of this tick: a fault in
     /// `tick_flags` ramps the gain to zero within the ramp-down time and
     /// holds it there for the ramp-down time plus [`FAULT_HOLD_S`] after the
@@ -507,7 +555,10 @@ impl<const R: usize> Servo<R> {
     /// counts as zero. Returns the force to command.
     pub fn apply_gain(&mut self, force: Vec3, tick_flags: &mut u32) -> Vec3 {
         let p = self.params;
-        if *tick_flags & (flags::DEVICE_SILENT | flags::NONFINITE | flags::OVERRUN) != 0 {
+        if *tick_flags
+            & (flags::DEVICE_SILENT | flags::NONFINITE | flags::OVERRUN | flags::BAD_POSE | flags::MODEL_EXPIRED)
+            != 0
+        {
             self.fault_until_s = self.now_s + p.ramp_down_s + FAULT_HOLD_S;
         }
         let fault = self.now_s < self.fault_until_s;

@@ -14,6 +14,7 @@
 //! state over to the new basis, δq₁ = Φ₁ᵀ M Φ₀ δq₀ + Φ₁ᵀ M (ū₀ − ū₁), and
 //! the loop cross-fades as at every swap.
 
+use super::faults::FaultSwitches;
 use crate::haptics::contact::NodeContact;
 use crate::haptics::servo::LoopModel;
 use crate::math::Vec3;
@@ -150,6 +151,7 @@ pub fn basis_thread<const R: usize>(
     mut jobs: rtrb::Consumer<BasisJob>,
     mut out: rtrb::Producer<NewBasis<R>>,
     stop: Arc<AtomicBool>,
+    faults: Arc<FaultSwitches>,
 ) -> BasisStats {
     let mut stats = BasisStats::default();
     while !stop.load(Ordering::Relaxed) {
@@ -157,6 +159,14 @@ pub fn basis_thread<const R: usize>(
             std::thread::sleep(std::time::Duration::from_millis(5));
             continue;
         };
+        if FaultSwitches::take(&faults.panic_basis) {
+            panic!("injected fault: the basis thread panics");
+        }
+        let mut params = w.params;
+        let injected = FaultSwitches::take(&faults.fail_next_basis);
+        if injected {
+            params.max_iterations = 1;
+        }
         let t = std::time::Instant::now();
         let basis = ModalBasis::compute(&crate::reduced::BasisSpec {
             stiffness: crate::reduced::Stiffness::Tangent(&job.tangent),
@@ -168,10 +178,13 @@ pub fn basis_thread<const R: usize>(
                 max_static: w.max_static,
             },
             warm: Some(&w.current),
-            params: w.params,
+            params,
         });
         let Ok(basis) = basis else {
             stats.failures += 1;
+            if injected {
+                FaultSwitches::served(&faults.basis_failures_served);
+            }
             continue;
         };
         let Ok(rows) = basis_rows::<R>(&basis) else {
@@ -265,6 +278,8 @@ pub struct BackgroundIo<const R: usize> {
     /// ū and the basis rows of each model sent, for the stream publisher
     /// (keep-latest: dropped when full).
     pub offsets: Option<rtrb::Producer<OffsetMsg<R>>>,
+    /// Fault injection ([`FaultSwitches`]).
+    pub faults: Arc<FaultSwitches>,
 }
 
 /// ū and the basis rows of the model of one epoch (background → publisher).
@@ -400,6 +415,14 @@ pub fn run<const R: usize>(mut bg: Background<R>, mut io: BackgroundIo<R>) -> Ba
     let mut last_t0 = t_start;
     let mut sim = 0.0;
     while !io.stop.load(Ordering::Relaxed) {
+        if FaultSwitches::take(&io.faults.panic_background) {
+            panic!("injected fault: the background thread panics");
+        }
+        let stall_ms = io.faults.take_stall_ms();
+        if stall_ms > 0 {
+            std::thread::sleep(std::time::Duration::from_millis(stall_ms));
+            FaultSwitches::served(&io.faults.stalls_served);
+        }
         let t0 = clock::now_ns();
         // Follow real time: the step covers the wall time since the last
         // one, between dt_min and dt_max (implicit Euler is stable for any).
@@ -437,11 +460,22 @@ pub fn run<const R: usize>(mut bg: Background<R>, mut io: BackgroundIo<R>) -> Ba
             sum[i as usize] = Vec3::zeros();
         }
         touched.clear();
+        let fail_injected = FaultSwitches::take(&io.faults.fail_next_step);
+        if fail_injected {
+            nodal.push(NodalLoad {
+                nodes: vec![0],
+                force: Vec3::new(f64::NAN, 0.0, 0.0),
+                profile: TimeProfile::Constant { from_t0: 0.0 },
+            });
+        }
         let loads = Loads {
             nodal,
             gravity: Vec3::zeros(),
         };
         let rep = bg.solver.step(&mut state, bg.model.as_mut(), &loads, &bg.fixed);
+        if fail_injected && !rep.ok() {
+            FaultSwitches::served(&io.faults.step_failures_served);
+        }
         stats.steps += 1;
         if rep.ok() {
             sim += dt;

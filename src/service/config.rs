@@ -184,6 +184,14 @@ pub struct WatchdogConfig {
     pub ramp_down_ms: f64,
     /// Time (s) to ramp the force in at start and after a fault clears.
     pub ramp_in_s: f64,
+    /// No new model within this time (ms, ≥ `model_timeout_ms`): the
+    /// background has stopped (stalled or lost), ramp the force to zero.
+    pub model_max_age_ms: f64,
+    /// Fastest plausible stylus speed (m/s): a sample that jumped farther
+    /// is a wild pose, dropped, and a fault.
+    pub max_speed_m_s: f64,
+    /// Farthest plausible stylus position from the device origin (m).
+    pub max_reach_m: f64,
 }
 
 impl Default for WatchdogConfig {
@@ -194,6 +202,9 @@ impl Default for WatchdogConfig {
             overrun_streak: 5,
             ramp_down_ms: 10.0,
             ramp_in_s: 0.5,
+            model_max_age_ms: 3000.0,
+            max_speed_m_s: 5.0,
+            max_reach_m: 0.25,
         }
     }
 }
@@ -338,6 +349,15 @@ impl ServiceConfig {
         c.int_in("watchdog.overrun_streak", w.overrun_streak, 1, 10_000)?;
         c.f64_in("watchdog.ramp_down_ms", w.ramp_down_ms, 0.0, 10.0, "ms")?;
         c.f64_in("watchdog.ramp_in_s", w.ramp_in_s, 0.0, 10.0, "s")?;
+        c.f64_in(
+            "watchdog.model_max_age_ms",
+            w.model_max_age_ms,
+            w.model_timeout_ms,
+            3_600_000.0,
+            "ms",
+        )?;
+        c.f64_in("watchdog.max_speed_m_s", w.max_speed_m_s, 0.1, 100.0, "m/s")?;
+        c.f64_in("watchdog.max_reach_m", w.max_reach_m, 0.01, 10.0, "m")?;
         let b = &self.background;
         c.f64_in("background.dt", b.dt, 1e-4, 0.1, "s")?;
         c.f64_in("background.dt_max", b.dt_max, b.dt, 1.0, "s (at least background.dt)")?;

@@ -20,6 +20,11 @@ pub struct ForceCmd {
     pub pose_time: Nanos,
 }
 
+/// With no force command from the loop for this long (ns), the device
+/// thread commands zero itself: a loop that died or hangs never leaves its
+/// last force playing on the hand.
+pub const LOOP_SILENCE_NS: Nanos = 20_000_000;
+
 /// What the device thread gathered, returned at the end.
 pub(super) struct DeviceResult {
     pub latency: Histogram,
@@ -28,6 +33,9 @@ pub(super) struct DeviceResult {
     pub pose_ring_full: u64,
     pub energy: Option<PortEnergy>,
     pub allocations: u64,
+    /// Periods in which the device thread zeroed the force because the
+    /// loop had sent nothing for [`LOOP_SILENCE_NS`].
+    pub loop_silent: u64,
 }
 
 /// Device-side rings.
@@ -57,7 +65,9 @@ pub(super) fn device_thread(
         pose_ring_full: 0,
         energy: None,
         allocations: 0,
+        loop_silent: 0,
     };
+    let mut last_cmd = start;
     let mut next = start;
     while !io.stop.load(Ordering::Relaxed) {
         // Phase 0: the sample for the loop (which ticks 200 µs later).
@@ -78,7 +88,14 @@ pub(super) fn device_thread(
         while let Ok(c) = io.force.pop() {
             cmd = Some(c);
         }
+        if cmd.is_none() && clock::now_ns() - last_cmd > LOOP_SILENCE_NS {
+            res.loop_silent += 1;
+            if dev.write_force(Vec3::zeros()).is_err() {
+                res.errors += 1;
+            }
+        }
         if let Some(c) = cmd {
+            last_cmd = clock::now_ns();
             if dev.write_force(c.force).is_err() {
                 res.errors += 1;
             }

@@ -54,6 +54,8 @@ pub struct LiveStats {
     bg_sim_s: AtomicF64,
     bg_wall_s: AtomicF64,
     models_sent: AtomicU64,
+    epoch: AtomicU64,
+    gain: AtomicF64,
     frame: Mutex<Option<FrameSnapshot>>,
 }
 
@@ -72,6 +74,13 @@ impl LiveStats {
         if f > self.max_force.load() {
             self.max_force.store(f);
         }
+    }
+
+    /// Called by the loop after each tick: the epoch of the model in use and
+    /// the watchdog gain. Lock-free, allocates nothing.
+    pub fn record_model(&self, epoch: u64, gain: f64) {
+        self.epoch.store(epoch, Ordering::Relaxed);
+        self.gain.store(gain);
     }
 
     /// Called by the background thread after each full step.
@@ -114,6 +123,8 @@ impl LiveStats {
                 0.0
             },
             models_sent: self.models_sent.load(Ordering::Relaxed),
+            model_epoch: self.epoch.load(Ordering::Relaxed),
+            gain: self.gain.load(),
             frame: self.frame.lock().ok().and_then(|f| f.clone()),
         }
     }
@@ -145,6 +156,10 @@ pub struct Snapshot {
     pub background_real_time_factor: f64,
     /// Refreshed models the background sent so far.
     pub models_sent: u64,
+    /// Epoch of the model the loop runs (0: the rest model).
+    pub model_epoch: u64,
+    /// Watchdog gain of the last tick (0 after a fault, ramping back to 1).
+    pub gain: f64,
     /// The latest state frame (None before the first one).
     pub frame: Option<FrameSnapshot>,
 }

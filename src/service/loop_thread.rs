@@ -54,6 +54,7 @@ pub(super) struct LoopIo<const R: usize> {
     pub state: rtrb::Producer<StateSnapshot<R>>,
     pub stop: Arc<AtomicBool>,
     pub live: Arc<LiveStats>,
+    pub faults: Arc<super::faults::FaultSwitches>,
 }
 
 /// When and how the loop runs.
@@ -132,7 +133,7 @@ pub(super) fn loop_thread<const R: usize>(mut tick: HapticTick<R>, mut io: LoopI
         }
         // A new model between ticks; only if the models it retires can be
         // returned (never freed here).
-        if !io.models.is_empty() {
+        if !io.models.is_empty() && !io.faults.holding_models() {
             if pending_return.is_none() && io.returned.slots() >= 2 {
                 if let Ok(m) = io.models.pop() {
                     if let Some(old) = tick.swap(m) {
@@ -190,6 +191,7 @@ pub(super) fn loop_thread<const R: usize>(mut tick: HapticTick<R>, mut io: LoopI
         res.compute.record(compute as f64 * 1e-3);
         window_max_us = window_max_us.max(compute as f64 * 1e-3);
         io.live.record_tick(n, now_s, &out, res.misses);
+        io.live.record_model(tick.servo().model().epoch, tick.servo().gain());
         if n % plan.state_every == 0 {
             let model = tick.servo().model();
             let snap = StateSnapshot {

@@ -23,6 +23,7 @@
 pub mod background;
 pub mod config;
 pub mod device_io;
+pub mod faults;
 pub mod live;
 pub mod loop_thread;
 pub mod publisher;
@@ -180,6 +181,12 @@ impl Handle {
     /// that stopped it); [`Handle::stop`] then says why.
     pub fn is_finished(&self) -> bool {
         self.inner.as_ref().is_none_or(|r| r.is_finished())
+    }
+
+    /// The fault-injection switches of this run ([`faults::FaultSwitches`]),
+    /// for soak and recovery tests.
+    pub fn faults(&self) -> std::sync::Arc<faults::FaultSwitches> {
+        self.inner.as_ref().map(|r| r.faults()).unwrap_or_default()
     }
 
     /// Stops every thread, joins them and returns the report.

@@ -32,6 +32,7 @@ pub struct StateSnapshot<const R: usize> {
 }
 
 /// What the publisher thread returns at the end.
+#[derive(Default)]
 pub(super) struct PublisherResult {
     pub frames: u64,
     pub errors: u64,
@@ -53,6 +54,7 @@ pub(super) struct PublisherPlan<const R: usize> {
     pub send: bool,
     pub stop: Arc<AtomicBool>,
     pub live: Arc<LiveStats>,
+    pub faults: Arc<super::faults::FaultSwitches>,
 }
 
 /// The stream publisher (normal priority): turns loop snapshots into stream
@@ -87,6 +89,9 @@ pub(super) fn publisher_thread<const R: usize>(mut p: PublisherPlan<R>) -> Publi
             std::thread::sleep(std::time::Duration::from_millis(2));
             continue;
         };
+        if super::faults::FaultSwitches::take(&p.faults.panic_publisher) {
+            panic!("injected fault: the stream publisher panics");
+        }
         while times.len() > 61 {
             times.pop_front();
             maxes.pop_front();

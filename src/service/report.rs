@@ -162,6 +162,21 @@ pub struct Report {
     pub scripted_press_depth_m: Option<f64>,
     /// The model age that counts as stale (ms, `watchdog.model_timeout_ms`).
     pub model_timeout_ms: f64,
+    /// Threads that ended before the stop (a panic), each with its panic
+    /// message; the loop ran on with its last model. Empty on a clean run.
+    pub threads_lost: Vec<LostThread>,
+    /// Device periods in which the device thread zeroed the force itself
+    /// because the loop had sent no command for 20 ms.
+    pub device_loop_silent_periods: u64,
+}
+
+/// A helper thread that ended before the stop.
+#[derive(Debug, Clone, Default, PartialEq, serde::Serialize)]
+pub struct LostThread {
+    /// Which thread: "background", "basis" or "stream".
+    pub thread: String,
+    /// Its panic message.
+    pub message: String,
 }
 
 impl Report {
@@ -278,9 +293,21 @@ impl Report {
         }
         let w = &self.watchdog;
         s += &format!(
-            "  watchdog: {} ticks held down, device silent {} ticks, non-finite {}, stale model {} ticks; contact {} ticks\n",
-            w.watchdog_ticks, w.device_silent_ticks, w.nonfinite, w.model_stale_ticks, w.contact_ticks
+            "  watchdog: {} ticks held down, device silent {} ticks, non-finite {}, wild poses {}, stale model {} ticks ({} past the maximum age); contact {} ticks\n",
+            w.watchdog_ticks,
+            w.device_silent_ticks,
+            w.nonfinite,
+            w.bad_pose_samples,
+            w.model_stale_ticks,
+            w.model_expired_ticks,
+            w.contact_ticks
         );
+        for l in &self.threads_lost {
+            s += &format!(
+                "  THREAD LOST: {} ({}); the loop ran on with its last model\n",
+                l.thread, l.message
+            );
+        }
         s += &format!(
             "  contact anywhere: {} of {} contact ticks with the residual compliance (from the first touch: it is precomputed for every surface node), \
              up to {} touched nodes and {} patches at once, {} ticks with nodes beyond the corrected {}\n",

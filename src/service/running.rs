@@ -9,10 +9,11 @@ use super::background::{
 };
 use super::config::Backend;
 use super::device_io::{device_thread, DeviceIo, DeviceResult, ForceCmd};
+use super::faults::FaultSwitches;
 use super::live::{LiveStats, Snapshot};
 use super::loop_thread::{loop_thread, LoopIo, LoopPlan, LoopResult, LOOP_PHASE};
 use super::publisher::{publisher_thread, PublisherPlan, StateSnapshot};
-use super::report::{BackgroundReport, QpReport, Report, RingReport};
+use super::report::{BackgroundReport, LostThread, QpReport, Report, RingReport};
 use super::setup::Prepared;
 use super::ServiceError;
 use crate::haptics::contact::SurfaceIndex;
@@ -55,6 +56,7 @@ pub(super) struct Running<const R: usize> {
     basis_cache: String,
     scripted_press_depth_m: Option<f64>,
     model_timeout_ms: f64,
+    faults: Arc<FaultSwitches>,
 }
 
 /// What [`super::Handle`] needs of a running service, whatever its R.
@@ -63,6 +65,7 @@ pub(super) trait RunningService: Send {
     fn planned_s(&self) -> f64;
     fn is_finished(&self) -> bool;
     fn stop(&mut self) -> Result<Report, ServiceError>;
+    fn faults(&self) -> Arc<FaultSwitches>;
 }
 
 /// Joins a thread; a panic becomes an error naming the thread and the
@@ -88,6 +91,10 @@ impl<const R: usize> RunningService for Running<R> {
         self.planned_s
     }
 
+    fn faults(&self) -> Arc<FaultSwitches> {
+        self.faults.clone()
+    }
+
     fn is_finished(&self) -> bool {
         self.loop_handle.as_ref().is_none_or(|h| h.is_finished())
             || self.dev_handle.as_ref().is_none_or(|h| h.is_finished())
@@ -98,15 +105,18 @@ impl<const R: usize> RunningService for Running<R> {
         let lr = join(self.loop_handle.take(), "haptic loop")?;
         let (dr, mut dev) = join(self.dev_handle.take(), "device")?;
         dev.stop();
+        // A lost helper thread does not lose the report: the loop ran on
+        // with its last model, and the report names the thread.
+        let mut threads_lost = Vec::new();
         let bs: Option<BackgroundStats> = match self.bg_handle.take() {
-            Some(h) => Some(join(Some(h), "background")?),
+            Some(h) => survive(join(Some(h), "background"), &mut threads_lost),
             None => None,
         };
         let basis_stats: BasisStats = match self.basis_handle.take() {
-            Some(h) => join(Some(h), "basis")?,
+            Some(h) => survive(join(Some(h), "basis"), &mut threads_lost).unwrap_or_default(),
             None => BasisStats::default(),
         };
-        let pr = join(self.pub_handle.take(), "stream")?;
+        let pr = survive(join(self.pub_handle.take(), "stream"), &mut threads_lost).unwrap_or_default();
         let (stream_frames, stream_errors, stream_error) = (pr.frames, pr.errors, pr.first_error);
         let mut refusals = std::mem::take(&mut self.refusals);
         let (rings, memory_locked) = (self.rings, self.memory_locked);
@@ -213,7 +223,24 @@ impl<const R: usize> RunningService for Running<R> {
             igtl: pr.igtl,
             scripted_press_depth_m: self.scripted_press_depth_m,
             model_timeout_ms: self.model_timeout_ms,
+            threads_lost,
+            device_loop_silent_periods: dr.loop_silent,
         })
+    }
+}
+
+/// The result of a helper thread, or None with the thread listed as lost.
+fn survive<T>(r: Result<T, ServiceError>, lost: &mut Vec<LostThread>) -> Option<T> {
+    match r {
+        Ok(v) => Some(v),
+        Err(e) => {
+            let (thread, message) = match e {
+                ServiceError::Thread(name, message) => (name.to_string(), message),
+                other => ("unknown".to_string(), other.to_string()),
+            };
+            lost.push(LostThread { thread, message });
+            None
+        }
     }
 }
 
@@ -281,6 +308,13 @@ pub(super) fn start_with<const R: usize>(p: Prepared) -> Result<Running<R>, Serv
         } else {
             f64::INFINITY
         },
+        model_max_age_s: if cfg.background.enabled {
+            w.model_max_age_ms * 1e-3
+        } else {
+            f64::INFINITY
+        },
+        max_speed_m_s: w.max_speed_m_s,
+        max_reach_m: w.max_reach_m,
         overrun_streak: w.overrun_streak,
         ramp_down_s: w.ramp_down_ms * 1e-3,
         ramp_in_s: w.ramp_in_s,
@@ -295,6 +329,7 @@ pub(super) fn start_with<const R: usize>(p: Prepared) -> Result<Running<R>, Serv
     let (ret_tx, ret_rx) = rtrb::RingBuffer::<Box<LoopModel<R>>>::new(rings.returned);
     let stop = Arc::new(AtomicBool::new(false));
     let live = Arc::new(LiveStats::default());
+    let faults = Arc::new(FaultSwitches::default());
     let (state_tx, state_rx) = rtrb::RingBuffer::<StateSnapshot<R>>::new(rings.state);
     let (offset_tx, offset_rx) = rtrb::RingBuffer::<OffsetMsg<R>>::new(16);
     let state_every = ((cfg.servo.rate_hz / cfg.stream.rate_hz).round() as u64).max(1);
@@ -355,6 +390,7 @@ pub(super) fn start_with<const R: usize>(p: Prepared) -> Result<Running<R>, Serv
                 compliance: compliance.as_ref().map(|c| c.1),
             };
             let stop_b = stop.clone();
+            let faults_b = faults.clone();
             let h = std::thread::Builder::new()
                 .name("nvtmm-basis".into())
                 .spawn(move || {
@@ -365,7 +401,7 @@ pub(super) fn start_with<const R: usize>(p: Prepared) -> Result<Running<R>, Serv
                             prefault_stack_bytes: 0,
                         });
                     }
-                    background::basis_thread::<R>(worker, job_rx, new_tx, stop_b)
+                    background::basis_thread::<R>(worker, job_rx, new_tx, stop_b, faults_b)
                 })
                 .map_err(|e| ServiceError::Thread("basis", e.to_string()))?;
             basis_handle = Some(h);
@@ -381,6 +417,7 @@ pub(super) fn start_with<const R: usize>(p: Prepared) -> Result<Running<R>, Serv
             stop: stop.clone(),
             live: live.clone(),
             basis: basis_io,
+            faults: faults.clone(),
         };
         Some(
             std::thread::Builder::new()
@@ -420,6 +457,7 @@ pub(super) fn start_with<const R: usize>(p: Prepared) -> Result<Running<R>, Serv
             send: cfg.stream.enabled || record.is_some() || cfg.stream.igtl.is_some(),
             stop: stop.clone(),
             live: live.clone(),
+            faults: faults.clone(),
         };
         std::thread::Builder::new()
             .name("nvtmm-stream".into())
@@ -466,6 +504,7 @@ pub(super) fn start_with<const R: usize>(p: Prepared) -> Result<Running<R>, Serv
         state: state_tx,
         stop: stop.clone(),
         live: live.clone(),
+        faults: faults.clone(),
     };
     let plan = LoopPlan {
         request: RtRequest {
@@ -507,5 +546,6 @@ pub(super) fn start_with<const R: usize>(p: Prepared) -> Result<Running<R>, Serv
         basis_cache,
         scripted_press_depth_m: (cfg.device.backend == Backend::TouchxSim).then_some(cfg.interaction.press_depth_m),
         model_timeout_ms: cfg.watchdog.model_timeout_ms,
+        faults,
     })
 }
