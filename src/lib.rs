@@ -42,6 +42,7 @@ pub mod rt;
 pub mod scene;
 pub mod service;
 pub mod simulate;
+pub mod soak;
 pub mod solver;
 pub mod stream;
 pub mod wire;

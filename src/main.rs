@@ -45,6 +45,26 @@ enum Command {
         #[arg(long)]
         quiet: bool,
     },
+    /// Soak and fault campaign: the service on the simulated Touch X (behind
+    /// the UDP bridge) with a random hand and faults injected at random
+    /// times, every promise checked on every tick (docs/RELIABILITY.md).
+    /// Exits non-zero if a check failed.
+    Soak {
+        /// Service configuration [default: as for `run`].
+        config: Option<PathBuf>,
+        /// Total length (min); a quarter of it (at least 10 s) at the stiffest material.
+        #[arg(long, default_value_t = 1.0)]
+        minutes: f64,
+        /// Seed of the hand and the fault schedule.
+        #[arg(long, default_value_t = 1)]
+        seed: u64,
+        /// Also write the result as JSON here.
+        #[arg(long)]
+        json: Option<PathBuf>,
+        /// No progress lines.
+        #[arg(long)]
+        quiet: bool,
+    },
     /// Audit this box for the real-time loop (PREEMPT_RT, limits, governor,
     /// isolated CPUs, C-states).
     CheckRt {
@@ -317,6 +337,13 @@ fn main() -> ExitCode {
             record,
             quiet,
         } => cli::run::run(config.as_deref(), seconds, report_json.as_deref(), record, quiet),
+        Command::Soak {
+            config,
+            minutes,
+            seed,
+            json,
+            quiet,
+        } => cli::run::soak(config, minutes, seed, json.as_deref(), quiet),
         Command::CheckRt { config, json } => cli::run::check_rt(config.as_ref(), json),
         Command::Mesh(cmd) => match cmd {
             MeshCmd::Arch { nodes, out } => cli::mesh::arch(nodes, &out),

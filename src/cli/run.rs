@@ -57,3 +57,29 @@ pub fn check_rt(config: Option<&PathBuf>, json: bool) -> Result<()> {
     }
     Ok(())
 }
+
+/// `nvtmm soak`: runs the campaign, prints its summary, writes the JSON;
+/// a failed check is an error (non-zero exit).
+pub fn soak(config: Option<PathBuf>, minutes: f64, seed: u64, json: Option<&Path>, quiet: bool) -> Result<()> {
+    let config = config.unwrap_or_else(default_config);
+    let report = nvtmm::soak::run_soak(&nvtmm::soak::SoakOptions {
+        config,
+        minutes,
+        seed,
+        stiff_fraction: 0.25,
+        progress: !quiet,
+    })?;
+    print!("{}", report.render());
+    if let Some(p) = json {
+        if let Some(dir) = p.parent().filter(|d| !d.as_os_str().is_empty()) {
+            std::fs::create_dir_all(dir)?;
+        }
+        std::fs::write(p, serde_json::to_string_pretty(&report)? + "\n")
+            .map_err(|e| format!("{}: {e}", p.display()))?;
+    }
+    if report.passed {
+        Ok(())
+    } else {
+        Err("the soak failed a check (see the FAIL lines above)".into())
+    }
+}

@@ -103,6 +103,46 @@ pub struct StartOptions {
     pub progress: bool,
     /// Record the state stream to this file (also when `[stream]` is off).
     pub record: Option<PathBuf>,
+    /// Builds the device in place of the configured backend (the soak's
+    /// instrumented device, a test double); None: the configured one.
+    pub device: Option<DeviceFactory>,
+}
+
+/// What a [`DeviceFactory`] is given: the validated configuration, the mesh
+/// and scene the service runs, and the run length.
+#[derive(Debug, Clone, Copy)]
+pub struct DeviceContext<'a> {
+    /// The service configuration.
+    pub cfg: &'a ServiceConfig,
+    /// The mesh (scene frame, m).
+    pub mesh: &'a crate::mesh::TetMesh,
+    /// The scene.
+    pub scene: &'a crate::scene::Scene,
+    /// Run length (s).
+    pub seconds: f64,
+}
+
+/// A device builder function: [`setup::make_device`] builds the configured
+/// one, if the factory wants to wrap it.
+pub type DeviceBuilder = dyn Fn(&DeviceContext<'_>) -> Result<Box<dyn crate::haptics::device::HapticDevice>, ServiceError>
+    + Send
+    + Sync;
+
+/// A device builder to use instead of the configured backend
+/// ([`StartOptions::device`]). Compares by identity.
+#[derive(Clone)]
+pub struct DeviceFactory(pub std::sync::Arc<DeviceBuilder>);
+
+impl std::fmt::Debug for DeviceFactory {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str("DeviceFactory(..)")
+    }
+}
+
+impl PartialEq for DeviceFactory {
+    fn eq(&self, other: &Self) -> bool {
+        std::sync::Arc::ptr_eq(&self.0, &other.0)
+    }
 }
 
 impl StartOptions {
@@ -113,6 +153,7 @@ impl StartOptions {
             seconds: None,
             progress: false,
             record: None,
+            device: None,
         }
     }
 
@@ -127,6 +168,7 @@ impl StartOptions {
             seconds: None,
             progress: false,
             record: None,
+            device: None,
         }
     }
 }

@@ -135,7 +135,15 @@ pub fn prepare(opts: &StartOptions) -> Result<Prepared, ServiceError> {
         }
         None => None,
     };
-    let device = make_device(&cfg, &built.mesh, &scene, seconds)?;
+    let device = match &opts.device {
+        Some(factory) => (factory.0)(&super::DeviceContext {
+            cfg: &cfg,
+            mesh: &built.mesh,
+            scene: &scene,
+            seconds,
+        })?,
+        None => make_device(&cfg, &built.mesh, &scene, seconds)?,
+    };
     Ok(Prepared {
         compliance,
         basis_s: outcome.compute_s,

@@ -1,0 +1,924 @@
+//! `nvtmm soak`: the haptic service run for a long time with a careless
+//! hand and faults injected at random times, every promise checked
+//! (docs/RELIABILITY.md).
+//!
+//! The run has two legs, each a full service start and stop: the
+//! configured scene, then the same scene at the stiffest material (10 MPa)
+//! with more fast strikes. In each leg the simulated Touch X sits behind
+//! the real UDP bridge ([`device::SoakDevice`]) and follows a seeded random
+//! hand ([`hand::random_hand`]); a schedule injects, one at a time:
+//!
+//! - device faults: silence, non-finite poses, wild poses, garbage
+//!   datagrams (injected by the device, checked on every force it is given);
+//! - service faults: a 2 s background stall, a failing full step, a failing
+//!   basis recomputation, a full model ring, a stream receiver that goes
+//!   away and comes back, a forward leap of the service clock
+//!   ([`crate::service::faults`], [`crate::rt::clock::inject_jump`]).
+//!
+//! The controller (this thread) polls the service's live state every 2 ms
+//! to see each fault recover, and samples the resident memory.
+
+pub mod device;
+pub mod hand;
+
+use crate::haptics::touchx::TouchXParams;
+use crate::haptics::udp::{UdpDevice, UdpParams};
+use crate::math::Vec3;
+use crate::rt::clock;
+use crate::service::faults::FaultSwitches;
+use crate::service::{DeviceContext, DeviceFactory, Service, ServiceError, StartOptions};
+use device::{CheckLimits, DeviceChecks, DeviceFault, DeviceFaultKind, SoakDevice};
+use hand::{random_hand, HandMoves, Rng};
+use std::collections::BTreeMap;
+use std::net::UdpSocket;
+use std::path::{Path, PathBuf};
+use std::sync::atomic::Ordering;
+use std::sync::{Arc, Mutex};
+use std::time::Duration;
+
+/// Young's modulus of the stiff leg (Pa): the stiffest material the service
+/// is tested with (diseased, calcified wall).
+pub const STIFF_YOUNGS_PA: f64 = 10e6;
+
+/// Resident memory may grow by at most this after warm-up (bytes).
+pub const RSS_BUDGET_BYTES: i64 = 1 << 20;
+
+/// How long a background stall lasts (ms).
+pub const STALL_MS: u64 = 2000;
+
+/// How far the service clock leaps in a clock fault (ms).
+pub const CLOCK_JUMP_MS: i64 = 300;
+
+/// What to run.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SoakOptions {
+    /// Service configuration.
+    pub config: PathBuf,
+    /// Total length (min), both legs.
+    pub minutes: f64,
+    /// Seed of the hand and of the fault schedule.
+    pub seed: u64,
+    /// Share of the time spent in the stiff leg.
+    pub stiff_fraction: f64,
+    /// Print progress to stderr.
+    pub progress: bool,
+}
+
+/// Why the soak could not run.
+#[derive(Debug, thiserror::Error)]
+pub enum SoakError {
+    /// Bad options.
+    #[error("{0}")]
+    Options(String),
+    /// The configuration or scene could not be read or rewritten.
+    #[error("{path}: {what}")]
+    Config {
+        /// The file.
+        path: PathBuf,
+        /// What is wrong.
+        what: String,
+    },
+    /// The service could not start.
+    #[error(transparent)]
+    Service(#[from] ServiceError),
+    /// A local socket could not be opened.
+    #[error("soak: {0}")]
+    Io(#[from] std::io::Error),
+}
+
+/// Every fault kind, service and device.
+pub const FAULT_KINDS: [&str; 10] = [
+    "silence",
+    "nan_pose",
+    "wild_pose",
+    "garbage_datagrams",
+    "background_stall",
+    "step_failure",
+    "basis_failure",
+    "model_ring_full",
+    "stream_receiver_gone",
+    "clock_jump",
+];
+
+/// What became of one kind of fault.
+#[derive(Debug, Clone, Default, PartialEq, serde::Serialize)]
+pub struct FaultOutcome {
+    /// Times it was injected (and met by the service).
+    pub injected: u64,
+    /// Times the service came through it as promised.
+    pub recovered: u64,
+    /// Longest onset-to-zero-force time (ms), for device faults that stop the data.
+    pub max_time_to_zero_ms: Option<f64>,
+    /// Longest time from the fault's end to full force again, or to the
+    /// service's normal state (ms).
+    pub max_recovery_ms: Option<f64>,
+}
+
+/// One leg's figures.
+#[derive(Debug, Clone, Default, PartialEq, serde::Serialize)]
+pub struct LegReport {
+    /// "scene" or "stiff".
+    pub name: String,
+    /// Young's modulus of the leg (Pa; None: the scene's).
+    pub youngs_pa: Option<f64>,
+    /// Seconds the loop ran.
+    pub seconds: f64,
+    /// Loop ticks.
+    pub ticks: u64,
+    /// Deadline misses.
+    pub deadline_misses: u64,
+    /// Tick compute p99.9 (µs).
+    pub tick_compute_p999_us: f64,
+    /// Forces the device checked.
+    pub forces_checked: u64,
+    /// The hand's moves.
+    pub hand: HandMoves,
+    /// Resident memory after warm-up and its growth after (bytes).
+    pub rss_after_warmup_bytes: i64,
+    /// Growth of the resident memory after warm-up (bytes).
+    pub rss_growth_bytes: i64,
+    /// Garbage datagrams sent and rejected by the bridge.
+    pub garbage_sent: u64,
+    /// See `garbage_sent`.
+    pub garbage_rejected: u64,
+    /// The service's text report of the leg.
+    pub service_report: String,
+}
+
+/// One check and whether it held.
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct Check {
+    /// What.
+    pub name: String,
+    /// Held.
+    pub passed: bool,
+    /// The figures behind it.
+    pub detail: String,
+}
+
+/// The soak's result (`--json`).
+#[derive(Debug, Clone, Default, PartialEq, serde::Serialize)]
+pub struct SoakReport {
+    /// Every check held.
+    pub passed: bool,
+    /// Length run (min).
+    pub minutes: f64,
+    /// The seed.
+    pub seed: u64,
+    /// Per fault kind.
+    pub faults: BTreeMap<String, FaultOutcome>,
+    /// Non-finite forces commanded.
+    pub nonfinite_forces: u64,
+    /// Largest force commanded (N).
+    pub max_force_n: f64,
+    /// The device's peak force (N).
+    pub force_limit_n: f64,
+    /// Forces above it.
+    pub force_limit_violations: u64,
+    /// Forces written while energy delivered over some window exceeded the tank.
+    pub energy_violations: u64,
+    /// Largest net energy delivered over any window (J).
+    pub max_window_energy_j: f64,
+    /// The tank's capacity (J).
+    pub tank_max_j: f64,
+    /// Non-zero forces later than allowed into a device fault.
+    pub zero_violations: u64,
+    /// Calls into the system allocator from the loop and device threads after start.
+    pub system_allocations: u64,
+    /// Largest growth of the resident memory after warm-up in a leg (bytes).
+    pub rss_growth_bytes: i64,
+    /// Threads lost (panicked) in any leg.
+    pub threads_lost: u64,
+    /// The legs.
+    pub legs: Vec<LegReport>,
+    /// Every check.
+    pub checks: Vec<Check>,
+}
+
+impl SoakReport {
+    /// The human-readable summary.
+    pub fn render(&self) -> String {
+        let mut s = format!(
+            "nvtmm soak: {:.1} min, seed {}: {}\n",
+            self.minutes,
+            self.seed,
+            if self.passed { "PASSED" } else { "FAILED" }
+        );
+        for l in &self.legs {
+            s += &format!(
+                "  leg {} ({}): {} ticks in {:.1} s, {} misses, tick p99.9 {:.1} µs, {} forces checked; hand: {} walks, {} strikes, {} long presses, {} slides\n",
+                l.name,
+                l.youngs_pa.map(|e| format!("E = {:.3} MPa", e * 1e-6)).unwrap_or_else(|| "scene material".into()),
+                l.ticks,
+                l.seconds,
+                l.deadline_misses,
+                l.tick_compute_p999_us,
+                l.forces_checked,
+                l.hand.walks,
+                l.hand.strikes,
+                l.hand.long_presses,
+                l.hand.slides
+            );
+        }
+        s += "  faults (injected / recovered, worst time to zero force, worst recovery):\n";
+        for (k, f) in &self.faults {
+            s += &format!(
+                "    {:<22} {:>3} / {:<3} {:>10} {:>12}\n",
+                k,
+                f.injected,
+                f.recovered,
+                f.max_time_to_zero_ms.map(|v| format!("{v:.1} ms")).unwrap_or_else(|| "-".into()),
+                f.max_recovery_ms.map(|v| format!("{v:.0} ms")).unwrap_or_else(|| "-".into())
+            );
+        }
+        for c in &self.checks {
+            s += &format!("  [{}] {}: {}\n", if c.passed { "ok" } else { "FAIL" }, c.name, c.detail);
+        }
+        s
+    }
+}
+
+/// A scheduled fault (seconds after the device's first read).
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct Planned {
+    kind: &'static str,
+    at_s: f64,
+    dur_s: f64,
+}
+
+/// The fault schedule of a leg: after a warm-up, the kinds in a random order,
+/// one at a time with room to recover, over and over until the leg ends.
+fn schedule(rng: &mut Rng, seconds: f64, kinds: &[&'static str]) -> Vec<Planned> {
+    let mut out = Vec::new();
+    let mut t = 5.0;
+    loop {
+        let mut order: Vec<&'static str> = kinds.to_vec();
+        for i in (1..order.len()).rev() {
+            order.swap(i, rng.index(i + 1));
+        }
+        for kind in order {
+            let dur = match kind {
+                "silence" => {
+                    if rng.range(0.0, 1.0) < 0.3 {
+                        rng.range(1.0, 2.0)
+                    } else {
+                        rng.range(0.02, 0.3)
+                    }
+                }
+                "nan_pose" => rng.range(0.005, 0.05),
+                "wild_pose" => rng.range(0.001, 0.02),
+                "garbage_datagrams" => rng.range(0.2, 0.5),
+                "background_stall" => STALL_MS as f64 * 1e-3,
+                "model_ring_full" => 1.5,
+                "stream_receiver_gone" => 1.0,
+                _ => 0.0,
+            };
+            let recover = match kind {
+                "background_stall" | "stream_receiver_gone" => 2.5,
+                "basis_failure" => 0.5,
+                _ => 1.5,
+            };
+            if t + dur + recover > seconds - 1.0 {
+                return out;
+            }
+            out.push(Planned { kind, at_s: t, dur_s: dur });
+            t += dur + recover + rng.range(0.3, 1.0);
+        }
+    }
+}
+
+/// Resident memory of this process (bytes), from /proc/self/statm.
+fn rss_bytes() -> i64 {
+    let pages = std::fs::read_to_string("/proc/self/statm")
+        .ok()
+        .and_then(|s| s.split_whitespace().nth(1).and_then(|v| v.parse::<i64>().ok()))
+        .unwrap_or(0);
+    // SAFETY: sysconf has no preconditions.
+    let page = unsafe { libc::sysconf(libc::_SC_PAGESIZE) };
+    pages * page.max(1) as i64
+}
+
+/// The configuration of a leg as TOML text: the scene made absolute (and
+/// rewritten at `youngs_pa` into `scratch` if given), the stream sent to
+/// `stream_port`, no OpenIGTLink server.
+fn leg_config(config: &Path, youngs_pa: Option<f64>, stream_port: u16, scratch: &Path) -> Result<String, SoakError> {
+    let bad = |path: &Path, what: String| SoakError::Config {
+        path: path.to_path_buf(),
+        what,
+    };
+    let text = std::fs::read_to_string(config).map_err(|e| bad(config, e.to_string()))?;
+    let mut v: toml::Table = text.parse().map_err(|e: toml::de::Error| bad(config, e.to_string()))?;
+    let base = config.parent().unwrap_or(Path::new("."));
+    let scene_rel = v
+        .get("scene")
+        .and_then(|s| s.as_str())
+        .ok_or_else(|| bad(config, "no `scene` key".into()))?
+        .to_string();
+    let scene_path = base.join(&scene_rel);
+    let scene_path = match youngs_pa {
+        None => scene_path,
+        Some(e) => {
+            let st = std::fs::read_to_string(&scene_path).map_err(|err| bad(&scene_path, err.to_string()))?;
+            let mut s: toml::Table = st.parse().map_err(|err: toml::de::Error| bad(&scene_path, err.to_string()))?;
+            let sbase = scene_path.parent().unwrap_or(Path::new(".")).to_path_buf();
+            let material = s
+                .get_mut("material")
+                .and_then(|m| m.as_table_mut())
+                .ok_or_else(|| bad(&scene_path, "no [material] table".into()))?;
+            material.insert("youngs_pa".into(), toml::Value::Float(e));
+            for (table, key) in [("mesh", "file"), ("reduced", "cache_dir")] {
+                if let Some(t) = s.get_mut(table).and_then(|m| m.as_table_mut()) {
+                    if let Some(f) = t.get(key).and_then(|f| f.as_str()) {
+                        let abs = sbase.join(f);
+                        t.insert(key.into(), toml::Value::String(abs.display().to_string()));
+                    }
+                }
+            }
+            let out = scratch.join("stiff_scene.toml");
+            std::fs::write(&out, toml::to_string(&s).map_err(|err| bad(&out, err.to_string()))?)
+                .map_err(|err| bad(&out, err.to_string()))?;
+            out
+        }
+    };
+    let scene_abs = std::path::absolute(&scene_path).unwrap_or(scene_path);
+    v.insert("scene".into(), toml::Value::String(scene_abs.display().to_string()));
+    let stream = v
+        .entry("stream")
+        .or_insert_with(|| toml::Value::Table(toml::Table::new()));
+    if let Some(t) = stream.as_table_mut() {
+        t.insert("enabled".into(), toml::Value::Boolean(true));
+        t.insert(
+            "target".into(),
+            toml::Value::String(format!("127.0.0.1:{stream_port}")),
+        );
+        t.remove("igtl");
+    }
+    toml::to_string(&v).map_err(|e| bad(config, e.to_string()))
+}
+
+/// A recovery the controller is watching for.
+#[derive(Debug, Clone, Copy)]
+enum Watch {
+    /// Full force again (gain 1) after `from_s`, by `deadline_s`.
+    GainBack { from_s: f64, deadline_s: f64 },
+    /// The gain stays at 1 from `from_s` to `until_s` (the fault must change nothing).
+    GainHeld { from_s: f64, until_s: f64, low: bool },
+    /// The loop swaps in a new model after `from_s` (epoch above `epoch`) by `deadline_s`.
+    SwapAfter { from_s: f64, epoch: u64, deadline_s: f64 },
+    /// A served counter reaches `target`, then models flow again, by `deadline_s`.
+    Served { which: u8, target: u64, sent: Option<u64>, from_s: f64, deadline_s: f64 },
+    /// The stream receiver gets a datagram after `from_s` by `deadline_s`.
+    Stream { from_s: f64, deadline_s: f64 },
+}
+
+struct Pending {
+    kind: &'static str,
+    watch: Watch,
+}
+
+/// Runs the soak.
+pub fn run_soak(opts: &SoakOptions) -> Result<SoakReport, SoakError> {
+    if !(opts.minutes.is_finite() && opts.minutes > 0.0 && opts.minutes <= 24.0 * 60.0) {
+        return Err(SoakError::Options(format!(
+            "--minutes {}: must be in (0, 1440]",
+            opts.minutes
+        )));
+    }
+    if !(0.0..=0.9).contains(&opts.stiff_fraction) {
+        return Err(SoakError::Options(format!(
+            "stiff fraction {}: must be in [0, 0.9]",
+            opts.stiff_fraction
+        )));
+    }
+    let total = opts.minutes * 60.0;
+    let stiff_s = total * opts.stiff_fraction;
+    let mut legs = vec![("scene", None, total - stiff_s)];
+    if stiff_s >= 10.0 {
+        legs.push(("stiff", Some(STIFF_YOUNGS_PA), stiff_s));
+    } else {
+        legs[0].2 = total;
+    }
+    let scratch = std::env::temp_dir().join(format!("nvtmm-soak-{}", std::process::id()));
+    std::fs::create_dir_all(&scratch)?;
+    let mut report = SoakReport {
+        minutes: opts.minutes,
+        seed: opts.seed,
+        ..SoakReport::default()
+    };
+    for k in FAULT_KINDS {
+        report.faults.insert(k.to_string(), FaultOutcome::default());
+    }
+    let mut rng = Rng::new(opts.seed);
+    let mut leg_ok = true;
+    for (i, (name, young, seconds)) in legs.into_iter().enumerate() {
+        let seed = rng.next_u64();
+        match run_leg(opts, name, young, seconds, seed, i, &scratch, &mut report) {
+            Ok(()) => {}
+            Err(SoakError::Service(ServiceError::Thread(t, m))) => {
+                report.threads_lost += 1;
+                leg_ok = false;
+                report.checks.push(Check {
+                    name: format!("leg {name} ran to its end"),
+                    passed: false,
+                    detail: format!("thread {t}: {m}"),
+                });
+            }
+            Err(e) => {
+                let _ = std::fs::remove_dir_all(&scratch);
+                return Err(e);
+            }
+        }
+    }
+    let _ = std::fs::remove_dir_all(&scratch);
+    finish(&mut report, leg_ok);
+    Ok(report)
+}
+
+/// The checks over the whole run.
+fn finish(r: &mut SoakReport, legs_ok: bool) {
+    let mut checks = std::mem::take(&mut r.checks);
+    let mut add = |name: &str, passed: bool, detail: String| {
+        checks.push(Check {
+            name: name.into(),
+            passed,
+            detail,
+        })
+    };
+    add(
+        "force within the device's limit",
+        r.force_limit_violations == 0,
+        format!(
+            "max {:.3} N, limit {:.2} N, {} over",
+            r.max_force_n, r.force_limit_n, r.force_limit_violations
+        ),
+    );
+    add(
+        "never a non-finite force",
+        r.nonfinite_forces == 0,
+        format!("{} non-finite", r.nonfinite_forces),
+    );
+    add(
+        "force to zero in time on every device fault",
+        r.zero_violations == 0,
+        format!("{} late", r.zero_violations),
+    );
+    add(
+        "energy delivered within the tank over every window",
+        r.energy_violations == 0,
+        format!(
+            "worst window {:.4} J, tank {:.3} J, {} ticks over",
+            r.max_window_energy_j, r.tank_max_j, r.energy_violations
+        ),
+    );
+    add(
+        "no call into the system allocator from the loop and the device thread",
+        r.system_allocations == 0,
+        format!("{} calls", r.system_allocations),
+    );
+    add(
+        "resident memory flat after warm-up",
+        r.rss_growth_bytes <= RSS_BUDGET_BYTES,
+        format!(
+            "grew {:.3} MB, budget {:.1} MB",
+            r.rss_growth_bytes as f64 / 1048576.0,
+            RSS_BUDGET_BYTES as f64 / 1048576.0
+        ),
+    );
+    add(
+        "no thread lost",
+        r.threads_lost == 0 && legs_ok,
+        format!("{} lost", r.threads_lost),
+    );
+    for (k, f) in &r.faults {
+        add(
+            &format!("fault {k}: injected and recovered"),
+            f.injected > 0 && f.recovered == f.injected,
+            format!("{} injected, {} recovered", f.injected, f.recovered),
+        );
+    }
+    r.passed = checks.iter().all(|c| c.passed);
+    r.checks = checks;
+}
+
+#[allow(clippy::too_many_arguments)]
+fn run_leg(
+    opts: &SoakOptions,
+    name: &str,
+    youngs_pa: Option<f64>,
+    seconds: f64,
+    seed: u64,
+    leg_index: usize,
+    scratch: &Path,
+    report: &mut SoakReport,
+) -> Result<(), SoakError> {
+    let mut rng = Rng::new(seed);
+    let receiver = UdpSocket::bind("127.0.0.1:0")?;
+    let stream_port = receiver.local_addr()?.port();
+    receiver.set_nonblocking(true)?;
+    let mut receiver = Some(receiver);
+    let toml_text = leg_config(&opts.config, youngs_pa, stream_port, scratch)?;
+
+    // The fault schedule: device kinds go to the device, the rest to this thread.
+    let kinds: Vec<&'static str> = if youngs_pa.is_some() {
+        vec!["silence", "nan_pose", "wild_pose", "garbage_datagrams", "clock_jump"]
+    } else {
+        FAULT_KINDS.iter().copied().filter(|k| *k != "basis_failure").collect()
+    };
+    let plan = schedule(&mut rng, seconds, &kinds);
+    let device_faults: Vec<DeviceFault> = plan
+        .iter()
+        .filter_map(|p| {
+            let kind = match p.kind {
+                "silence" => DeviceFaultKind::Silence,
+                "nan_pose" => DeviceFaultKind::NanPose,
+                "wild_pose" => DeviceFaultKind::WildPose,
+                "garbage_datagrams" => DeviceFaultKind::GarbageDatagrams,
+                _ => return None,
+            };
+            Some(DeviceFault {
+                kind,
+                from_s: p.at_s,
+                until_s: p.at_s + p.dur_s,
+            })
+        })
+        .collect();
+
+    let checks = Arc::new(DeviceChecks::default());
+    let hand_moves = Arc::new(Mutex::new(HandMoves::default()));
+    let limits_out = Arc::new(Mutex::new(None::<(CheckLimits, f64)>));
+    let factory = {
+        let checks = checks.clone();
+        let hand_moves = hand_moves.clone();
+        let limits_out = limits_out.clone();
+        let strike_fraction = if youngs_pa.is_some() { 0.35 } else { 0.15 };
+        DeviceFactory(Arc::new(move |ctx: &DeviceContext<'_>| {
+            let cfg = ctx.cfg;
+            let params = TouchXParams::load(&cfg.resolve(&cfg.device.touchx))?;
+            let mut udp = UdpParams::load(&cfg.resolve(&cfg.device.udp))?;
+            udp.bind = "127.0.0.1:0".into();
+            udp.peer = String::new();
+            let half = Vec3::from(params.workspace_m) * 0.5;
+            let origin = Vec3::from(cfg.device.origin_m);
+            let (pts, moves) = random_hand(
+                ctx.mesh,
+                origin,
+                half,
+                cfg.contact.tool_radius_m,
+                ctx.seconds + 5.0,
+                strike_fraction,
+                seed,
+            )
+            .ok_or_else(|| ServiceError::Device("soak: no wall point within the device's workspace".into()))?;
+            if let Ok(mut m) = hand_moves.lock() {
+                *m = moves;
+            }
+            let w = &cfg.watchdog;
+            let limits = CheckLimits {
+                peak_force_n: params.peak_force_n,
+                tank_initial_j: cfg.passivity.tank_initial_j,
+                tank_max_j: cfg.passivity.tank_max_j,
+                zero_delay_s: w.ramp_down_ms * 1e-3 + 0.003,
+                silence_detect_s: w.device_timeout_ms * 1e-3 + udp.max_age_s + 0.002,
+            };
+            let recover_s = w.device_timeout_ms * 1e-3
+                + udp.max_age_s
+                + w.ramp_down_ms * 1e-3
+                + crate::haptics::servo::FAULT_HOLD_S
+                + w.ramp_in_s;
+            if let Ok(mut l) = limits_out.lock() {
+                *l = Some((limits, recover_s));
+            }
+            let sim = crate::haptics::touchx::TouchXSim::new(params, &pts)
+                .map_err(|e| ServiceError::Device(e.to_string()))?;
+            Ok(Box::new(SoakDevice::new(
+                sim,
+                UdpDevice::new(udp),
+                device_faults.clone(),
+                limits,
+                checks.clone(),
+                seed ^ 0xD1CE,
+            )) as Box<dyn crate::haptics::device::HapticDevice>)
+        }))
+    };
+    if opts.progress {
+        eprintln!(
+            "nvtmm soak: leg {} ({:.0} s{}), preparing...",
+            name,
+            seconds,
+            youngs_pa.map(|e| format!(", E = {:.0} MPa", e * 1e-6)).unwrap_or_default()
+        );
+    }
+    let start = StartOptions {
+        seconds: Some(seconds),
+        device: Some(factory),
+        ..StartOptions::text(toml_text, &opts.config)
+    };
+    let handle = Service::start(start)?;
+    let faults: Arc<FaultSwitches> = handle.faults();
+    let (limits, recover_s) = limits_out
+        .lock()
+        .ok()
+        .and_then(|l| *l)
+        .ok_or_else(|| SoakError::Options("the device factory did not run".into()))?;
+    report.force_limit_n = limits.peak_force_n;
+    report.tank_max_j = limits.tank_max_j;
+    // Wait for the device's first read: the schedule's origin.
+    let wait_until = std::time::Instant::now() + Duration::from_secs(30);
+    let t0 = loop {
+        if let Some(t) = checks.t0_s() {
+            break t;
+        }
+        if std::time::Instant::now() > wait_until || handle.is_finished() {
+            let _ = handle.stop();
+            return Err(SoakError::Options("the device was never read".into()));
+        }
+        std::thread::sleep(Duration::from_millis(2));
+    };
+    let rel = || clock::now_s() - t0;
+    let slack = 0.15;
+    let mut pending: Vec<Pending> = Vec::new();
+    let mut next = 0usize;
+    let mut basis_fired = false;
+    let mut rebind_at: Option<f64> = None;
+    let mut buf = [0u8; 65536];
+    let mut last_frame_s = f64::NEG_INFINITY;
+    let warmup_s = (seconds * 0.25).max(10.0).min(seconds * 0.5);
+    let mut rss_warm: Option<i64> = None;
+    let mut rss_max = 0i64;
+    let mut last_rss = f64::NEG_INFINITY;
+    let mut bar_t = 0.0;
+    let end_s = seconds;
+    while rel() < end_s && !handle.is_finished() {
+        let now = rel();
+        // Stream receiver: drain, note the last datagram.
+        if let Some(r) = receiver.as_ref() {
+            while r.recv_from(&mut buf).is_ok() {
+                last_frame_s = now;
+            }
+        }
+        if let Some(at) = rebind_at {
+            if now >= at {
+                if let Ok(r) = UdpSocket::bind(("127.0.0.1", stream_port)) {
+                    let _ = r.set_nonblocking(true);
+                    receiver = Some(r);
+                }
+                rebind_at = None;
+            }
+        }
+        // The one-off basis failure: armed early; met at the next recomputation.
+        if !basis_fired && leg_index == 0 && now > 3.0 {
+            basis_fired = true;
+            faults.fail_next_basis.store(true, Ordering::Relaxed);
+            pending.push(Pending {
+                kind: "basis_failure",
+                watch: Watch::Served {
+                    which: 2,
+                    target: 1,
+                    sent: None,
+                    from_s: now,
+                    deadline_s: f64::INFINITY,
+                },
+            });
+        }
+        // Fire what is due.
+        while let Some(p) = plan.get(next).copied() {
+            if p.at_s > now {
+                break;
+            }
+            next += 1;
+            let w = match p.kind {
+                "silence" | "nan_pose" | "wild_pose" => Watch::GainBack {
+                    from_s: p.at_s + p.dur_s,
+                    deadline_s: p.at_s + p.dur_s + recover_s + slack,
+                },
+                "garbage_datagrams" => Watch::GainHeld {
+                    from_s: p.at_s,
+                    until_s: p.at_s + p.dur_s,
+                    low: false,
+                },
+                "background_stall" => {
+                    faults.stall_background_ms.store(STALL_MS, Ordering::Relaxed);
+                    let target = faults.stalls_served.load(Ordering::Relaxed) + 1;
+                    Watch::Served {
+                        which: 0,
+                        target,
+                        sent: None,
+                        from_s: now,
+                        deadline_s: now + STALL_MS as f64 * 1e-3 + 2.5,
+                    }
+                }
+                "step_failure" => {
+                    faults.fail_next_step.store(true, Ordering::Relaxed);
+                    let target = faults.step_failures_served.load(Ordering::Relaxed) + 1;
+                    Watch::Served {
+                        which: 1,
+                        target,
+                        sent: None,
+                        from_s: now,
+                        deadline_s: now + 1.5,
+                    }
+                }
+                "model_ring_full" => {
+                    faults.hold_models.store(true, Ordering::Relaxed);
+                    Watch::SwapAfter {
+                        from_s: p.at_s + p.dur_s,
+                        epoch: u64::MAX,
+                        deadline_s: p.at_s + p.dur_s + 1.0,
+                    }
+                }
+                "stream_receiver_gone" => {
+                    receiver = None;
+                    rebind_at = Some(p.at_s + p.dur_s);
+                    Watch::Stream {
+                        from_s: p.at_s + p.dur_s,
+                        deadline_s: p.at_s + p.dur_s + 2.0,
+                    }
+                }
+                "clock_jump" => {
+                    clock::inject_jump(CLOCK_JUMP_MS * 1_000_000);
+                    // The leap moved every clock, this schedule's too.
+                    let after = rel();
+                    Watch::GainBack {
+                        from_s: after,
+                        deadline_s: after + recover_s + slack,
+                    }
+                }
+                _ => continue,
+            };
+            if p.kind != "basis_failure" {
+                pending.push(Pending { kind: p.kind, watch: w });
+            }
+        }
+        // Release the model hold when its time is up.
+        for p in &mut pending {
+            if let Watch::SwapAfter { from_s, epoch, .. } = &mut p.watch {
+                if *epoch == u64::MAX && now >= *from_s {
+                    *epoch = handle.snapshot().model_epoch;
+                    faults.hold_models.store(false, Ordering::Relaxed);
+                }
+            }
+        }
+        // Watch the recoveries.
+        let snap = handle.snapshot();
+        let full = snap.gain >= 0.999;
+        let mut done: Vec<(usize, bool, Option<f64>)> = Vec::new();
+        for (i, p) in pending.iter_mut().enumerate() {
+            let verdict = match &mut p.watch {
+                Watch::GainBack { from_s, deadline_s } => {
+                    if now >= *from_s && full {
+                        Some((true, Some((now - *from_s) * 1e3)))
+                    } else if now > *deadline_s {
+                        Some((false, Some((now - *from_s) * 1e3)))
+                    } else {
+                        None
+                    }
+                }
+                Watch::GainHeld { from_s, until_s, low } => {
+                    if now >= *from_s && now <= *until_s && !full {
+                        *low = true;
+                    }
+                    (now > *until_s).then_some((!*low, None))
+                }
+                Watch::SwapAfter { from_s, epoch, deadline_s } => {
+                    if *epoch != u64::MAX && snap.model_epoch > *epoch {
+                        Some((true, Some((now - *from_s) * 1e3)))
+                    } else {
+                        (now > *deadline_s).then_some((false, None))
+                    }
+                }
+                Watch::Served {
+                    which,
+                    target,
+                    sent,
+                    from_s,
+                    deadline_s,
+                } => {
+                    let served = match which {
+                        0 => faults.stalls_served.load(Ordering::Relaxed),
+                        1 => faults.step_failures_served.load(Ordering::Relaxed),
+                        _ => faults.basis_failures_served.load(Ordering::Relaxed),
+                    };
+                    match sent {
+                        None if served >= *target => {
+                            *sent = Some(snap.models_sent);
+                            *from_s = now;
+                            *deadline_s = now + 2.0;
+                            None
+                        }
+                        Some(s) if snap.models_sent > *s => Some((true, Some((now - *from_s) * 1e3))),
+                        _ => (now > *deadline_s).then_some((false, None)),
+                    }
+                }
+                Watch::Stream { from_s, deadline_s } => {
+                    if last_frame_s > *from_s {
+                        Some((true, Some((last_frame_s - *from_s) * 1e3)))
+                    } else {
+                        (now > *deadline_s).then_some((false, None))
+                    }
+                }
+            };
+            if let Some((ok, ms)) = verdict {
+                done.push((i, ok, ms));
+            }
+        }
+        for (i, ok, ms) in done.into_iter().rev() {
+            let p = pending.remove(i);
+            let f = report.faults.entry(p.kind.to_string()).or_default();
+            f.injected += 1;
+            if ok {
+                f.recovered += 1;
+            }
+            if let Some(ms) = ms {
+                f.max_recovery_ms = Some(f.max_recovery_ms.map_or(ms, |m: f64| m.max(ms)));
+            }
+        }
+        // Resident memory every 100 ms.
+        if now - last_rss >= 0.1 {
+            last_rss = now;
+            let rss = rss_bytes();
+            if now >= warmup_s {
+                let w = *rss_warm.get_or_insert(rss);
+                rss_max = rss_max.max(rss - w);
+            }
+        }
+        if opts.progress && now - bar_t >= 10.0 {
+            bar_t = now;
+            eprintln!(
+                "nvtmm soak: leg {name}: {:.0} / {:.0} s, {} ticks, gain {:.2}",
+                now, seconds, snap.ticks, snap.gain
+            );
+        }
+        std::thread::sleep(Duration::from_millis(2));
+    }
+    faults.hold_models.store(false, Ordering::Relaxed);
+    let svc = handle.stop()?;
+    // Faults still being watched at the end: a served-but-unfinished basis
+    // failure counts as met; others that never came due are not counted.
+    for p in pending {
+        if let Watch::Served { which: 2, sent, .. } = p.watch {
+            if sent.is_some() {
+                let f = report.faults.entry(p.kind.to_string()).or_default();
+                f.injected += 1;
+                f.recovered += u64::from(svc.threads_lost.is_empty());
+            }
+        }
+    }
+    // Device-side results.
+    for (k, kind) in DeviceFaultKind::ALL.iter().enumerate() {
+        let key = match kind {
+            DeviceFaultKind::Silence => "silence",
+            DeviceFaultKind::NanPose => "nan_pose",
+            DeviceFaultKind::WildPose => "wild_pose",
+            DeviceFaultKind::GarbageDatagrams => "garbage_datagrams",
+        };
+        let f = report.faults.entry(key.to_string()).or_default();
+        let started = checks.started[k].load(Ordering::Relaxed);
+        let zeroed = checks.zeroed[k].load(Ordering::Relaxed);
+        // A fault counts as recovered only if the force also went to zero
+        // in time (the controller saw the recovery; the device saw the zero).
+        let missed = started.saturating_sub(zeroed);
+        f.recovered = f.recovered.saturating_sub(missed);
+        if kind.zeroes_force() && started > 0 {
+            let ms = checks.max_time_to_zero_ms(k);
+            f.max_time_to_zero_ms = Some(f.max_time_to_zero_ms.map_or(ms, |m: f64| m.max(ms)));
+        }
+    }
+    let c = &checks;
+    report.nonfinite_forces += c.nonfinite_forces.load(Ordering::Relaxed);
+    report.force_limit_violations += c.force_limit_violations.load(Ordering::Relaxed);
+    report.energy_violations += c.energy_violations.load(Ordering::Relaxed);
+    report.zero_violations += c.zero_violations.load(Ordering::Relaxed);
+    report.max_force_n = report.max_force_n.max(c.max_force_n());
+    report.max_window_energy_j = report.max_window_energy_j.max(c.max_window_energy_j());
+    report.system_allocations += svc.allocations_after_start;
+    report.rss_growth_bytes = report.rss_growth_bytes.max(rss_max);
+    report.threads_lost += svc.threads_lost.len() as u64;
+    let garbage_sent = c.garbage_sent.load(Ordering::Relaxed);
+    let garbage_rejected = c.garbage_rejected.load(Ordering::Relaxed);
+    report.checks.push(Check {
+        name: format!("leg {name}: every garbage datagram rejected by the bridge"),
+        passed: garbage_rejected == garbage_sent,
+        detail: format!("{garbage_sent} sent, {garbage_rejected} rejected"),
+    });
+    report.checks.push(Check {
+        name: format!("leg {name}: the allocator was installed (allocations are counted)"),
+        passed: svc.allocator_installed,
+        detail: format!("{}", svc.allocator_installed),
+    });
+    report.legs.push(LegReport {
+        name: name.into(),
+        youngs_pa,
+        seconds: svc.seconds,
+        ticks: svc.ticks,
+        deadline_misses: svc.deadline_misses,
+        tick_compute_p999_us: svc.tick_compute_us.p999,
+        forces_checked: c.writes.load(Ordering::Relaxed),
+        hand: hand_moves.lock().map(|m| *m).unwrap_or_default(),
+        rss_after_warmup_bytes: rss_warm.unwrap_or(0),
+        rss_growth_bytes: rss_max,
+        garbage_sent,
+        garbage_rejected,
+        service_report: svc.render(),
+    });
+    Ok(())
+}
