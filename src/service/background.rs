@@ -573,6 +573,7 @@ pub fn run<const R: usize>(mut bg: Background<R>, mut io: BackgroundIo<R>) -> Ba
         // Never run ahead of real time.
         let wall = (clock::now_ns() - t_start) as f64 * 1e-9;
         io.live.record_background(stats.steps, sim, wall, stats.models_sent);
+        io.live.record_bases(stats.basis_installed);
         if sim > wall {
             clock::sleep_until(t_start + (sim * 1e9) as i64);
         }

@@ -200,7 +200,7 @@ impl Default for WatchdogConfig {
             model_timeout_ms: 500.0,
             device_timeout_ms: 5.0,
             overrun_streak: 5,
-            ramp_down_ms: 10.0,
+            ramp_down_ms: 4.0,
             ramp_in_s: 0.5,
             model_max_age_ms: 3000.0,
             max_speed_m_s: 5.0,

@@ -56,6 +56,7 @@ pub struct LiveStats {
     models_sent: AtomicU64,
     epoch: AtomicU64,
     gain: AtomicF64,
+    bases: AtomicU64,
     frame: Mutex<Option<FrameSnapshot>>,
 }
 
@@ -81,6 +82,12 @@ impl LiveStats {
     pub fn record_model(&self, epoch: u64, gain: f64) {
         self.epoch.store(epoch, Ordering::Relaxed);
         self.gain.store(gain);
+    }
+
+    /// Called by the background thread: bases installed by the background
+    /// basis refresh so far.
+    pub fn record_bases(&self, installed: u64) {
+        self.bases.store(installed, Ordering::Relaxed);
     }
 
     /// Called by the background thread after each full step.
@@ -125,6 +132,7 @@ impl LiveStats {
             models_sent: self.models_sent.load(Ordering::Relaxed),
             model_epoch: self.epoch.load(Ordering::Relaxed),
             gain: self.gain.load(),
+            bases_installed: self.bases.load(Ordering::Relaxed),
             frame: self.frame.lock().ok().and_then(|f| f.clone()),
         }
     }
@@ -160,6 +168,8 @@ pub struct Snapshot {
     pub model_epoch: u64,
     /// Watchdog gain of the last tick (0 after a fault, ramping back to 1).
     pub gain: f64,
+    /// Bases the background basis refresh has installed so far.
+    pub bases_installed: u64,
     /// The latest state frame (None before the first one).
     pub frame: Option<FrameSnapshot>,
 }

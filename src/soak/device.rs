@@ -146,12 +146,9 @@ pub struct CheckLimits {
     pub tank_initial_j: f64,
     /// Net energy the service may deliver over any window (J): the tank's capacity.
     pub tank_max_j: f64,
-    /// Allowed onset-to-zero delay for a fault the service sees at once
-    /// (a bad sample): the watchdog's ramp-down plus the pipeline (s).
+    /// Allowed onset-to-zero delay of the force on a device fault that stops
+    /// the data (s): 10 ms.
     pub zero_delay_s: f64,
-    /// Extra delay for silence, which the service can only see once the
-    /// bridge and the watchdog time out (s).
-    pub silence_detect_s: f64,
 }
 
 /// The soak's instrumented device.
@@ -235,7 +232,9 @@ impl SoakDevice {
     /// Starts and ends faults at device time `t` (s after the first read).
     fn update_faults(&mut self, t: f64) {
         if let Some((f, _, _, _)) = self.active {
-            if t >= f.until_s {
+            // The checks run until the fault ends, and at least until the
+            // force had to be zero.
+            if t >= f.until_s.max(f.from_s + self.limits.zero_delay_s + 0.002) {
                 self.end_fault();
             }
         }
@@ -248,7 +247,8 @@ impl SoakDevice {
                 if f.until_s > t {
                     let k = Self::kind_index(f.kind);
                     self.checks.started[k].fetch_add(1, Ordering::Relaxed);
-                    self.active = Some((f, t, None, false));
+                    // Onset on the service clock, as the checks' `now`.
+                    self.active = Some((f, self.now, None, false));
                     if f.kind == DeviceFaultKind::NanPose {
                         self.nan_direct = !self.nan_direct;
                     }
@@ -273,9 +273,9 @@ impl SoakDevice {
             }
             if let Some(z) = zero_since {
                 store_max(&self.checks.max_time_to_zero_bits[k], (z - onset).max(0.0) * 1e3);
-                if !violated {
-                    self.checks.zeroed[k].fetch_add(1, Ordering::Relaxed);
-                }
+            }
+            if !violated && zero_since.is_some() {
+                self.checks.zeroed[k].fetch_add(1, Ordering::Relaxed);
             }
         }
     }
@@ -381,12 +381,7 @@ impl SoakDevice {
         let limits = self.limits;
         if let Some((f, onset, zero_since, violated)) = self.active.as_mut() {
             if f.kind.zeroes_force() {
-                let allowed = limits.zero_delay_s
-                    + if f.kind == DeviceFaultKind::Silence {
-                        limits.silence_detect_s
-                    } else {
-                        0.0
-                    };
+                let allowed = limits.zero_delay_s;
                 let zero = n.is_finite() && n <= 1e-9;
                 if zero {
                     if zero_since.is_none() {
@@ -430,7 +425,9 @@ impl HapticDevice for SoakDevice {
         self.update_faults(now_s - t0);
         // The hand and the stylus move on whatever the link does.
         let s = self.sim.read(now_s)?;
-        let kind = self.active.map(|(f, _, _, _)| f.kind);
+        // Inject only until the fault's end (the checks may run on a little).
+        let t = now_s - t0;
+        let kind = self.active.and_then(|(f, _, _, _)| (t < f.until_s).then_some(f.kind));
         match kind {
             Some(DeviceFaultKind::Silence) => {
                 let _ = self.udp.read(now_s);

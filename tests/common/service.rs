@@ -1,0 +1,70 @@
+//! A small running service for the recovery tests, and a poll helper.
+
+use nvtmm::service::{Handle, Service, Snapshot, StartOptions};
+use std::time::{Duration, Instant};
+
+/// Starts a small service (1458-node arch, r = 16) with the basis refresh
+/// every 0.3 s and short model timeouts, in `dir`.
+pub fn start(dir: &std::path::Path) -> Handle {
+    let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
+    std::fs::write(
+        dir.join("scene.toml"),
+        format!(
+            r#"model = "nvtmm"
+duration = 1.0
+[mesh]
+arch_nodes = 1458
+[material]
+youngs_pa = 65e3
+poisson = 0.45
+[fixed]
+sets = ["inlet", "outlet_descending"]
+[integrator]
+dt = 1e-2
+newton = {{ max_iters = 1 }}
+linear = {{ kind = "cholesky_pcg", tol = 1e-6, refactor_every = 3, factor_f32 = true }}
+[reduced]
+r = 16
+contact_modes = true
+contact_region = {{ center = [0.0065, -0.031, 0.177], radius = 0.015, set = "outer_wall" }}
+cache_dir = "{}"
+"#,
+            dir.join("cache").display()
+        ),
+    )
+    .unwrap();
+    let config = format!(
+        r#"scene = "scene.toml"
+seconds = 60.0
+[loop]
+baseline_s = 0.1
+[device]
+touchx = "{}"
+origin_m = [0.0065, -0.031, 0.177]
+[watchdog]
+model_timeout_ms = 300.0
+model_max_age_ms = 1000.0
+[background]
+basis_refresh_s = 0.3
+basis_refresh_m = 0.0
+[stream]
+enabled = false
+"#,
+        root.join("rt-config/touchx.toml").display()
+    );
+    Service::start(StartOptions::text(config, dir.join("in-memory.toml"))).unwrap()
+}
+
+/// Polls `cond` on snapshots every 10 ms for up to `secs` (a loaded
+/// machine is slow); true if it held.
+pub fn wait_for(h: &Handle, secs: f64, cond: impl Fn(&Snapshot) -> bool) -> bool {
+    let t = Instant::now();
+    while t.elapsed().as_secs_f64() < secs {
+        if cond(&h.snapshot()) {
+            return true;
+        }
+        std::thread::sleep(Duration::from_millis(10));
+    }
+    false
+}
+
