@@ -124,9 +124,8 @@ pub struct DeviceContext<'a> {
 
 /// A device builder function: [`setup::make_device`] builds the configured
 /// one, if the factory wants to wrap it.
-pub type DeviceBuilder = dyn Fn(&DeviceContext<'_>) -> Result<Box<dyn crate::haptics::device::HapticDevice>, ServiceError>
-    + Send
-    + Sync;
+pub type DeviceBuilder =
+    dyn Fn(&DeviceContext<'_>) -> Result<Box<dyn crate::haptics::device::HapticDevice>, ServiceError> + Send + Sync;
 
 /// A device builder to use instead of the configured backend
 /// ([`StartOptions::device`]). Compares by identity.

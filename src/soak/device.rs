@@ -175,7 +175,9 @@ pub struct SoakDevice {
 
 impl std::fmt::Debug for SoakDevice {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.debug_struct("SoakDevice").field("faults", &self.faults.len()).finish()
+        f.debug_struct("SoakDevice")
+            .field("faults", &self.faults.len())
+            .finish()
     }
 }
 

@@ -238,12 +238,21 @@ impl SoakReport {
                 k,
                 f.injected,
                 f.recovered,
-                f.max_time_to_zero_ms.map(|v| format!("{v:.1} ms")).unwrap_or_else(|| "-".into()),
-                f.max_recovery_ms.map(|v| format!("{v:.0} ms")).unwrap_or_else(|| "-".into())
+                f.max_time_to_zero_ms
+                    .map(|v| format!("{v:.1} ms"))
+                    .unwrap_or_else(|| "-".into()),
+                f.max_recovery_ms
+                    .map(|v| format!("{v:.0} ms"))
+                    .unwrap_or_else(|| "-".into())
             );
         }
         for c in &self.checks {
-            s += &format!("  [{}] {}: {}\n", if c.passed { "ok" } else { "FAIL" }, c.name, c.detail);
+            s += &format!(
+                "  [{}] {}: {}\n",
+                if c.passed { "ok" } else { "FAIL" },
+                c.name,
+                c.detail
+            );
         }
         s
     }
@@ -292,7 +301,11 @@ fn schedule(rng: &mut Rng, seconds: f64, kinds: &[&'static str]) -> Vec<Planned>
             if t + dur + recover > seconds - 1.0 {
                 return out;
             }
-            out.push(Planned { kind, at_s: t, dur_s: dur });
+            out.push(Planned {
+                kind,
+                at_s: t,
+                dur_s: dur,
+            });
             t += dur + recover + rng.range(0.3, 1.0);
         }
     }
@@ -330,7 +343,9 @@ fn leg_config(config: &Path, youngs_pa: Option<f64>, stream_port: u16, scratch: 
         None => scene_path,
         Some(e) => {
             let st = std::fs::read_to_string(&scene_path).map_err(|err| bad(&scene_path, err.to_string()))?;
-            let mut s: toml::Table = st.parse().map_err(|err: toml::de::Error| bad(&scene_path, err.to_string()))?;
+            let mut s: toml::Table = st
+                .parse()
+                .map_err(|err: toml::de::Error| bad(&scene_path, err.to_string()))?;
             let sbase = scene_path.parent().unwrap_or(Path::new(".")).to_path_buf();
             let material = s
                 .get_mut("material")
@@ -358,10 +373,7 @@ fn leg_config(config: &Path, youngs_pa: Option<f64>, stream_port: u16, scratch: 
         .or_insert_with(|| toml::Value::Table(toml::Table::new()));
     if let Some(t) = stream.as_table_mut() {
         t.insert("enabled".into(), toml::Value::Boolean(true));
-        t.insert(
-            "target".into(),
-            toml::Value::String(format!("127.0.0.1:{stream_port}")),
-        );
+        t.insert("target".into(), toml::Value::String(format!("127.0.0.1:{stream_port}")));
         t.remove("igtl");
     }
     toml::to_string(&v).map_err(|e| bad(config, e.to_string()))
@@ -377,7 +389,13 @@ enum Watch {
     /// The loop swaps in a new model after `from_s` (epoch above `epoch`) by `deadline_s`.
     SwapAfter { from_s: f64, epoch: u64, deadline_s: f64 },
     /// A served counter reaches `target`, then models flow again, by `deadline_s`.
-    Served { which: u8, target: u64, sent: Option<u64>, from_s: f64, deadline_s: f64 },
+    Served {
+        which: u8,
+        target: u64,
+        sent: Option<u64>,
+        from_s: f64,
+        deadline_s: f64,
+    },
     /// The stream receiver gets a datagram after `from_s` by `deadline_s`.
     Stream { from_s: f64, deadline_s: f64 },
 }
@@ -617,7 +635,9 @@ fn run_leg(
             "nvtmm soak: leg {} ({:.0} s{}), preparing...",
             name,
             seconds,
-            youngs_pa.map(|e| format!(", E = {:.0} MPa", e * 1e-6)).unwrap_or_default()
+            youngs_pa
+                .map(|e| format!(", E = {:.0} MPa", e * 1e-6))
+                .unwrap_or_default()
         );
     }
     let start = StartOptions {
@@ -797,7 +817,11 @@ fn run_leg(
                     }
                     (now > *until_s).then_some((!*low, None))
                 }
-                Watch::SwapAfter { from_s, epoch, deadline_s } => {
+                Watch::SwapAfter {
+                    from_s,
+                    epoch,
+                    deadline_s,
+                } => {
                     if *epoch != u64::MAX && snap.model_epoch > *epoch {
                         Some((true, Some((now - *from_s) * 1e3)))
                     } else {

@@ -67,4 +67,3 @@ pub fn wait_for(h: &Handle, secs: f64, cond: impl Fn(&Snapshot) -> bool) -> bool
     }
     false
 }
-
