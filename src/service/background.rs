@@ -149,7 +149,7 @@ pub struct BasisStats {
 pub fn basis_thread<const R: usize>(
     mut w: BasisWorker,
     mut jobs: rtrb::Consumer<BasisJob>,
-    mut out: rtrb::Producer<NewBasis<R>>,
+    mut out: rtrb::Producer<Option<NewBasis<R>>>,
     stop: Arc<AtomicBool>,
     faults: Arc<FaultSwitches>,
 ) -> BasisStats {
@@ -185,10 +185,13 @@ pub fn basis_thread<const R: usize>(
             if injected {
                 FaultSwitches::served(&faults.basis_failures_served);
             }
+            // Answer the job: the background asks again later.
+            let _ = out.push(None);
             continue;
         };
         let Ok(rows) = basis_rows::<R>(&basis) else {
             stats.failures += 1;
+            let _ = out.push(None);
             continue;
         };
         let refresher = Refresher::new(&w.mesh, &basis, &w.mass);
@@ -197,6 +200,7 @@ pub fn basis_thread<const R: usize>(
                 Ok((c, _)) => Some(Arc::new(c)),
                 Err(_) => {
                     stats.failures += 1;
+                    let _ = out.push(None);
                     continue;
                 }
             },
@@ -212,7 +216,7 @@ pub fn basis_thread<const R: usize>(
             iterations: basis.iterations,
             compliance,
         };
-        if out.push(msg).is_ok() {
+        if out.push(Some(msg)).is_ok() {
             stats.recomputed += 1;
             w.current = basis;
         } else {
@@ -274,7 +278,7 @@ pub struct BackgroundIo<const R: usize> {
     /// progress (written).
     pub live: Arc<super::live::LiveStats>,
     /// Jobs to the basis thread and its answers (None: no basis refresh).
-    pub basis: Option<(rtrb::Producer<BasisJob>, rtrb::Consumer<NewBasis<R>>)>,
+    pub basis: Option<(rtrb::Producer<BasisJob>, rtrb::Consumer<Option<NewBasis<R>>>)>,
     /// ū and the basis rows of each model sent, for the stream publisher
     /// (keep-latest: dropped when full).
     pub offsets: Option<rtrb::Producer<OffsetMsg<R>>>,
@@ -492,16 +496,20 @@ pub fn run<const R: usize>(mut bg: Background<R>, mut io: BackgroundIo<R>) -> Ba
         // A new basis from the basis thread: install it; the next model
         // carries the state over from the last sent model's basis.
         if let Some((_, rx)) = io.basis.as_mut() {
-            if let Ok(nb) = rx.pop() {
-                let old = std::mem::replace(&mut bg.refresher, nb.refresher);
-                if sent_phi.is_none() {
-                    sent_phi = Some(old.phi().clone());
-                }
-                bg.rows = nb.rows;
-                bg.compliance = nb.compliance;
-                generation += 1;
+            if let Ok(answer) = rx.pop() {
+                // A failed recomputation answers None: keep the basis in
+                // use and ask again at the next occasion.
                 in_flight = false;
-                stats.basis_installed += 1;
+                if let Some(nb) = answer {
+                    let old = std::mem::replace(&mut bg.refresher, nb.refresher);
+                    if sent_phi.is_none() {
+                        sent_phi = Some(old.phi().clone());
+                    }
+                    bg.rows = nb.rows;
+                    bg.compliance = nb.compliance;
+                    generation += 1;
+                    stats.basis_installed += 1;
+                }
             }
         }
         // Ask for a new basis when the state has moved far enough.

@@ -377,7 +377,7 @@ pub(super) fn start_with<const R: usize>(p: Prepared) -> Result<Running<R>, Serv
         // The basis thread, when the basis refresh is on.
         let basis_io = if basis_policy.every_s > 0.0 {
             let (job_tx, job_rx) = rtrb::RingBuffer::<BasisJob>::new(1);
-            let (new_tx, new_rx) = rtrb::RingBuffer::<NewBasis<R>>::new(1);
+            let (new_tx, new_rx) = rtrb::RingBuffer::<Option<NewBasis<R>>>::new(1);
             let worker = BasisWorker {
                 mesh: mesh.clone(),
                 mass: mass.clone(),
