@@ -218,7 +218,24 @@ pub fn run(scene: &Scene, out_dir: &Path, progress: bool) -> Result<RunSummary, 
         edges: false,
         ..Default::default()
     };
-    let rgb = crate::mesh::render::render_surface(mesh, Some(&pos), Some(&mag), &opt);
+    let mut rgb = crate::mesh::render::render_surface(mesh, Some(&pos), Some(&mag), &opt);
+    let (lo, hi) = mag
+        .iter()
+        .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &x| (a.min(x), b.max(x)));
+    crate::experiment::plot::annotate_render(
+        &mut rgb,
+        opt.width,
+        opt.height,
+        &format!(
+            "{}: deformed surface at t = {:.3} s, view along +y (x right, z up)",
+            built.model.name(),
+            state.t
+        ),
+        "|u| (mm)",
+        lo * 1e3,
+        hi * 1e3,
+    )
+    .map_err(|e| out_err(&png, &std::io::Error::other(e)))?;
     crate::mesh::render::write_png(&png, opt.width, opt.height, &rgb).map_err(|e| out_err(&png, &e))?;
     outputs.push(png);
     Ok(RunSummary {

@@ -188,3 +188,65 @@ pub fn dual_axis_panels(
     root.present().map_err(|e| e.to_string())?;
     Ok(())
 }
+
+/// Draws onto an RGB image (`rgb`, `width` × `height`, as
+/// [`crate::mesh::render::render_surface`] makes it) a title line at the top
+/// and a vertical colour bar at the right for a scalar from `vmin` to `vmax`
+/// in the renderer's colour map, with its `label` (name and unit) and five
+/// tick values. The surface's colours are also shaded by the light, so the
+/// bar shows the unshaded colours.
+pub fn annotate_render(
+    rgb: &mut [u8],
+    width: u32,
+    height: u32,
+    title: &str,
+    label: &str,
+    vmin: f64,
+    vmax: f64,
+) -> Result<(), String> {
+    register_font();
+    if rgb.len() != (width * height * 3) as usize {
+        return Err(format!(
+            "image buffer has {} bytes, {width}×{height} needs {}",
+            rgb.len(),
+            width * height * 3
+        ));
+    }
+    let root = BitMapBackend::with_buffer(rgb, (width, height)).into_drawing_area();
+    let e = |e: DrawingAreaErrorKind<_>| e.to_string();
+    let text = ("sans-serif", 15).into_font().color(&BLACK);
+    root.draw(&Text::new(title.to_string(), (10, 8), text.clone()))
+        .map_err(e)?;
+    let (w, h) = (width as i32, height as i32);
+    let (x0, x1) = (w - 95, w - 75);
+    let (y0, y1) = (40, h - 40);
+    let span = (y1 - y0).max(1);
+    for y in y0..=y1 {
+        let t = (y1 - y) as f64 / span as f64;
+        let [r, g, b] = crate::mesh::render::colormap(t);
+        root.draw(&PathElement::new(vec![(x0, y), (x1, y)], RGBColor(r, g, b)))
+            .map_err(e)?;
+    }
+    root.draw(&Rectangle::new([(x0, y0), (x1, y1)], BLACK.stroke_width(1)))
+        .map_err(e)?;
+    for k in 0..=4 {
+        let t = k as f64 / 4.0;
+        let y = y1 - (t * span as f64).round() as i32;
+        let v = vmin + t * (vmax - vmin);
+        root.draw(&PathElement::new(vec![(x1, y), (x1 + 4, y)], BLACK))
+            .map_err(e)?;
+        root.draw(&Text::new(
+            format!("{v:.3}"),
+            (x1 + 7, y - 7),
+            ("sans-serif", 13).into_font(),
+        ))
+        .map_err(e)?;
+    }
+    root.draw(&Text::new(
+        label.to_string(),
+        (x0 - 30, y1 + 10),
+        ("sans-serif", 13).into_font(),
+    ))
+    .map_err(e)?;
+    root.present().map_err(|e| e.to_string())
+}
