@@ -62,7 +62,7 @@ cache_dir = "{}"
         &cfg,
         format!(
             r#"scene = "scene.toml"
-seconds = 3.0
+seconds = 6.0
 [loop]
 baseline_s = 0.5
 [device]
