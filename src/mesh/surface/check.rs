@@ -273,20 +273,27 @@ struct Work {
 }
 
 impl Work {
-    /// Drops the vertices no triangle uses; returns how many.
+    /// Drops the vertices no triangle uses (the others keep their order);
+    /// returns how many.
     fn compact(&mut self) -> usize {
         let mut map = vec![u32::MAX; self.verts.len()];
+        for t in &self.tris {
+            for &v in t {
+                map[v as usize] = 0;
+            }
+        }
         let mut verts = Vec::with_capacity(self.verts.len());
         let mut vin = Vec::with_capacity(self.verts.len());
+        for (v, m) in map.iter_mut().enumerate() {
+            if *m == 0 {
+                *m = verts.len() as u32;
+                verts.push(self.verts[v]);
+                vin.push(self.vin[v]);
+            }
+        }
         for t in &mut self.tris {
             for v in t.iter_mut() {
-                let m = &mut map[*v as usize];
-                if *m == u32::MAX {
-                    *m = verts.len() as u32;
-                    verts.push(self.verts[*v as usize]);
-                    vin.push(self.vin[*v as usize]);
-                }
-                *v = *m;
+                *v = map[*v as usize];
             }
         }
         let dropped = self.verts.len() - verts.len();
