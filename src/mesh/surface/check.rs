@@ -24,7 +24,7 @@
 //! 9. self-intersections (two triangles that cross or touch, other than along
 //!    the edge or at the vertex they share) are refused, naming the first
 //!    pair; exact orientation predicates (Shewchuk's, the `robust` crate)
-//!    with a uniform-grid broad phase ([`super::intersect`]).
+//!    with a uniform-grid broad phase.
 //!
 //! Vertex and triangle indices in reports and errors are those of the mesh
 //! given to [`check_surface`] (0-based).

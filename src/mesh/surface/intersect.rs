@@ -10,9 +10,9 @@
 //! same side of the edge); pairs that share a vertex when the edge opposite
 //! it in one meets the other, or when coplanar with overlapping corners.
 
+use super::FastMap;
 use crate::math::Vec3;
 use robust::{orient2d, orient3d, Coord, Coord3D};
-use std::collections::HashMap;
 
 fn c3(p: &Vec3) -> Coord3D<f64> {
     Coord3D { x: p.x, y: p.y, z: p.z }
@@ -162,11 +162,17 @@ fn edge_pair(u: &Vec3, w: &Vec3, a: &Vec3, b: &Vec3) -> bool {
 /// they share vertices.
 pub(super) fn triangles_meet(verts: &[Vec3], s: [u32; 3], t: [u32; 3]) -> bool {
     let p = |i: u32| &verts[i as usize];
-    let shared: Vec<(usize, usize)> = (0..3)
-        .flat_map(|i| (0..3).map(move |j| (i, j)))
-        .filter(|&(i, j)| s[i] == t[j])
-        .collect();
-    match shared.len() {
+    let mut shared = [(0usize, 0usize); 3];
+    let mut count = 0;
+    for i in 0..3 {
+        for j in 0..3 {
+            if s[i] == t[j] && count < 3 {
+                shared[count] = (i, j);
+                count += 1;
+            }
+        }
+    }
+    match count {
         0 => disjoint_pair(&s.map(|i| *p(i)), &t.map(|i| *p(i))),
         1 => {
             let (i, j) = shared[0];
@@ -220,7 +226,7 @@ pub(super) fn first_intersection(verts: &[Vec3], tris: &[[u32; 3]]) -> Option<(u
         let (a, b) = (&boxes[i], &boxes[j]);
         (0..3).all(|k| a.0[k] <= b.1[k] && b.0[k] <= a.1[k])
     };
-    let mut grid: HashMap<[i64; 3], Vec<u32>> = HashMap::with_capacity(2 * n);
+    let mut grid: FastMap<[i64; 3], Vec<u32>> = FastMap::with_capacity_and_hasher(2 * n, Default::default());
     let mut big = Vec::new();
     let mut is_big = vec![false; n];
     for (t, (lo, hi)) in boxes.iter().enumerate() {

@@ -252,54 +252,64 @@ fn check_scale(path: &Path, scale: f64) -> Result<(), SurfaceError> {
 }
 
 /// Merges vertices closer than `tol` (Euclidean distance; 0 merges only
-/// bit-identical positions), renumbering the triangles, in O(n) with a hashed
-/// grid of cell `tol`. The first vertex of a group keeps its position and
-/// vertices keep their first-seen order. Returns the number of vertices
-/// removed. Triangles that become degenerate (a repeated vertex) are kept:
-/// [`check_surface`] removes and counts them.
+/// bit-identical positions), renumbering the triangles, in O(n): first
+/// bit-identical positions (one hash look-up each), then the distinct
+/// positions on a hashed grid of cell 2 `tol` (8 cells looked up each). The
+/// first vertex of a group keeps its position and vertices keep their
+/// first-seen order. Returns the number of vertices removed. Triangles that
+/// become degenerate (a repeated vertex) are kept: [`check_surface`] removes
+/// and counts them.
 pub fn weld_vertices(mesh: &mut SurfaceMesh, tol: f64) -> usize {
     let n = mesh.vertices.len();
     let mut map = vec![0u32; n];
     let mut kept: Vec<Vec3> = Vec::with_capacity(n);
+    let mut seen: FastMap<[u64; 3], u32> = FastMap::with_capacity_and_hasher(n, Default::default());
+    for (i, p) in mesh.vertices.iter().enumerate() {
+        // +0.0 and -0.0 are the same position.
+        let bits = [p.x + 0.0, p.y + 0.0, p.z + 0.0].map(f64::to_bits);
+        map[i] = *seen.entry(bits).or_insert_with(|| {
+            kept.push(*p);
+            (kept.len() - 1) as u32
+        });
+    }
+    drop(seen);
     if tol > 0.0 && tol.is_finite() {
-        let key = |p: &Vec3| p.map(|c| (c / tol).floor() as i64);
-        let mut grid: HashMap<[i64; 3], Vec<u32>> = HashMap::with_capacity(n);
-        for (i, p) in mesh.vertices.iter().enumerate() {
-            let k = key(p);
+        let h = 2.0 * tol;
+        let mut grid: FastMap<[i64; 3], Vec<u32>> = FastMap::with_capacity_and_hasher(kept.len(), Default::default());
+        let mut merged: Vec<Vec3> = Vec::with_capacity(kept.len());
+        let mut to = vec![0u32; kept.len()];
+        for (i, p) in kept.iter().enumerate() {
+            let c = p / h;
+            let k = c.map(|x| x.floor() as i64);
+            // The tol-ball reaches at most the neighbour cell on the nearer side.
+            let side = [0, 1, 2].map(|a| if c[a] - c[a].floor() < 0.5 { -1i64 } else { 1 });
             let mut found = None;
-            'search: for dx in -1..=1i64 {
-                for dy in -1..=1i64 {
-                    for dz in -1..=1i64 {
-                        let c = [k.x.saturating_add(dx), k.y.saturating_add(dy), k.z.saturating_add(dz)];
-                        if let Some(ids) = grid.get(&c) {
-                            if let Some(&j) = ids.iter().find(|&&j| (kept[j as usize] - p).norm() <= tol) {
-                                found = Some(j);
-                                break 'search;
-                            }
-                        }
+            'search: for m in 0..8 {
+                let key = [0, 1, 2].map(|a| {
+                    if m >> a & 1 == 1 {
+                        k[a].saturating_add(side[a])
+                    } else {
+                        k[a]
+                    }
+                });
+                if let Some(ids) = grid.get(&key) {
+                    if let Some(&j) = ids.iter().find(|&&j| (merged[j as usize] - p).norm() <= tol) {
+                        found = Some(j);
+                        break 'search;
                     }
                 }
             }
-            map[i] = match found {
-                Some(j) => j,
-                None => {
-                    let j = kept.len() as u32;
-                    kept.push(*p);
-                    grid.entry([k.x, k.y, k.z]).or_default().push(j);
-                    j
-                }
-            };
-        }
-    } else {
-        let mut seen: HashMap<[u64; 3], u32> = HashMap::with_capacity(n);
-        for (i, p) in mesh.vertices.iter().enumerate() {
-            // +0.0 and -0.0 are the same position.
-            let bits = [p.x + 0.0, p.y + 0.0, p.z + 0.0].map(f64::to_bits);
-            map[i] = *seen.entry(bits).or_insert_with(|| {
-                kept.push(*p);
-                (kept.len() - 1) as u32
+            to[i] = found.unwrap_or_else(|| {
+                let j = merged.len() as u32;
+                merged.push(*p);
+                grid.entry([k.x, k.y, k.z]).or_default().push(j);
+                j
             });
         }
+        for m in &mut map {
+            *m = to[*m as usize];
+        }
+        kept = merged;
     }
     for t in &mut mesh.triangles {
         for v in t.iter_mut() {
@@ -312,6 +322,35 @@ pub fn weld_vertices(mesh: &mut SurfaceMesh, tol: f64) -> usize {
     mesh.vertices = kept;
     removed
 }
+
+/// A fast hash for the integer keys of the welding and intersection grids
+/// (the multiply-rotate of rustc's FxHash); inputs are not adversarial
+/// enough for SipHash to matter, and it is several times faster.
+#[derive(Default, Clone, Copy)]
+pub(crate) struct FastHasher(u64);
+
+impl std::hash::Hasher for FastHasher {
+    fn finish(&self) -> u64 {
+        self.0
+    }
+    fn write(&mut self, bytes: &[u8]) {
+        for &b in bytes {
+            self.write_u64(u64::from(b));
+        }
+    }
+    fn write_u64(&mut self, x: u64) {
+        self.0 = (self.0.rotate_left(5) ^ x).wrapping_mul(0x51_7c_c1_b7_27_22_0a_95);
+    }
+    fn write_i64(&mut self, x: i64) {
+        self.write_u64(x as u64);
+    }
+    fn write_usize(&mut self, x: usize) {
+        self.write_u64(x as u64);
+    }
+}
+
+/// A hash map with [`FastHasher`].
+pub(crate) type FastMap<K, V> = HashMap<K, V, std::hash::BuildHasherDefault<FastHasher>>;
 
 /// The diagonal of a point set's bounding box (0 for no points).
 pub(crate) fn bbox_diagonal(points: &[Vec3]) -> f64 {

@@ -19,7 +19,7 @@ pub(super) fn read(path: &Path, data: &[u8]) -> Result<SurfaceMesh, MeshError> {
     let mut vertices: Vec<Vec3> = Vec::new();
     let mut triangles = Vec::new();
     // Positive indices may refer to vertices defined later: checked at the end.
-    let mut forward: Vec<(usize, usize, i64)> = Vec::new(); // (line, triangle, index)
+    let mut forward: Vec<(usize, i64)> = Vec::new(); // (line, index)
     let mut poly: Vec<u32> = Vec::new();
     let mut joined = String::new();
     let mut lines = data.split(|&b| b == b'\n').enumerate();
@@ -101,7 +101,7 @@ pub(super) fn read(path: &Path, data: &[u8]) -> Result<SurfaceMesh, MeshError> {
                         }
                         v => {
                             if v > n {
-                                forward.push((lineno, triangles.len(), v));
+                                forward.push((lineno, v));
                             }
                             v - 1
                         }
@@ -123,7 +123,7 @@ pub(super) fn read(path: &Path, data: &[u8]) -> Result<SurfaceMesh, MeshError> {
         }
     }
     let n = vertices.len();
-    if let Some(&(line, _, v)) = forward.iter().find(|&&(_, _, v)| v as u64 > n as u64) {
+    if let Some(&(line, v)) = forward.iter().find(|&&(_, v)| v as u64 > n as u64) {
         return Err(err(
             line,
             format!("vertex index {v} is out of range (the file has {n} vertices)"),
