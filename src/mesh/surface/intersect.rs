@@ -164,9 +164,9 @@ pub(super) fn triangles_meet(verts: &[Vec3], s: [u32; 3], t: [u32; 3]) -> bool {
     let p = |i: u32| &verts[i as usize];
     let mut shared = [(0usize, 0usize); 3];
     let mut count = 0;
-    for i in 0..3 {
-        for j in 0..3 {
-            if s[i] == t[j] && count < 3 {
+    for (i, a) in s.iter().enumerate() {
+        for (j, b) in t.iter().enumerate() {
+            if a == b && count < 3 {
                 shared[count] = (i, j);
                 count += 1;
             }

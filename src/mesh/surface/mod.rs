@@ -229,7 +229,9 @@ pub fn read_surface_bytes(
     Ok(mesh)
 }
 
-/// Reads a surface ([`read_surface`]) and checks it ([`check_surface`]).
+/// Reads a surface ([`read_surface`]) and checks it ([`check_surface`]);
+/// `options.scale` is replaced by `scale`, so a wrong-unit error names the
+/// scale to pass instead.
 pub fn read_and_check(path: &Path, scale: f64, options: &CheckOptions) -> Result<CheckedSurface, SurfaceError> {
     let mesh = read_surface(path, scale)?;
     let options = CheckOptions { scale, ..*options };
