@@ -29,12 +29,12 @@
 //! ```
 
 mod gmsh;
-mod scan;
+pub(crate) mod scan;
 mod surface;
 mod tetgen;
-mod vtk;
-mod vtkdata;
-mod vtu;
+pub(crate) mod vtk;
+pub(crate) mod vtkdata;
+pub(crate) mod vtu;
 
 pub use gmsh::write_gmsh;
 pub use surface::{write_obj, write_ply, write_stl};

@@ -107,12 +107,12 @@ pub(crate) fn cells_to_tets(
 }
 
 /// Reads a data array of `n` values of VTK type `ty`, as text or big-endian binary.
-struct Arrays {
-    binary: bool,
+pub(crate) struct Arrays {
+    pub(crate) binary: bool,
 }
 
 impl Arrays {
-    fn size_of(s: &Scan, ty: &str) -> Result<usize, MeshError> {
+    pub(crate) fn size_of(s: &Scan, ty: &str) -> Result<usize, MeshError> {
         Ok(match ty {
             "bit" => return Err(s.err("data type 'bit' is not supported")),
             "char" | "unsigned_char" => 1,
@@ -124,7 +124,7 @@ impl Arrays {
     }
 
     /// Integer values (indices, counts, cell types).
-    fn ints(&self, s: &mut Scan, n: u64, ty: &str, what: &str) -> Result<Vec<i64>, MeshError> {
+    pub(crate) fn ints(&self, s: &mut Scan, n: u64, ty: &str, what: &str) -> Result<Vec<i64>, MeshError> {
         let size = Self::size_of(s, ty)?;
         if matches!(ty, "float" | "double") {
             return Err(s.err(format!("{what} must be integers, not '{ty}'")));
@@ -149,7 +149,7 @@ impl Arrays {
     }
 
     /// Real values (coordinates, data).
-    fn reals(&self, s: &mut Scan, n: u64, ty: &str, what: &str) -> Result<Vec<f64>, MeshError> {
+    pub(crate) fn reals(&self, s: &mut Scan, n: u64, ty: &str, what: &str) -> Result<Vec<f64>, MeshError> {
         let size = Self::size_of(s, ty)?;
         let mut v = Vec::with_capacity(s.cap(n, if self.binary { size } else { 2 }));
         if self.binary {
@@ -170,7 +170,7 @@ impl Arrays {
     }
 
     /// Values to skip.
-    fn skip(&self, s: &mut Scan, n: u64, ty: &str, what: &str) -> Result<(), MeshError> {
+    pub(crate) fn skip(&self, s: &mut Scan, n: u64, ty: &str, what: &str) -> Result<(), MeshError> {
         if self.binary {
             let size = Self::size_of(s, ty)?;
             let bytes = n.checked_mul(size as u64).and_then(|b| usize::try_from(b).ok());
@@ -187,7 +187,7 @@ impl Arrays {
     }
 
     /// Ends a header line before data (binary data starts right after its newline).
-    fn start_data(&self, s: &mut Scan) {
+    pub(crate) fn start_data(&self, s: &mut Scan) {
         if self.binary {
             s.rest_of_line();
         }
@@ -208,7 +208,7 @@ fn escape(name: &str) -> String {
         .collect()
 }
 
-pub(crate) fn read(path: &Path, data: &[u8]) -> Result<RawMesh, MeshError> {
+pub(super) fn read(path: &Path, data: &[u8]) -> Result<RawMesh, MeshError> {
     let mut s = Scan::new(path, data);
     let header = s.rest_of_line();
     if !header.starts_with(b"# vtk DataFile") {
@@ -259,58 +259,8 @@ pub(crate) fn read(path: &Path, data: &[u8]) -> Result<RawMesh, MeshError> {
                 points = Some(pts);
             }
             "CELLS" => {
-                let a = s.u64("the number of cells")?;
-                let b = s.u64("the size of the cell list")?;
-                if s.peek() == Some("OFFSETS") {
-                    // VTK 5.x: `CELLS nOffsets nConnectivity` then two arrays.
-                    s.expect("OFFSETS")?;
-                    let ty = s.token("the offsets data type")?;
-                    arrays.start_data(&mut s);
-                    let off = arrays.ints(&mut s, a, ty, "cell offsets")?;
-                    s.expect("CONNECTIVITY")?;
-                    let ty = s.token("the connectivity data type")?;
-                    arrays.start_data(&mut s);
-                    let conn = arrays.ints(&mut s, b, ty, "cell connectivity")?;
-                    let mut offsets = Vec::with_capacity(off.len());
-                    for (i, &o) in off.iter().enumerate() {
-                        if o < 0 || o as u64 > b || offsets.last().is_some_and(|&l| (o as usize) < l) {
-                            return Err(s.err_at(line, format!("cell offset {i} ({o}) is out of order or range")));
-                        }
-                        offsets.push(o as usize);
-                    }
-                    if offsets.first().is_some_and(|&o| o != 0) || offsets.last().is_some_and(|&o| o != conn.len()) {
-                        return Err(s.err_at(line, "cell offsets must start at 0 and end at the connectivity length"));
-                    }
-                    cells = Some((line, conn, offsets));
-                } else {
-                    arrays.start_data(&mut s);
-                    let list = arrays.ints(&mut s, b, "int", "the cell list")?;
-                    // Classic layout: per cell, a count then that many indices.
-                    let mut conn = Vec::with_capacity(list.len());
-                    let mut offsets = vec![0usize];
-                    let mut i = 0usize;
-                    for c in 0..a {
-                        let Some(&k) = list.get(i) else {
-                            return Err(s.err_at(line, format!("the cell list ends before cell {c} (of {a})")));
-                        };
-                        let k = usize::try_from(k).ok().filter(|&k| k < list.len() - i);
-                        let Some(k) = k else {
-                            return Err(
-                                s.err_at(line, format!("cell {c}: point count is negative or overruns the list"))
-                            );
-                        };
-                        conn.extend_from_slice(&list[i + 1..i + 1 + k]);
-                        offsets.push(conn.len());
-                        i += 1 + k;
-                    }
-                    if i != list.len() {
-                        return Err(s.err_at(
-                            line,
-                            format!("the cell list has {} values but {a} cells use {i}", list.len()),
-                        ));
-                    }
-                    cells = Some((line, conn, offsets));
-                }
+                let (conn, offsets) = cell_list(&mut s, &arrays, line, "cell")?;
+                cells = Some((line, conn, offsets));
             }
             "CELL_TYPES" => {
                 let n = s.u64("the number of cell types")?;
@@ -356,9 +306,82 @@ pub(crate) fn read(path: &Path, data: &[u8]) -> Result<RawMesh, MeshError> {
     })
 }
 
+/// The cell list after a `CELLS` (or, in polydata, `POLYGONS`,
+/// `TRIANGLE_STRIPS`, `VERTICES`, `LINES`) keyword: the classic layout `n
+/// size` then per cell a count and its indices, or the 5.x layout `nOffsets
+/// nConnectivity` then `OFFSETS` and `CONNECTIVITY` arrays. Returns the
+/// connectivity and the offsets (one more than the cells, from 0). `line` is
+/// the keyword's line; `kind` names a cell in errors.
+pub(crate) fn cell_list(
+    s: &mut Scan,
+    arrays: &Arrays,
+    line: usize,
+    kind: &str,
+) -> Result<(Vec<i64>, Vec<usize>), MeshError> {
+    let a = s.u64(&format!("the number of {kind}s"))?;
+    let b = s.u64(&format!("the size of the {kind} list"))?;
+    if s.peek() == Some("OFFSETS") {
+        // VTK 5.x: `CELLS nOffsets nConnectivity` then two arrays.
+        s.expect("OFFSETS")?;
+        let ty = s.token("the offsets data type")?;
+        arrays.start_data(s);
+        let off = arrays.ints(s, a, ty, &format!("{kind} offsets"))?;
+        s.expect("CONNECTIVITY")?;
+        let ty = s.token("the connectivity data type")?;
+        arrays.start_data(s);
+        let conn = arrays.ints(s, b, ty, &format!("{kind} connectivity"))?;
+        let mut offsets = Vec::with_capacity(off.len());
+        for (i, &o) in off.iter().enumerate() {
+            if o < 0 || o as u64 > b || offsets.last().is_some_and(|&l| (o as usize) < l) {
+                return Err(s.err_at(line, format!("{kind} offset {i} ({o}) is out of order or range")));
+            }
+            offsets.push(o as usize);
+        }
+        if offsets.first().is_some_and(|&o| o != 0) || offsets.last().is_some_and(|&o| o != conn.len()) {
+            return Err(s.err_at(
+                line,
+                format!("{kind} offsets must start at 0 and end at the connectivity length"),
+            ));
+        }
+        if offsets.is_empty() {
+            offsets.push(0);
+        }
+        Ok((conn, offsets))
+    } else {
+        arrays.start_data(s);
+        let list = arrays.ints(s, b, "int", &format!("the {kind} list"))?;
+        // Classic layout: per cell, a count then that many indices.
+        let mut conn = Vec::with_capacity(list.len());
+        let mut offsets = vec![0usize];
+        let mut i = 0usize;
+        for c in 0..a {
+            let Some(&k) = list.get(i) else {
+                return Err(s.err_at(line, format!("the {kind} list ends before {kind} {c} (of {a})")));
+            };
+            let k = usize::try_from(k).ok().filter(|&k| k < list.len() - i);
+            let Some(k) = k else {
+                return Err(s.err_at(
+                    line,
+                    format!("{kind} {c}: point count is negative or overruns the list"),
+                ));
+            };
+            conn.extend_from_slice(&list[i + 1..i + 1 + k]);
+            offsets.push(conn.len());
+            i += 1 + k;
+        }
+        if i != list.len() {
+            return Err(s.err_at(
+                line,
+                format!("the {kind} list has {} values but {a} {kind}s use {i}", list.len()),
+            ));
+        }
+        Ok((conn, offsets))
+    }
+}
+
 /// The attributes after `POINT_DATA n` / `CELL_DATA n`, until the next
 /// dataset keyword. Point `SCALARS set_*` become node sets.
-fn attributes(
+pub(crate) fn attributes(
     s: &mut Scan,
     arrays: &Arrays,
     n: u64,
@@ -433,7 +456,7 @@ fn attributes(
 /// `FIELD name count` then per array `name ncomp ntuples type` and values.
 /// With `sets` (inside `POINT_DATA n`), one-component arrays `set_<name>` of
 /// `n` tuples become node sets (meshio writes point data this way).
-fn field(
+pub(crate) fn field(
     s: &mut Scan,
     arrays: &Arrays,
     mut sets: Option<(u64, &mut BTreeMap<String, Vec<u32>>)>,
@@ -458,7 +481,7 @@ fn field(
 }
 
 /// VTK 9's `METADATA` block: text lines up to the next blank line.
-fn metadata(s: &mut Scan) {
+pub(crate) fn metadata(s: &mut Scan) {
     s.rest_of_line();
     loop {
         let line = s.rest_of_line();

@@ -191,7 +191,7 @@ fn escape(v: &str) -> String {
 
 /// How a `DataArray` stores its values.
 #[derive(Clone, Copy, PartialEq)]
-enum Fmt {
+pub(crate) enum Fmt {
     Ascii,
     /// Inline base64.
     Binary,
@@ -200,33 +200,84 @@ enum Fmt {
 }
 
 /// A `DataArray` found in the file, with its text.
-struct Array<'a> {
-    name: String,
+pub(crate) struct Array<'a> {
+    pub(crate) name: String,
     ty: String,
-    ncomp: u64,
-    line: usize,
+    pub(crate) ncomp: u64,
+    pub(crate) line: usize,
     fmt: Fmt,
     text: (&'a [u8], usize),
 }
 
 /// What decoding binary arrays needs: the file's encoding and its appended data.
-struct Ctx<'a> {
+pub(crate) struct Ctx<'a> {
     path: &'a Path,
     enc: Encoding,
     /// Appended data after the `_` marker, and whether it is raw (else base64).
     appended: Option<(&'a [u8], bool)>,
 }
 
-pub(crate) fn read(path: &Path, data: &[u8]) -> Result<RawMesh, MeshError> {
+/// A VTK XML file scanned: its encoding and appended data, the one
+/// `Piece`'s attributes, and every `DataArray` with the element it sits in
+/// (`Points`, `Cells`, `Polys`, `PointData`, …). Shared by `.vtu` and the
+/// `.vtp` surface reader.
+pub(crate) struct Doc<'a> {
+    pub(crate) ctx: Ctx<'a>,
+    /// The `Piece`'s attributes and its line.
+    piece: (HashMap<&'a str, String>, usize),
+    /// Each `DataArray` with the name of its parent element.
+    pub(crate) arrays: Vec<(&'a str, Array<'a>)>,
+}
+
+impl<'a> Doc<'a> {
+    /// A parse error at `line`.
+    pub(crate) fn err(&self, line: usize, msg: impl Into<String>) -> MeshError {
+        MeshError::Parse {
+            path: self.ctx.path.to_path_buf(),
+            line,
+            msg: msg.into(),
+        }
+    }
+
+    /// The `Piece` element's line.
+    pub(crate) fn piece_line(&self) -> usize {
+        self.piece.1
+    }
+
+    /// A count attribute of the `Piece` (`NumberOfPoints`, …); `None` when absent.
+    pub(crate) fn count(&self, key: &str) -> Result<Option<u64>, MeshError> {
+        let (attrs, line) = &self.piece;
+        attrs
+            .get(key)
+            .map(|v| {
+                v.trim()
+                    .parse()
+                    .map_err(|_| self.err(*line, format!("Piece {key}='{}' is not a count", quote(v))))
+            })
+            .transpose()
+    }
+
+    /// A count attribute the `Piece` must have.
+    pub(crate) fn required(&self, key: &str) -> Result<u64, MeshError> {
+        self.count(key)?
+            .ok_or_else(|| self.err(self.piece.1, format!("Piece has no {key}")))
+    }
+
+    /// The arrays inside elements named `parent`.
+    pub(crate) fn arrays_in<'s>(&'s self, parent: &'s str) -> impl Iterator<Item = &'s Array<'a>> + 's {
+        self.arrays.iter().filter(move |(p, _)| *p == parent).map(|(_, a)| a)
+    }
+}
+
+/// Scans a VTK XML file whose `VTKFile type` must be `dataset` (when given).
+pub(crate) fn scan_doc<'a>(path: &'a Path, data: &'a [u8], dataset: &str) -> Result<Doc<'a>, MeshError> {
     let mut x = Xml {
         s: Scan::new(path, data),
         data,
     };
     let mut stack: Vec<&str> = Vec::new();
-    let mut counts: Option<(u64, u64, usize)> = None;
-    let mut points: Option<Array> = None;
-    let mut cell_arrays: Vec<Array> = Vec::new();
-    let mut point_data: Vec<Array> = Vec::new();
+    let mut piece: Option<(HashMap<&str, String>, usize)> = None;
+    let mut arrays: Vec<(&str, Array)> = Vec::new();
     let mut saw_root = false;
     let mut enc = Encoding {
         endian: Endian::Little,
@@ -246,8 +297,8 @@ pub(crate) fn read(path: &Path, data: &[u8]) -> Result<RawMesh, MeshError> {
                 match tag.name {
                     "VTKFile" => {
                         saw_root = true;
-                        if let Some(t) = tag.attrs.get("type").filter(|t| *t != "UnstructuredGrid") {
-                            return Err(x.err(tag.line, format!("VTKFile type '{}' is not UnstructuredGrid", quote(t))));
+                        if let Some(t) = tag.attrs.get("type").filter(|t| *t != dataset) {
+                            return Err(x.err(tag.line, format!("VTKFile type '{}' is not {dataset}", quote(t))));
                         }
                         enc.endian = match tag.attrs.get("byte_order").map(String::as_str) {
                             None | Some("LittleEndian") => Endian::Little,
@@ -271,19 +322,10 @@ pub(crate) fn read(path: &Path, data: &[u8]) -> Result<RawMesh, MeshError> {
                         };
                     }
                     "Piece" => {
-                        if counts.is_some() {
+                        if piece.is_some() {
                             return Err(x.err(tag.line, "more than one Piece (only single-piece files are read)"));
                         }
-                        let get = |k: &str| -> Result<u64, MeshError> {
-                            let v = tag
-                                .attrs
-                                .get(k)
-                                .ok_or_else(|| x.err(tag.line, format!("Piece has no {k}")))?;
-                            v.trim()
-                                .parse()
-                                .map_err(|_| x.err(tag.line, format!("Piece {k}='{}' is not a count", quote(v))))
-                        };
-                        counts = Some((get("NumberOfPoints")?, get("NumberOfCells")?, tag.line));
+                        piece = Some((tag.attrs.clone(), tag.line));
                     }
                     "AppendedData" => {
                         let raw = match tag.attrs.get("encoding").map(String::as_str) {
@@ -339,11 +381,8 @@ pub(crate) fn read(path: &Path, data: &[u8]) -> Result<RawMesh, MeshError> {
                             fmt,
                             text: tag.text,
                         };
-                        match parent {
-                            Some("Points") => points = Some(a),
-                            Some("Cells") => cell_arrays.push(a),
-                            Some("PointData") => point_data.push(a),
-                            _ => {}
+                        if let Some(p) = parent {
+                            arrays.push((p, a));
                         }
                     }
                     _ => {}
@@ -360,17 +399,33 @@ pub(crate) fn read(path: &Path, data: &[u8]) -> Result<RawMesh, MeshError> {
     if let Some(open) = stack.last() {
         return Err(x.err(x.s.line(), format!("the file ends inside <{}>", quote(open))));
     }
-    let ctx = Ctx { path, enc, appended };
-    let Some((npts, ncells, pline)) = counts else {
+    let Some(piece) = piece else {
         return Err(x.err(1, "no <Piece> element"));
     };
+    Ok(Doc {
+        ctx: Ctx { path, enc, appended },
+        piece,
+        arrays,
+    })
+}
+
+pub(super) fn read(path: &Path, data: &[u8]) -> Result<RawMesh, MeshError> {
+    let doc = scan_doc(path, data, "UnstructuredGrid")?;
+    let x = &doc;
+    let npts = doc.required("NumberOfPoints")?;
+    let ncells = doc.required("NumberOfCells")?;
+    let pline = doc.piece_line();
+    let ctx = &doc.ctx;
+    let points = doc.arrays_in("Points").last();
+    let cell_arrays: Vec<&Array> = doc.arrays_in("Cells").collect();
+    let point_data: Vec<&Array> = doc.arrays_in("PointData").collect();
     let Some(points) = points else {
         return Err(x.err(pline, "no <Points> DataArray"));
     };
     if points.ncomp != 3 {
         return Err(x.err(points.line, "Points must have NumberOfComponents=\"3\""));
     }
-    let coords = reals(&ctx, &points, npts.saturating_mul(3))?;
+    let coords = reals(ctx, points, npts.saturating_mul(3))?;
     let mut nodes = Vec::with_capacity(coords.len() / 3);
     for (i, c) in coords.chunks_exact(3).enumerate() {
         let p = Vec3::new(c[0], c[1], c[2]);
@@ -389,9 +444,9 @@ pub(crate) fn read(path: &Path, data: &[u8]) -> Result<RawMesh, MeshError> {
             .ok_or_else(|| x.err(pline, format!("no Cells DataArray named '{n}'")))
     };
     let (conn_a, off_a, ty_a) = (find("connectivity")?, find("offsets")?, find("types")?);
-    let offsets = ints(&ctx, off_a, Some(ncells))?;
-    let types = ints(&ctx, ty_a, Some(ncells))?;
-    let conn = ints(&ctx, conn_a, None)?;
+    let offsets = ints(ctx, off_a, Some(ncells))?;
+    let types = ints(ctx, ty_a, Some(ncells))?;
+    let conn = ints(ctx, conn_a, None)?;
     let mut cells = Vec::with_capacity(offsets.len());
     let mut prev = 0usize;
     for (c, &o) in offsets.iter().enumerate() {
@@ -410,7 +465,7 @@ pub(crate) fn read(path: &Path, data: &[u8]) -> Result<RawMesh, MeshError> {
     for a in &point_data {
         if let Some(set) = a.name.strip_prefix(SET_PREFIX) {
             // Check every set_ array parses, but only one-component ones are sets.
-            let v = reals(&ctx, a, npts.saturating_mul(a.ncomp))?;
+            let v = reals(ctx, a, npts.saturating_mul(a.ncomp))?;
             if a.ncomp == 1 {
                 sets.insert(set.to_string(), members(&v));
             }
@@ -493,7 +548,7 @@ fn exact<T>(ctx: &Ctx, a: &Array, v: Vec<T>, n: Option<u64>) -> Result<Vec<T>, M
     }
 }
 
-fn reals(ctx: &Ctx, a: &Array, n: u64) -> Result<Vec<f64>, MeshError> {
+pub(crate) fn reals(ctx: &Ctx, a: &Array, n: u64) -> Result<Vec<f64>, MeshError> {
     if a.fmt == Fmt::Ascii {
         return values(ctx.path, a, Some(n));
     }
@@ -502,7 +557,7 @@ fn reals(ctx: &Ctx, a: &Array, n: u64) -> Result<Vec<f64>, MeshError> {
     exact(ctx, a, v, Some(n))
 }
 
-fn ints(ctx: &Ctx, a: &Array, n: Option<u64>) -> Result<Vec<i64>, MeshError> {
+pub(crate) fn ints(ctx: &Ctx, a: &Array, n: Option<u64>) -> Result<Vec<i64>, MeshError> {
     if a.fmt == Fmt::Ascii {
         return values(ctx.path, a, n);
     }
