@@ -334,6 +334,9 @@ pub(super) fn start_with<const R: usize>(p: Prepared) -> Result<Running<R>, Serv
     let (offset_tx, offset_rx) = rtrb::RingBuffer::<OffsetMsg<R>>::new(16);
     let state_every = ((cfg.servo.rate_hz / cfg.stream.rate_hz).round() as u64).max(1);
 
+    if cfg.servo.lock_memory {
+        crate::rt::thread::return_large_blocks();
+    }
     let memory_locked = cfg.servo.lock_memory && lock_memory().is_ok();
     let mut refusals = Vec::new();
     if cfg.servo.lock_memory && !memory_locked {
