@@ -40,6 +40,9 @@ use crate::reduced::ModalBasis;
 use crate::solver::linear::{project_fixed, CholeskySolver};
 use nalgebra::{DMatrix, DVector};
 
+/// Probing right-hand sides solved together (one block triangular solve).
+const PROBE_BATCH: usize = 48;
+
 /// How the table is built.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct ComplianceParams {
@@ -254,18 +257,26 @@ impl LocalCompliance {
         }
         let cols: Vec<u32> = nbrs.iter().flatten().copied().collect();
         let mut blocks = vec![Mat3::zeros(); cols.len()];
-        let mut b = vec![Vec3::zeros(); n];
-        let mut x = vec![Vec3::zeros(); n];
+        // Right-hand sides (colour, axis), solved PROBE_BATCH at a time.
+        let probes: Vec<(usize, usize)> = (0..colours.len()).flat_map(|c| (0..3).map(move |a| (c, a))).collect();
+        let dofs = 3 * n;
+        let mut block = vec![0.0; dofs * PROBE_BATCH.min(probes.len().max(1))];
         let mut solves = 0;
-        for members in &colours {
-            for axis in 0..3 {
-                b.iter_mut().for_each(|v| *v = Vec3::zeros());
-                for &i in members {
-                    b[i as usize][axis] = 1.0;
+        for batch in probes.chunks(PROBE_BATCH) {
+            let width = batch.len();
+            let xs = &mut block[..dofs * width];
+            xs.iter_mut().for_each(|v| *v = 0.0);
+            for (col, &(colour, axis)) in batch.iter().enumerate() {
+                for &i in &colours[colour] {
+                    xs[col * dofs + 3 * i as usize + axis] = 1.0;
                 }
-                chol.solve_factored(&b, &mut x)
-                    .map_err(|e| format!("local compliance: solve: {e:?}"))?;
-                solves += 1;
+            }
+            chol.solve_factored_columns(xs)
+                .map_err(|e| format!("local compliance: solve: {e:?}"))?;
+            solves += width;
+            for (col, &(colour, axis)) in batch.iter().enumerate() {
+                let x = &xs[col * dofs..(col + 1) * dofs];
+                let members = &colours[colour];
                 // Φᵀ b is the sum of the probed nodes' rows.
                 let mut pb = DVector::zeros(r);
                 for &i in members {
@@ -278,15 +289,11 @@ impl LocalCompliance {
                     // Column `axis` of ΔW_ji for every neighbour j of i.
                     for &j in &nbrs[i as usize] {
                         let ju = j as usize;
-                        let mut red = Vec3::zeros();
-                        for a in 0..3 {
-                            red[a] = (0..r).map(|c| phi[(3 * ju + a, c)] * q[c]).sum();
-                        }
-                        let v = x[ju] - red;
                         let (lo, hi) = (offsets[ju] as usize, offsets[ju + 1] as usize);
                         if let Ok(p) = cols[lo..hi].binary_search(&i) {
                             for a in 0..3 {
-                                blocks[lo + p][(a, axis)] = v[a];
+                                let red: f64 = (0..r).map(|c| phi[(3 * ju + a, c)] * q[c]).sum();
+                                blocks[lo + p][(a, axis)] = x[3 * ju + a] - red;
                             }
                         }
                     }

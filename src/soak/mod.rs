@@ -43,6 +43,16 @@ pub const STIFF_YOUNGS_PA: f64 = 10e6;
 /// Resident memory may grow by at most this after warm-up (bytes).
 pub const RSS_BUDGET_BYTES: i64 = 1 << 20;
 
+/// The resident-memory level is the median over windows of this length
+/// (s), so the transient working set of a background basis recomputation
+/// (a few seconds, tens of MB, given back when it ends) is not counted as
+/// growth while a leak, which raises every later window, is.
+pub const RSS_WINDOW_S: f64 = 8.0;
+
+/// After the first background basis is in, the level is read from this
+/// much later on (s): the swap frees the old model and its buffers.
+pub const RSS_SETTLE_S: f64 = 3.0;
+
 /// How long a background stall lasts (ms).
 pub const STALL_MS: u64 = 2000;
 
@@ -137,13 +147,18 @@ pub struct LegReport {
     pub forces_checked: u64,
     /// The hand's moves.
     pub hand: HandMoves,
-    /// Resident memory after warm-up (bytes; None: the leg was too short
-    /// to warm up, see `rss_growth_bytes`).
+    /// Resident memory after warm-up: the median of the first
+    /// [`RSS_WINDOW_S`] window (bytes; None: the leg was too short to
+    /// warm up, see `rss_growth_bytes`).
     pub rss_after_warmup_bytes: Option<i64>,
-    /// Growth of the resident memory after warm-up (bytes); None when the
-    /// warm-up (a quarter of the leg and the first background basis
-    /// recomputation) left less than a quarter of the leg to measure.
+    /// Growth of the resident memory after warm-up (bytes): the highest
+    /// window median minus the first; None when the warm-up (a quarter of
+    /// the leg and the first background basis recomputation, plus
+    /// [`RSS_SETTLE_S`]) left less than two windows to measure.
     pub rss_growth_bytes: Option<i64>,
+    /// Highest single reading above the warm-up level (bytes): the
+    /// transient working set of the background threads (not checked).
+    pub rss_peak_above_warmup_bytes: Option<i64>,
     /// Resident memory once a second (s since the first read, MB).
     pub rss_trace_mb: Vec<(f64, f64)>,
     /// Garbage datagrams sent and rejected by the bridge.
@@ -264,6 +279,31 @@ struct Planned {
     kind: &'static str,
     at_s: f64,
     dur_s: f64,
+}
+
+/// Medians of the readings `(t, value)` (t from 0, ascending) over
+/// consecutive windows of `window` seconds; a last, partial window is left
+/// out.
+fn window_medians(readings: &[(f64, i64)], window: f64) -> Vec<i64> {
+    let Some(&(last, _)) = readings.last() else {
+        return Vec::new();
+    };
+    let full = (last / window).floor() as usize;
+    (0..full)
+        .filter_map(|k| {
+            let (a, b) = (k as f64 * window, (k + 1) as f64 * window);
+            let mut v: Vec<i64> = readings
+                .iter()
+                .filter(|&&(t, _)| t >= a && t < b)
+                .map(|&(_, r)| r)
+                .collect();
+            if v.is_empty() {
+                return None;
+            }
+            v.sort_unstable();
+            Some(v[v.len() / 2])
+        })
+        .collect()
 }
 
 /// The fault schedule of a leg: after a warm-up, the kinds in a random order,
@@ -680,9 +720,8 @@ fn run_leg(
     // background basis recomputation is in (its working set is the largest
     // the run allocates), or half the leg.
     let warmup_s = (seconds * 0.25).max(10.0).min(seconds * 0.5);
-    let mut rss_warm: Option<i64> = None;
     let mut rss_warm_at: Option<f64> = None;
-    let mut rss_max = 0i64;
+    let mut rss_after: Vec<(f64, i64)> = Vec::new();
     let mut last_rss = f64::NEG_INFINITY;
     let mut rss_trace: Vec<(f64, f64)> = Vec::new();
     let mut bar_t = 0.0;
@@ -884,9 +923,10 @@ fn run_leg(
                 rss_trace.push((now, rss as f64 / 1048576.0));
             }
             if now >= warmup_s && snap.bases_installed > 0 {
-                rss_warm_at.get_or_insert(now);
-                let w = *rss_warm.get_or_insert(rss);
-                rss_max = rss_max.max(rss - w);
+                let at = *rss_warm_at.get_or_insert(now + RSS_SETTLE_S);
+                if now >= at {
+                    rss_after.push((now - at, rss));
+                }
             }
         }
         if opts.progress && now - bar_t >= 10.0 {
@@ -939,9 +979,13 @@ fn run_leg(
     report.max_force_n = report.max_force_n.max(c.max_force_n());
     report.max_window_energy_j = report.max_window_energy_j.max(c.max_window_energy_j());
     report.system_allocations += svc.allocations_after_start;
-    let measured = rss_warm_at.is_some_and(|t| t <= seconds * 0.75);
+    let levels = window_medians(&rss_after, RSS_WINDOW_S);
+    let measured = levels.len() >= 2;
+    let rss_warm = levels.first().copied();
+    let rss_growth = levels.iter().map(|&l| l - levels[0]).max().unwrap_or(0);
+    let rss_peak = rss_warm.map(|w| rss_after.iter().map(|&(_, r)| r - w).max().unwrap_or(0));
     if measured {
-        report.rss_growth_bytes = report.rss_growth_bytes.max(rss_max);
+        report.rss_growth_bytes = report.rss_growth_bytes.max(rss_growth);
         report.rss_legs_measured += 1;
     }
     report.threads_lost += svc.threads_lost.len() as u64;
@@ -967,11 +1011,39 @@ fn run_leg(
         forces_checked: c.writes.load(Ordering::Relaxed),
         hand: hand_moves.lock().map(|m| *m).unwrap_or_default(),
         rss_after_warmup_bytes: rss_warm.filter(|_| measured),
-        rss_growth_bytes: measured.then_some(rss_max),
+        rss_growth_bytes: measured.then_some(rss_growth),
+        rss_peak_above_warmup_bytes: rss_peak.filter(|_| measured),
         rss_trace_mb: rss_trace,
         garbage_sent,
         garbage_rejected,
         service_report: svc.render(),
     });
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::window_medians;
+
+    #[test]
+    fn window_medians_ignore_a_transient_and_see_a_step() {
+        // 10 readings a second for 24 s at 100, with a 2 s bump to 150 in
+        // the second window: the medians stay at 100.
+        let flat: Vec<(f64, i64)> = (0..240)
+            .map(|i| {
+                let t = i as f64 * 0.1;
+                (t, if (10.0..12.0).contains(&t) { 150 } else { 100 })
+            })
+            .collect();
+        assert_eq!(window_medians(&flat, 8.0), vec![100, 100]);
+        // A step to 103 after 9 s (a leak) shows in the second window.
+        let step: Vec<(f64, i64)> = (0..240)
+            .map(|i| {
+                let t = i as f64 * 0.1;
+                (t, if t >= 9.0 { 103 } else { 100 })
+            })
+            .collect();
+        assert_eq!(window_medians(&step, 8.0), vec![100, 103]);
+        assert!(window_medians(&[], 8.0).is_empty());
+    }
 }
