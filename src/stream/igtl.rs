@@ -709,6 +709,37 @@ fn write_client(c: &mut Client) {
     }
 }
 
+/// Kernel send-buffer size requested for each client socket (Linux doubles
+/// it for bookkeeping). Small on purpose: a client that stops reading fills
+/// this and its receive window within a fraction of a second, after which its
+/// own queue fills and frames are dropped and counted, instead of seconds of
+/// stale frames piling up in the kernel (the default buffers auto-tune to
+/// several MiB).
+pub const CLIENT_SEND_BUFFER_BYTES: usize = 64 * 1024;
+
+/// Caps the kernel send buffer of a client socket at
+/// [`CLIENT_SEND_BUFFER_BYTES`] (best effort: a refusal leaves the default).
+fn bound_send_buffer(stream: &TcpStream) {
+    #[cfg(unix)]
+    {
+        use std::os::fd::AsRawFd;
+        let size = CLIENT_SEND_BUFFER_BYTES as libc::c_int;
+        // SAFETY: a valid open socket descriptor, a pointer to a c_int that
+        // lives across the call, and its exact size.
+        unsafe {
+            libc::setsockopt(
+                stream.as_raw_fd(),
+                libc::SOL_SOCKET,
+                libc::SO_SNDBUF,
+                (&size as *const libc::c_int).cast(),
+                std::mem::size_of::<libc::c_int>() as libc::socklen_t,
+            );
+        }
+    }
+    #[cfg(not(unix))]
+    let _ = stream;
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -787,35 +818,4 @@ mod tests {
         assert_eq!((h.version, h.kind.as_str()), (2, "TRANSFORM"));
         assert!((h.timestamp_s - 12.5).abs() < 1e-9);
     }
-}
-
-/// Kernel send-buffer size requested for each client socket (Linux doubles
-/// it for bookkeeping). Small on purpose: a client that stops reading fills
-/// this and its receive window within a fraction of a second, after which its
-/// own queue fills and frames are dropped and counted, instead of seconds of
-/// stale frames piling up in the kernel (the default buffers auto-tune to
-/// several MiB).
-pub const CLIENT_SEND_BUFFER_BYTES: usize = 64 * 1024;
-
-/// Caps the kernel send buffer of a client socket at
-/// [`CLIENT_SEND_BUFFER_BYTES`] (best effort: a refusal leaves the default).
-fn bound_send_buffer(stream: &TcpStream) {
-    #[cfg(unix)]
-    {
-        use std::os::fd::AsRawFd;
-        let size = CLIENT_SEND_BUFFER_BYTES as libc::c_int;
-        // SAFETY: a valid open socket descriptor, a pointer to a c_int that
-        // lives across the call, and its exact size.
-        unsafe {
-            libc::setsockopt(
-                stream.as_raw_fd(),
-                libc::SOL_SOCKET,
-                libc::SO_SNDBUF,
-                (&size as *const libc::c_int).cast(),
-                std::mem::size_of::<libc::c_int>() as libc::socklen_t,
-            );
-        }
-    }
-    #[cfg(not(unix))]
-    let _ = stream;
 }
