@@ -244,7 +244,7 @@ pub fn build_wall(surface: &CheckedSurface, opts: &WallOptions) -> Result<Wall, 
         for k in 0..layers {
             let [i, j, l] = s.map(|v| v + (k * n) as u32);
             let [i2, j2, l2] = s.map(|v| v + ((k + 1) * n) as u32);
-            for mut tet in [[i, j, l, l2], [i, j, j2, l2], [i, i2, j2, l2]] {
+            for mut tet in [[i, j, l, l2], [i, j, l2, j2], [i, i2, j2, l2]] {
                 if !even {
                     tet.swap(0, 1);
                 }
