@@ -49,6 +49,18 @@ fn parse_cut(k: usize, text: &str, scale: f64) -> Result<CutPlane> {
     })
 }
 
+/// A vector formatted with `prec` decimals, without "-0.000".
+fn vec_fmt(v: &nvtmm::math::Vec3, scale: f64, prec: usize) -> String {
+    let f = |x: f64| {
+        let t = format!("{:.*}", prec, x * scale);
+        match t.strip_prefix('-') {
+            Some(u) if u.chars().all(|c| c == '0' || c == '.') => u.to_string(),
+            _ => t,
+        }
+    };
+    format!("({}, {}, {})", f(v.x), f(v.y), f(v.z))
+}
+
 /// `nvtmm mesh vessel`: surface -> openings -> wall -> file. Nothing is
 /// written unless every step succeeds.
 pub fn vessel(
@@ -98,24 +110,18 @@ pub fn vessel(
     }
     for c in &opened.caps {
         println!(
-            "  removed planar cap: {} triangles, centre ({:.3}, {:.3}, {:.3}) mm, area {:.3} mm^2",
+            "  removed planar cap: {} triangles, centre {} mm, area {:.3} mm^2",
             c.triangles.len(),
-            c.centre.x * 1e3,
-            c.centre.y * 1e3,
-            c.centre.z * 1e3,
+            vec_fmt(&c.centre, 1e3, 3),
             c.area * 1e6
         );
     }
     for o in &wall.openings {
         println!(
-            "  {:<10} centre ({:.3}, {:.3}, {:.3}) mm  normal ({:.4}, {:.4}, {:.4})  area {:.3} mm^2  {} nodes",
+            "  {:<10} centre {} mm  normal {}  area {:.3} mm^2  {} nodes",
             o.name,
-            o.centre.x * 1e3,
-            o.centre.y * 1e3,
-            o.centre.z * 1e3,
-            o.normal.x,
-            o.normal.y,
-            o.normal.z,
+            vec_fmt(&o.centre, 1e3, 3),
+            vec_fmt(&o.normal, 1.0, 4),
             o.area * 1e6,
             o.nodes
         );
