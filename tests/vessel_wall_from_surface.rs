@@ -212,7 +212,10 @@ fn torus_section_wall_has_the_pappus_volume() {
     assert_eq!(w.openings.len(), 2);
     // Openings at angle 0 (normal −y) and at 90° (normal −x... +x rotated: the
     // tangent at 90° is −x).
-    let ends = [(Vec3::new(rb, 0.0, 0.0), -Vec3::y()), (Vec3::new(0.0, rb, 0.0), -Vec3::x())];
+    let ends = [
+        (Vec3::new(rb, 0.0, 0.0), -Vec3::y()),
+        (Vec3::new(0.0, rb, 0.0), -Vec3::x()),
+    ];
     for (centre, normal) in ends {
         let o = w
             .openings
@@ -324,13 +327,20 @@ fn fixtures_in_every_format_give_the_same_wall() {
         assert_eq!(w.mesh.tets().len(), 3 * 128, "{name}");
         assert_eq!(w.mesh.report().inverted, 0, "{name}");
         let v = (ngon(16, 0.0065) - ngon(16, 0.005)) * 0.04;
-        assert!((w.mesh.total_volume() / v - 1.0).abs() < 1e-3, "{name}: {}", w.mesh.total_volume());
+        assert!(
+            (w.mesh.total_volume() / v - 1.0).abs() < 1e-3,
+            "{name}: {}",
+            w.mesh.total_volume()
+        );
         if let Some(r) = &reference {
             for (x, y) in r.openings.iter().zip(&w.openings) {
                 assert!((x.centre - y.centre).norm() < 1e-9, "{name}");
                 assert!((x.area - y.area).abs() < 1e-12, "{name}");
             }
-            assert!((r.mesh.total_volume() / w.mesh.total_volume() - 1.0).abs() < 1e-6, "{name}");
+            assert!(
+                (r.mesh.total_volume() / w.mesh.total_volume() - 1.0).abs() < 1e-6,
+                "{name}"
+            );
         } else {
             reference = Some(w);
         }
@@ -388,7 +398,10 @@ fn a_thickness_beyond_the_bend_radius_is_refused() {
     )
     .unwrap_err();
     let msg = e.to_string();
-    assert!(msg.contains("wall thickness too large") && msg.contains("triangle"), "{msg}");
+    assert!(
+        msg.contains("wall thickness too large") && msg.contains("triangle"),
+        "{msg}"
+    );
     let VesselError::Inverted {
         position,
         curvature_radius,
@@ -399,10 +412,24 @@ fn a_thickness_beyond_the_bend_radius_is_refused() {
     };
     // The named vertex is on the inner side of the bend.
     assert!(position.xy().norm() < 0.015, "{position:?}");
-    assert!(curvature_radius > 0.005 && curvature_radius < 0.02, "{curvature_radius}");
+    assert!(
+        curvature_radius > 0.005 && curvature_radius < 0.02,
+        "{curvature_radius}"
+    );
     // Bad options.
-    for (t, l) in [(Thickness::Absolute(0.0), 1), (Thickness::Absolute(f64::NAN), 1), (Thickness::Ratio(-1.0), 1)] {
-        let e = build_wall(&c, &WallOptions { thickness: t, layers: l }).unwrap_err();
+    for (t, l) in [
+        (Thickness::Absolute(0.0), 1),
+        (Thickness::Absolute(f64::NAN), 1),
+        (Thickness::Ratio(-1.0), 1),
+    ] {
+        let e = build_wall(
+            &c,
+            &WallOptions {
+                thickness: t,
+                layers: l,
+            },
+        )
+        .unwrap_err();
         assert!(e.to_string().contains("thickness"), "{e}");
     }
     let e = build_wall(
@@ -466,7 +493,10 @@ fn cli_meshes_a_fixture_and_prints_the_openings() {
         .unwrap();
     let stderr = String::from_utf8_lossy(&o.stderr);
     assert!(!o.status.success());
-    assert!(stderr.contains("sphere.obj") && stderr.contains("no opening"), "{stderr}");
+    assert!(
+        stderr.contains("sphere.obj") && stderr.contains("no opening"),
+        "{stderr}"
+    );
     assert!(!bad_out.exists());
 
     // The same sphere cut open by a plane 5 mm above its centre.

@@ -87,8 +87,8 @@ pub fn vessel(
         (None, None) => WallOptions::default().thickness,
     };
     let checked = read_and_check(surface, scale, &CheckOptions::default())?;
-    let opened = open_surface(&checked, &cuts, &CapOptions::default())
-        .map_err(|e| format!("{}: {e}", surface.display()))?;
+    let opened =
+        open_surface(&checked, &cuts, &CapOptions::default()).map_err(|e| format!("{}: {e}", surface.display()))?;
     let wall = build_wall(&opened.surface, &WallOptions { thickness, layers })
         .map_err(|e| format!("{}: {e}", surface.display()))?;
     write_mesh(&wall.mesh, out)?;
@@ -105,7 +105,11 @@ pub fn vessel(
     );
     for (k, pieces) in opened.dropped_pieces.iter().enumerate() {
         if !pieces.is_empty() {
-            println!("  cut {k}: dropped {} disconnected piece(s) of {:?} triangles", pieces.len(), pieces);
+            println!(
+                "  cut {k}: dropped {} disconnected piece(s) of {:?} triangles",
+                pieces.len(),
+                pieces
+            );
         }
     }
     for c in &opened.caps {

@@ -129,10 +129,7 @@ fn edge_neighbours(m: &SurfaceMesh) -> Vec<[Option<u32>; 3]> {
         .map(|(t, tri)| {
             [0, 1, 2].map(|k| {
                 let (a, b) = (tri[k], tri[(k + 1) % 3]);
-                by_edge[&(a.min(b), a.max(b))]
-                    .iter()
-                    .copied()
-                    .find(|&u| u != t as u32)
+                by_edge[&(a.min(b), a.max(b))].iter().copied().find(|&u| u != t as u32)
             })
         })
         .collect()
@@ -168,7 +165,9 @@ pub fn find_planar_caps(m: &SurfaceMesh, opts: &CapOptions) -> Vec<Cap> {
                 }
             }
         }
-        if let Some(cap) = cap_candidate(m, &members, rid as u32, &region_of, &normals, &areas, &adj, cos_crease, opts) {
+        if let Some(cap) = cap_candidate(
+            m, &members, rid as u32, &region_of, &normals, &areas, &adj, cos_crease, opts,
+        ) {
             caps.push(cap);
         }
     }
@@ -297,7 +296,10 @@ pub fn cut_surface(m: &SurfaceMesh, plane: &CutPlane, index: usize) -> Result<Su
     if !plane.point.iter().chain(plane.normal.iter()).all(|x| x.is_finite()) {
         return Err(bad("the point and normal must be finite"));
     }
-    let n = plane.normal.try_normalize(0.0).ok_or_else(|| bad("the normal is zero"))?;
+    let n = plane
+        .normal
+        .try_normalize(0.0)
+        .ok_or_else(|| bad("the normal is zero"))?;
     let eps = 1e-9 * bbox_diagonal(&m.vertices);
     let d: Vec<f64> = m
         .vertices
@@ -488,7 +490,18 @@ mod tests {
         }
         assert!(top.normal.z > 1.0 - 1e-12);
         assert!(c.mesh.vertices.iter().all(|p| p.z <= 0.0123 + 1e-15));
-        let e = cut_surface(&s, &CutPlane { normal: Vec3::zeros(), ..plane }, 3).unwrap_err();
-        assert!(e.to_string().contains("cut 3") && e.to_string().contains("normal is zero"), "{e}");
+        let e = cut_surface(
+            &s,
+            &CutPlane {
+                normal: Vec3::zeros(),
+                ..plane
+            },
+            3,
+        )
+        .unwrap_err();
+        assert!(
+            e.to_string().contains("cut 3") && e.to_string().contains("normal is zero"),
+            "{e}"
+        );
     }
 }

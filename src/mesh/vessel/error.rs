@@ -48,7 +48,10 @@ pub enum VesselError {
         source: SurfaceDefect,
     },
     /// A vertex has no usable normal (its triangles cancel out).
-    #[error("vertex {vertex} at {}: its triangles' normals cancel out, so there is no outward direction to offset along", mm(position))]
+    #[error(
+        "vertex {vertex} at {}: its triangles' normals cancel out, so there is no outward direction to offset along",
+        mm(position)
+    )]
     NoNormal {
         /// The vertex.
         vertex: usize,

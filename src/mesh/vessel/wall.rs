@@ -254,7 +254,7 @@ pub fn build_wall(surface: &CheckedSurface, opts: &WallOptions) -> Result<Wall, 
                     .flat_map(|a| (a + 1..4).map(move |b| (a, b)))
                     .map(|(a, b)| (x[b] - x[a]).norm())
                     .fold(0.0, f64::max);
-                if !(vol > 1e-9 * lmax.powi(3)) {
+                if vol.is_nan() || vol <= 1e-9 * lmax.powi(3) {
                     return Err(inverted(surface, &dir, &thickness, &nb, ti, k));
                 }
                 tets.push(tet);
