@@ -277,6 +277,31 @@ enum MeshCmd {
         #[arg(long)]
         out: PathBuf,
     },
+    /// Build a tetrahedral vessel wall from a lumen surface (.stl .obj .ply .vtk .vtp): openings from
+    /// boundary loops, planar caps or --cut planes; the wall offset outward (docs/VESSEL.md).
+    Vessel {
+        /// Lumen surface (normals are made to point out of the lumen).
+        surface: PathBuf,
+        /// Output mesh; the format comes from the extension (.msh .vtk .vtu .node).
+        #[arg(long)]
+        out: PathBuf,
+        /// Wall thickness (m); the default is 1.5 mm.
+        #[arg(long, conflicts_with = "wall_ratio")]
+        wall_thickness: Option<f64>,
+        /// Wall thickness as a fraction of the local lumen radius.
+        #[arg(long)]
+        wall_ratio: Option<f64>,
+        /// Element layers through the wall.
+        #[arg(long, default_value_t = 1)]
+        layers: usize,
+        /// Multiply the surface's coordinates by this factor (e.g. 0.001 for millimetres).
+        #[arg(long, default_value_t = 1.0)]
+        scale: f64,
+        /// Cut the surface with a plane (point and normal, in the surface's unit times --scale = m),
+        /// removing the side the normal points to; repeatable.
+        #[arg(long, value_name = "PX,PY,PZ,NX,NY,NZ", allow_hyphen_values = true)]
+        cut: Vec<String>,
+    },
     /// Print a mesh's size, volume and element quality.
     Info {
         /// Mesh file (.msh .vtk .vtu .node/.ele).
@@ -347,6 +372,15 @@ fn main() -> ExitCode {
         Command::CheckRt { config, json } => cli::run::check_rt(config.as_ref(), json),
         Command::Mesh(cmd) => match cmd {
             MeshCmd::Arch { nodes, out } => cli::mesh::arch(nodes, &out),
+            MeshCmd::Vessel {
+                surface,
+                out,
+                wall_thickness,
+                wall_ratio,
+                layers,
+                scale,
+                cut,
+            } => cli::mesh::vessel(&surface, &out, wall_thickness, wall_ratio, layers, scale, &cut),
             MeshCmd::Info { file, json, scale } => cli::mesh::info(&file, json, scale),
             MeshCmd::Convert { input, output, scale } => cli::mesh::convert(&input, &output, scale),
             MeshCmd::Render {

@@ -4,6 +4,9 @@ use nvtmm::mesh::arch::{generate, ArchParams};
 use nvtmm::mesh::io::{read_mesh_scaled, write_mesh};
 use nvtmm::mesh::quality::MeshQuality;
 use nvtmm::mesh::render::{render_surface, write_png, RenderOptions};
+use nvtmm::mesh::surface::{read_and_check, CheckOptions};
+use nvtmm::mesh::vessel::caps::{open_surface, CapOptions, CutPlane};
+use nvtmm::mesh::vessel::wall::{build_wall, Thickness, WallOptions};
 use nvtmm::mesh::TetMesh;
 use std::path::Path;
 use std::time::Instant;
@@ -27,6 +30,121 @@ pub fn arch(nodes: usize, out: &Path) -> Result<()> {
         arch.grid.layers,
         gen_s
     );
+    Ok(())
+}
+
+/// Parses `--cut px,py,pz,nx,ny,nz` (the point scaled by `scale` into metres).
+fn parse_cut(k: usize, text: &str, scale: f64) -> Result<CutPlane> {
+    let v: Vec<f64> = text
+        .split(',')
+        .map(|x| x.trim().parse::<f64>())
+        .collect::<std::result::Result<_, _>>()
+        .map_err(|e| format!("--cut {k} '{text}': {e} (expected px,py,pz,nx,ny,nz)"))?;
+    if v.len() != 6 || v.iter().any(|x| !x.is_finite()) {
+        return Err(format!("--cut {k} '{text}': expected six finite numbers px,py,pz,nx,ny,nz").into());
+    }
+    Ok(CutPlane {
+        point: nvtmm::math::Vec3::new(v[0], v[1], v[2]) * scale,
+        normal: nvtmm::math::Vec3::new(v[3], v[4], v[5]),
+    })
+}
+
+/// A vector formatted with `prec` decimals, without "-0.000".
+fn vec_fmt(v: &nvtmm::math::Vec3, scale: f64, prec: usize) -> String {
+    let f = |x: f64| {
+        let t = format!("{:.*}", prec, x * scale);
+        match t.strip_prefix('-') {
+            Some(u) if u.chars().all(|c| c == '0' || c == '.') => u.to_string(),
+            _ => t,
+        }
+    };
+    format!("({}, {}, {})", f(v.x), f(v.y), f(v.z))
+}
+
+/// `nvtmm mesh vessel`: surface -> openings -> wall -> file. Nothing is
+/// written unless every step succeeds.
+pub fn vessel(
+    surface: &Path,
+    out: &Path,
+    wall_thickness: Option<f64>,
+    wall_ratio: Option<f64>,
+    layers: usize,
+    scale: f64,
+    cuts: &[String],
+) -> Result<()> {
+    let t0 = Instant::now();
+    // Refuse an unknown output format before any work.
+    nvtmm::mesh::io::Format::from_path(out)?;
+    let cuts = cuts
+        .iter()
+        .enumerate()
+        .map(|(k, c)| parse_cut(k, c, scale))
+        .collect::<Result<Vec<_>>>()?;
+    let thickness = match (wall_thickness, wall_ratio) {
+        (Some(_), Some(_)) => return Err("give --wall-thickness or --wall-ratio, not both".into()),
+        (_, Some(f)) => Thickness::Ratio(f),
+        (Some(t), None) => Thickness::Absolute(t),
+        (None, None) => WallOptions::default().thickness,
+    };
+    let checked = read_and_check(surface, scale, &CheckOptions::default())?;
+    let opened =
+        open_surface(&checked, &cuts, &CapOptions::default()).map_err(|e| format!("{}: {e}", surface.display()))?;
+    let wall = build_wall(&opened.surface, &WallOptions { thickness, layers })
+        .map_err(|e| format!("{}: {e}", surface.display()))?;
+    write_mesh(&wall.mesh, out)?;
+    let m = &wall.mesh;
+    println!(
+        "wrote {}: {} nodes, {} tets, {} layer(s), wall {:.3}..{:.3} mm, in {:.3} s",
+        out.display(),
+        m.num_nodes(),
+        m.tets().len(),
+        wall.layers,
+        wall.thickness_range.0 * 1e3,
+        wall.thickness_range.1 * 1e3,
+        t0.elapsed().as_secs_f64()
+    );
+    for (k, pieces) in opened.dropped_pieces.iter().enumerate() {
+        if !pieces.is_empty() {
+            println!(
+                "  cut {k}: dropped {} disconnected piece(s) of {:?} triangles",
+                pieces.len(),
+                pieces
+            );
+        }
+    }
+    for c in &opened.caps {
+        println!(
+            "  removed planar cap: {} triangles, centre {} mm, area {:.3} mm^2",
+            c.triangles.len(),
+            vec_fmt(&c.centre, 1e3, 3),
+            c.area * 1e6
+        );
+    }
+    for o in &wall.openings {
+        println!(
+            "  {:<10} centre {} mm  normal {}  area {:.3} mm^2  {} nodes",
+            o.name,
+            vec_fmt(&o.centre, 1e3, 3),
+            vec_fmt(&o.normal, 1.0, 4),
+            o.area * 1e6,
+            o.nodes
+        );
+    }
+    let q = &wall.quality;
+    println!("  volume             {:.6e} m^3", m.total_volume());
+    println!("  inverted (fixed)   {}", m.report().inverted);
+    println!(
+        "  dihedral angles    {:.2}° .. {:.2}°",
+        q.min_dihedral_deg, q.max_dihedral_deg
+    );
+    println!(
+        "  aspect ratio       max {:.3}, mean {:.3}",
+        q.max_aspect_ratio, q.mean_aspect_ratio
+    );
+    println!("  edge length        {:.3e} .. {:.3e} m", q.min_edge_m, q.max_edge_m);
+    for (k, ids) in m.node_sets() {
+        println!("  node set {k:<18} {} nodes", ids.len());
+    }
     Ok(())
 }
 

@@ -9,3 +9,9 @@
 //!   -> prisms split into conforming, positively oriented tets
 //!   -> node sets (openings, inner_wall, outer_wall) + segment labels
 //! ```
+
+pub mod caps;
+pub mod error;
+pub mod wall;
+
+pub use error::VesselError;
