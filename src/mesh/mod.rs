@@ -465,6 +465,55 @@ impl TetMesh {
             self.node_sets.clone(),
         )
     }
+    /// Sets the per-node segment labels (which branch of the vessel tree
+    /// each node belongs to): `label[i]` indexes `names`. Stored as one node
+    /// set per segment, named [`SEGMENT_SET_PREFIX`] + name, so every format
+    /// that carries node sets carries the labels (Gmsh physical groups, VTK
+    /// point data). Replaces earlier labels.
+    pub fn set_segment_labels(&mut self, names: &[&str], label: &[u8]) -> Result<(), TopologyError> {
+        if label.len() != self.rest.len() {
+            return Err(TopologyError::NodeSetOutOfRange {
+                set: format!("{SEGMENT_SET_PREFIX}*"),
+                index: label.len(),
+                nodes: self.rest.len(),
+            });
+        }
+        self.node_sets.retain(|k, _| !k.starts_with(SEGMENT_SET_PREFIX));
+        for (s, name) in names.iter().enumerate() {
+            let ids: Vec<u32> = (0..label.len() as u32)
+                .filter(|&i| label[i as usize] as usize == s)
+                .collect();
+            if !ids.is_empty() {
+                self.node_sets.insert(format!("{SEGMENT_SET_PREFIX}{name}"), ids);
+            }
+        }
+        Ok(())
+    }
+
+    /// The segment labels, if the mesh has them: the segment names (sorted)
+    /// and, for each node, the index of its segment in them (`u8::MAX` for a
+    /// node in none).
+    pub fn segment_labels(&self) -> Option<(Vec<String>, Vec<u8>)> {
+        let sets: Vec<(&String, &Vec<u32>)> = self
+            .node_sets
+            .iter()
+            .filter(|(k, _)| k.starts_with(SEGMENT_SET_PREFIX))
+            .take(u8::MAX as usize)
+            .collect();
+        if sets.is_empty() {
+            return None;
+        }
+        let mut label = vec![u8::MAX; self.rest.len()];
+        let mut names = Vec::with_capacity(sets.len());
+        for (s, (name, ids)) in sets.iter().enumerate() {
+            names.push(name[SEGMENT_SET_PREFIX.len()..].to_string());
+            for &i in ids.iter() {
+                label[i as usize] = s as u8;
+            }
+        }
+        Some((names, label))
+    }
+
     /// Adds or replaces a named node set (indices are sorted and deduplicated).
     pub fn set_node_set(&mut self, name: &str, mut ids: Vec<u32>) -> Result<(), TopologyError> {
         if let Some(&bad) = ids.iter().find(|&&i| i as usize >= self.rest.len()) {
@@ -480,6 +529,10 @@ impl TetMesh {
         Ok(())
     }
 }
+
+/// Node sets whose name starts with this hold segment labels
+/// ([`TetMesh::set_segment_labels`]).
+pub const SEGMENT_SET_PREFIX: &str = "segment_";
 
 /// Axis-aligned bounding box of a point set (min, max).
 pub fn bbox(points: &[Vec3]) -> (Vec3, Vec3) {
@@ -512,6 +565,26 @@ mod tests {
 
     fn unit_tet() -> (Vec<Vec3>, Vec<[u32; 4]>) {
         (vec![Vec3::zeros(), Vec3::x(), Vec3::y(), Vec3::z()], vec![[0, 1, 2, 3]])
+    }
+
+    #[test]
+    fn segment_labels_round_trip_through_node_sets_and_formats() {
+        let (p, t) = unit_tet();
+        let mut m = TetMesh::new(p, t, BTreeMap::new()).unwrap();
+        assert!(m.segment_labels().is_none());
+        m.set_segment_labels(&["aorta", "left_subclavian"], &[0, 0, 1, 0])
+            .unwrap();
+        let (names, label) = m.segment_labels().unwrap();
+        assert_eq!(names, vec!["aorta".to_string(), "left_subclavian".to_string()]);
+        assert_eq!(label, vec![0, 0, 1, 0]);
+        assert!(m.set_segment_labels(&["aorta"], &[0, 0]).is_err());
+        let dir = tempfile::tempdir().unwrap();
+        for ext in ["msh", "vtk", "vtu"] {
+            let path = dir.path().join(format!("m.{ext}"));
+            crate::mesh::io::write_mesh(&m, &path).unwrap();
+            let back = crate::mesh::io::read_mesh(&path).unwrap();
+            assert_eq!(back.segment_labels(), m.segment_labels(), "{ext}");
+        }
     }
 
     #[test]

@@ -70,6 +70,21 @@ pub fn lock_memory() -> Result<(), String> {
     }
 }
 
+/// Page faults (minor, major) the calling thread has taken so far
+/// (`getrusage(RUSAGE_THREAD)`; one system call, no allocation). A minor
+/// fault maps a page already in memory (a first touch), a major one reads
+/// it from disk; (0, 0) where the count is not available.
+pub fn thread_page_faults() -> (u64, u64) {
+    // SAFETY: rusage is plain data; getrusage fills it or fails.
+    let mut ru: libc::rusage = unsafe { std::mem::zeroed() };
+    // SAFETY: a valid pointer to a rusage the call may write.
+    if unsafe { libc::getrusage(libc::RUSAGE_THREAD, &mut ru) } == 0 {
+        (ru.ru_minflt as u64, ru.ru_majflt as u64)
+    } else {
+        (0, 0)
+    }
+}
+
 /// Blocks of at least this many bytes are served by their own `mmap` and
 /// unmapped when freed (see [`return_large_blocks`]).
 pub const MMAP_THRESHOLD_BYTES: usize = 128 * 1024;

@@ -34,6 +34,7 @@ pub(super) struct LoopResult {
     pub misses: u64,
     pub misses_compute: u64,
     pub allocations: u64,
+    pub page_faults: (u64, u64),
     pub allocator_installed: bool,
     pub max_force: f64,
     pub max_depth: f64,
@@ -87,6 +88,7 @@ pub(super) fn loop_thread<const R: usize>(mut tick: HapticTick<R>, mut io: LoopI
         misses: 0,
         misses_compute: 0,
         allocations: 0,
+        page_faults: (0, 0),
         allocator_installed,
         max_force: 0.0,
         max_depth: 0.0,
@@ -108,6 +110,7 @@ pub(super) fn loop_thread<const R: usize>(mut tick: HapticTick<R>, mut io: LoopI
     }
     next = next.max(plan.loop_start);
     let sys0 = crate::rt::alloc::thread_system_calls();
+    let faults0 = crate::rt::thread::thread_page_faults();
     let t_begin = clock::now_ns();
     let mut streak = 0u32;
     let mut last: Option<DeviceSample> = None;
@@ -224,6 +227,8 @@ pub(super) fn loop_thread<const R: usize>(mut tick: HapticTick<R>, mut io: LoopI
         }
     }
     res.allocations = crate::rt::alloc::thread_system_calls() - sys0;
+    let faults1 = crate::rt::thread::thread_page_faults();
+    res.page_faults = (faults1.0 - faults0.0, faults1.1 - faults0.1);
     // Off the clock: whatever was not returned is freed with the thread.
     drop(pending_return);
     res.seconds = (clock::now_ns() - t_begin) as f64 * 1e-9;

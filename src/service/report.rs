@@ -101,6 +101,11 @@ pub struct Report {
     pub baseline_jitter_us: Percentiles,
     /// System-allocator calls made by the RT threads after start.
     pub allocations_after_start: u64,
+    /// Page faults (minor + major) the haptic loop thread took after the
+    /// jitter baseline (`getrusage(RUSAGE_THREAD)`): first touches of pages
+    /// not yet resident; 0 when everything it uses was touched and locked
+    /// before.
+    pub loop_page_faults_after_start: u64,
     /// Whether the RT threads' allocator was installed (false: the count
     /// above could not be taken and is 0 by construction).
     pub allocator_installed: bool,
@@ -212,6 +217,10 @@ impl Report {
         s += &format!("  baseline jitter (µs): {}\n", p(&self.baseline_jitter_us));
         s += &format!("  tick compute (µs):    {}\n", p(&self.tick_compute_us));
         s += &format!("  pose→force (µs):      {}\n", p(&self.pose_to_force_latency_us));
+        s += &format!(
+            "  loop page faults after start: {}\n",
+            self.loop_page_faults_after_start
+        );
         s += &format!(
             "  allocations after start: {}{}\n",
             self.allocations_after_start,

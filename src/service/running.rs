@@ -184,6 +184,7 @@ impl<const R: usize> RunningService for Running<R> {
             pose_to_force_latency_us: dr.latency.percentiles(),
             baseline_jitter_us: lr.baseline.percentiles(),
             allocations_after_start: lr.allocations + dr.allocations,
+            loop_page_faults_after_start: lr.page_faults.0 + lr.page_faults.1,
             allocator_installed: lr.allocator_installed,
             max_force_n: lr.max_force,
             qp: QpReport {
