@@ -43,11 +43,15 @@ pub const STIFF_YOUNGS_PA: f64 = 10e6;
 /// Resident memory may grow by at most this after warm-up (bytes).
 pub const RSS_BUDGET_BYTES: i64 = 1 << 20;
 
-/// The resident-memory level is the median over windows of this length
-/// (s), so the transient working set of a background basis recomputation
-/// (a few seconds, tens of MB, given back when it ends) is not counted as
-/// growth while a leak, which raises every later window, is.
+/// The resident-memory level of a window of this length (s) is the upper
+/// quartile of its readings ([`RSS_LEVEL_QUANTILE`]): the plateau between
+/// background basis recomputations, which the saw-tooth of their working
+/// sets (given back when each ends, tens of MB) and one-second spikes do
+/// not move, while a leak raises it.
 pub const RSS_WINDOW_S: f64 = 8.0;
+
+/// Which quantile of a window's readings is its level.
+pub const RSS_LEVEL_QUANTILE: f64 = 0.75;
 
 /// After the first background basis is in, the level is read from this
 /// much later on (s): the swap frees the old model and its buffers.
@@ -147,12 +151,14 @@ pub struct LegReport {
     pub forces_checked: u64,
     /// The hand's moves.
     pub hand: HandMoves,
-    /// Resident memory after warm-up: the median of the first
-    /// [`RSS_WINDOW_S`] window (bytes; None: the leg was too short to
-    /// warm up, see `rss_growth_bytes`).
+    /// Resident memory after warm-up: the highest window level
+    /// ([`RSS_WINDOW_S`], [`RSS_LEVEL_QUANTILE`]) of the earlier half of the
+    /// windows (bytes; None: the leg was too short to warm up, see
+    /// `rss_growth_bytes`).
     pub rss_after_warmup_bytes: Option<i64>,
     /// Growth of the resident memory after warm-up (bytes): the highest
-    /// window median minus the first; None when the warm-up (a quarter of
+    /// window level of the later half of the windows minus that of the
+    /// earlier half (0 if lower); None when the warm-up (a quarter of
     /// the leg and the first background basis recomputation, plus
     /// [`RSS_SETTLE_S`]) left less than two windows to measure.
     pub rss_growth_bytes: Option<i64>,
@@ -281,10 +287,10 @@ struct Planned {
     dur_s: f64,
 }
 
-/// Medians of the readings `(t, value)` (t from 0, ascending) over
-/// consecutive windows of `window` seconds; a last, partial window is left
-/// out.
-fn window_medians(readings: &[(f64, i64)], window: f64) -> Vec<i64> {
+/// The `quantile` of the readings `(t, value)` (t from 0, ascending) in
+/// each consecutive window of `window` seconds; a last, partial window is
+/// left out.
+fn window_levels(readings: &[(f64, i64)], window: f64, quantile: f64) -> Vec<i64> {
     let Some(&(last, _)) = readings.last() else {
         return Vec::new();
     };
@@ -301,7 +307,8 @@ fn window_medians(readings: &[(f64, i64)], window: f64) -> Vec<i64> {
                 return None;
             }
             v.sort_unstable();
-            Some(v[v.len() / 2])
+            let k = ((quantile * v.len() as f64) as usize).min(v.len() - 1);
+            Some(v[k])
         })
         .collect()
 }
@@ -979,10 +986,17 @@ fn run_leg(
     report.max_force_n = report.max_force_n.max(c.max_force_n());
     report.max_window_energy_j = report.max_window_energy_j.max(c.max_window_energy_j());
     report.system_allocations += svc.allocations_after_start;
-    let levels = window_medians(&rss_after, RSS_WINDOW_S);
+    let levels = window_levels(&rss_after, RSS_WINDOW_S, RSS_LEVEL_QUANTILE);
     let measured = levels.len() >= 2;
-    let rss_warm = levels.first().copied();
-    let rss_growth = levels.iter().map(|&l| l - levels[0]).max().unwrap_or(0);
+    // Growth: the highest level of the later half of the windows over the
+    // highest of the earlier half (a window that fell in a recomputation's
+    // trough does not become the baseline).
+    let half = levels.len() / 2;
+    let rss_warm = levels[..half].iter().copied().max();
+    let rss_growth = match (rss_warm, levels[half..].iter().copied().max()) {
+        (Some(a), Some(b)) => (b - a).max(0),
+        _ => 0,
+    };
     let rss_peak = rss_warm.map(|w| rss_after.iter().map(|&(_, r)| r - w).max().unwrap_or(0));
     if measured {
         report.rss_growth_bytes = report.rss_growth_bytes.max(rss_growth);
@@ -1023,19 +1037,27 @@ fn run_leg(
 
 #[cfg(test)]
 mod tests {
-    use super::window_medians;
+    use super::window_levels;
 
     #[test]
-    fn window_medians_ignore_a_transient_and_see_a_step() {
-        // 10 readings a second for 24 s at 100, with a 2 s bump to 150 in
-        // the second window: the medians stay at 100.
-        let flat: Vec<(f64, i64)> = (0..240)
+    fn window_levels_ignore_a_saw_tooth_and_a_spike_and_see_a_step() {
+        // 10 readings a second for 24 s: a plateau at 100 with a 4 s trough
+        // at 60 every 7 s (a recomputation) and a 0.5 s spike to 150: the
+        // upper-quartile levels stay at 100.
+        let saw: Vec<(f64, i64)> = (0..240)
             .map(|i| {
                 let t = i as f64 * 0.1;
-                (t, if (10.0..12.0).contains(&t) { 150 } else { 100 })
+                let v = if t % 7.0 < 4.0 {
+                    60
+                } else if (10.0..10.5).contains(&t) {
+                    150
+                } else {
+                    100
+                };
+                (t, v)
             })
             .collect();
-        assert_eq!(window_medians(&flat, 8.0), vec![100, 100]);
+        assert_eq!(window_levels(&saw, 8.0, 0.75), vec![100, 100]);
         // A step to 103 after 9 s (a leak) shows in the second window.
         let step: Vec<(f64, i64)> = (0..240)
             .map(|i| {
@@ -1043,7 +1065,7 @@ mod tests {
                 (t, if t >= 9.0 { 103 } else { 100 })
             })
             .collect();
-        assert_eq!(window_medians(&step, 8.0), vec![100, 103]);
-        assert!(window_medians(&[], 8.0).is_empty());
+        assert_eq!(window_levels(&step, 8.0, 0.75), vec![100, 103]);
+        assert!(window_levels(&[], 8.0, 0.75).is_empty());
     }
 }
