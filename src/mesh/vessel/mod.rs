@@ -9,3 +9,6 @@
 //!   -> prisms split into conforming, positively oriented tets
 //!   -> node sets (openings, inner_wall, outer_wall) + segment labels
 //! ```
+
+pub mod implicit;
+pub mod remesh;

@@ -1,0 +1,165 @@
+//! Isotropic remeshing (mesh::vessel::remesh) on analytic surfaces, and the
+//! built-in branched arch lumen (mesh::vessel::implicit).
+
+use nvtmm::math::Vec3;
+use nvtmm::mesh::surface::{check_surface, CheckOptions, SurfaceMesh};
+use nvtmm::mesh::vessel::remesh::{remesh, remesh_to_vertex_count, RemeshOptions, Remeshed};
+use std::f64::consts::PI;
+
+/// An open cylinder of radius r and length l along z, `na` rings of `nc`
+/// vertices, normals outward.
+fn cylinder(r: f64, l: f64, nc: usize, na: usize) -> SurfaceMesh {
+    let mut vertices = Vec::new();
+    for j in 0..na {
+        for i in 0..nc {
+            // Alternate rings are rotated by half a step (better triangles).
+            let th = 2.0 * PI * (i as f64 + 0.5 * (j % 2) as f64) / nc as f64;
+            vertices.push(Vec3::new(r * th.cos(), r * th.sin(), l * j as f64 / (na - 1) as f64));
+        }
+    }
+    let id = |i: usize, j: usize| (j * nc + i % nc) as u32;
+    let mut triangles = Vec::new();
+    for j in 0..na - 1 {
+        for i in 0..nc {
+            triangles.push([id(i, j), id(i + 1, j), id(i + 1, j + 1)]);
+            triangles.push([id(i, j), id(i + 1, j + 1), id(i, j + 1)]);
+        }
+    }
+    SurfaceMesh { vertices, triangles }
+}
+
+/// A sphere of radius r (an icosahedron subdivided `levels` times, vertices
+/// pushed onto the sphere) with the cap z > h removed: one circular hole.
+fn sphere_with_hole(r: f64, levels: usize, h: f64) -> SurfaceMesh {
+    let t = (1.0 + 5f64.sqrt()) / 2.0;
+    let mut v: Vec<Vec3> = [
+        [-1.0, t, 0.0],
+        [1.0, t, 0.0],
+        [-1.0, -t, 0.0],
+        [1.0, -t, 0.0],
+        [0.0, -1.0, t],
+        [0.0, 1.0, t],
+        [0.0, -1.0, -t],
+        [0.0, 1.0, -t],
+        [t, 0.0, -1.0],
+        [t, 0.0, 1.0],
+        [-t, 0.0, -1.0],
+        [-t, 0.0, 1.0],
+    ]
+    .iter()
+    .map(|p| Vec3::new(p[0], p[1], p[2]).normalize())
+    .collect();
+    let mut f: Vec<[u32; 3]> = vec![
+        [0, 11, 5],
+        [0, 5, 1],
+        [0, 1, 7],
+        [0, 7, 10],
+        [0, 10, 11],
+        [1, 5, 9],
+        [5, 11, 4],
+        [11, 10, 2],
+        [10, 7, 6],
+        [7, 1, 8],
+        [3, 9, 4],
+        [3, 4, 2],
+        [3, 2, 6],
+        [3, 6, 8],
+        [3, 8, 9],
+        [4, 9, 5],
+        [2, 4, 11],
+        [6, 2, 10],
+        [8, 6, 7],
+        [9, 8, 1],
+    ];
+    for _ in 0..levels {
+        let mut mid = std::collections::HashMap::new();
+        let mut nf = Vec::with_capacity(f.len() * 4);
+        let mut midpoint = |a: u32, b: u32, v: &mut Vec<Vec3>| -> u32 {
+            *mid.entry((a.min(b), a.max(b))).or_insert_with(|| {
+                v.push(((v[a as usize] + v[b as usize]) / 2.0).normalize());
+                (v.len() - 1) as u32
+            })
+        };
+        for [a, b, c] in f {
+            let ab = midpoint(a, b, &mut v);
+            let bc = midpoint(b, c, &mut v);
+            let ca = midpoint(c, a, &mut v);
+            nf.extend([[a, ab, ca], [b, bc, ab], [c, ca, bc], [ab, bc, ca]]);
+        }
+        f = nf;
+    }
+    let keep: Vec<[u32; 3]> = f
+        .into_iter()
+        .filter(|t| t.iter().all(|&i| v[i as usize].z * r <= h))
+        .collect();
+    let mesh = SurfaceMesh {
+        vertices: v.iter().map(|p| p * r).collect(),
+        triangles: keep,
+    };
+    // Drop unused vertices (and orient outward) with the surface check.
+    check_surface(&mesh, &CheckOptions::default()).unwrap().mesh
+}
+
+/// Checks a remeshed surface against its input and the target size.
+fn check_remeshed(name: &str, input: &SurfaceMesh, out: &Remeshed, size: f64) {
+    let s = out.stats;
+    println!("{name}: {s:?}");
+    assert!((s.edge_mean - 1.0).abs() <= 0.10, "{name}: mean edge / size {}", s.edge_mean);
+    assert!(s.min_angle_deg >= 20.0, "{name}: min angle {}", s.min_angle_deg);
+    // Vertices lie on the input surface (to rounding), centroids within
+    // a small fraction of the size (the input is itself a faceted surface).
+    assert!(s.max_vertex_distance <= 1e-9 * size, "{name}: {}", s.max_vertex_distance);
+    assert!(s.max_centroid_distance <= 0.05 * size, "{name}: {}", s.max_centroid_distance);
+    let a = check_surface(input, &CheckOptions::default()).unwrap().report;
+    let b = check_surface(&out.mesh, &CheckOptions::default()).unwrap().report;
+    assert_eq!(a.boundary_loops.len(), b.boundary_loops.len(), "{name}: loops");
+    for (la, lb) in a.boundary_loops.iter().zip(&b.boundary_loops) {
+        assert!(
+            (la.centre - lb.centre).norm() <= 0.02 * size,
+            "{name}: loop centre {:?} vs {:?}",
+            la.centre,
+            lb.centre
+        );
+        assert!((la.area / lb.area - 1.0).abs() < 0.02, "{name}: loop area {} vs {}", la.area, lb.area);
+        // Resampled to the size along the loop.
+        let per_edge = lb.perimeter / lb.vertices.len() as f64 / size;
+        assert!((0.8..=1.34).contains(&per_edge), "{name}: loop edge / size {per_edge}");
+    }
+    // Same orientation as the input: enclosed volume of the same sign.
+    assert!(b.volume > 0.0 && (b.volume / a.volume - 1.0).abs() < 0.02, "{name}: volume");
+    assert_eq!(b.flipped, 0, "{name}: orientation kept");
+}
+
+#[test]
+fn cylinder_remeshes_to_the_target_size() {
+    // 10 mm radius, 60 mm long, finely tessellated (≈ 0.5 mm edges).
+    let input = cylinder(0.01, 0.06, 128, 121);
+    let size = 0.003;
+    let out = remesh(&input, &|_| size, &RemeshOptions::default()).unwrap();
+    check_remeshed("cylinder", &input, &out, size);
+    // Vertices on the cylinder (the input's facets are 0.3 % of r inside it).
+    for p in &out.mesh.vertices {
+        let r = (p.x * p.x + p.y * p.y).sqrt();
+        assert!((r / 0.01 - 1.0).abs() < 0.005, "radius {r}");
+    }
+}
+
+#[test]
+fn sphere_with_a_hole_remeshes_to_the_target_size() {
+    let input = sphere_with_hole(0.02, 5, 0.014);
+    let size = 0.004;
+    let out = remesh(&input, &|_| size, &RemeshOptions::default()).unwrap();
+    check_remeshed("sphere", &input, &out, size);
+}
+
+#[test]
+fn vertex_count_is_reached_within_two_percent() {
+    let input = cylinder(0.01, 0.06, 128, 121);
+    for target in [400usize, 1500] {
+        let (size, out) =
+            remesh_to_vertex_count(&input, target, &|_| f64::INFINITY, &RemeshOptions::default(), 0.02).unwrap();
+        let n = out.mesh.vertices.len();
+        println!("target {target}: {n} vertices at size {size:.4e}, {:?}", out.stats);
+        assert!((n as f64 / target as f64 - 1.0).abs() <= 0.02, "{target}: {n}");
+    }
+}
