@@ -101,26 +101,50 @@ fn sphere_with_hole(r: f64, levels: usize, h: f64) -> SurfaceMesh {
 }
 
 /// Checks a remeshed surface against its input and the target size.
-fn check_remeshed(name: &str, input: &SurfaceMesh, out: &Remeshed, size: f64) {
+/// `curvature_radius` bounds how far a flat triangle's centroid may lie from
+/// the curved surface: about e² / (6 R) for an equilateral triangle of side e
+/// with its corners on a sphere of radius R; e² / (4 R) leaves room for
+/// uneven triangles.
+fn check_remeshed(name: &str, input: &SurfaceMesh, out: &Remeshed, size: f64, curvature_radius: f64) {
     let s = out.stats;
     println!("{name}: {s:?}");
     assert!((s.edge_mean - 1.0).abs() <= 0.10, "{name}: mean edge / size {}", s.edge_mean);
     assert!(s.min_angle_deg >= 20.0, "{name}: min angle {}", s.min_angle_deg);
-    // Vertices lie on the input surface (to rounding), centroids within
-    // a small fraction of the size (the input is itself a faceted surface).
+    // Vertices lie on the input surface (to rounding), centroids within the
+    // chord error of the longest edge.
     assert!(s.max_vertex_distance <= 1e-9 * size, "{name}: {}", s.max_vertex_distance);
-    assert!(s.max_centroid_distance <= 0.05 * size, "{name}: {}", s.max_centroid_distance);
+    let e = s.edge_max * size;
+    assert!(
+        s.max_centroid_distance <= e * e / (4.0 * curvature_radius),
+        "{name}: centroid distance {}",
+        s.max_centroid_distance
+    );
     let a = check_surface(input, &CheckOptions::default()).unwrap().report;
     let b = check_surface(&out.mesh, &CheckOptions::default()).unwrap().report;
     assert_eq!(a.boundary_loops.len(), b.boundary_loops.len(), "{name}: loops");
-    for (la, lb) in a.boundary_loops.iter().zip(&b.boundary_loops) {
+    for la in &a.boundary_loops {
+        let lb = b
+            .boundary_loops
+            .iter()
+            .min_by(|x, y| (x.centre - la.centre).norm().total_cmp(&(y.centre - la.centre).norm()))
+            .unwrap();
         assert!(
             (la.centre - lb.centre).norm() <= 0.02 * size,
             "{name}: loop centre {:?} vs {:?}",
             la.centre,
             lb.centre
         );
-        assert!((la.area / lb.area - 1.0).abs() < 0.02, "{name}: loop area {} vs {}", la.area, lb.area);
+        // A loop of n vertices on a circle encloses sin(2π/n)/(2π/n) of the
+        // circle's area: the resampled loop may lose that much, plus 1 % for
+        // the input loop's own zigzag (the sphere's hole follows its facets).
+        let x = 2.0 * PI / lb.vertices.len() as f64;
+        let chord_loss = 1.0 - x.sin() / x;
+        assert!(
+            (lb.area / la.area - 1.0).abs() <= chord_loss + 0.01,
+            "{name}: loop area {} vs {}",
+            lb.area,
+            la.area
+        );
         // Resampled to the size along the loop.
         let per_edge = lb.perimeter / lb.vertices.len() as f64 / size;
         assert!((0.8..=1.34).contains(&per_edge), "{name}: loop edge / size {per_edge}");
@@ -136,7 +160,7 @@ fn cylinder_remeshes_to_the_target_size() {
     let input = cylinder(0.01, 0.06, 128, 121);
     let size = 0.003;
     let out = remesh(&input, &|_| size, &RemeshOptions::default()).unwrap();
-    check_remeshed("cylinder", &input, &out, size);
+    check_remeshed("cylinder", &input, &out, size, 0.01);
     // Vertices on the cylinder (the input's facets are 0.3 % of r inside it).
     for p in &out.mesh.vertices {
         let r = (p.x * p.x + p.y * p.y).sqrt();
@@ -149,7 +173,7 @@ fn sphere_with_a_hole_remeshes_to_the_target_size() {
     let input = sphere_with_hole(0.02, 5, 0.014);
     let size = 0.004;
     let out = remesh(&input, &|_| size, &RemeshOptions::default()).unwrap();
-    check_remeshed("sphere", &input, &out, size);
+    check_remeshed("sphere", &input, &out, size, 0.02);
 }
 
 #[test]
