@@ -22,8 +22,9 @@
 //! subclavian 28 mm after the carotid (Karstensen et al.'s generator). The
 //! arch type (I / II / III: the brachiocephalic origin less than one, one to
 //! two, or more than two left-carotid diameters below the arch top) places
-//! the group: the brachiocephalic origin on the outer curvature sits 0.5, 1.5
-//! or 2.5 carotid diameters below the top of the arch.
+//! the group: the brachiocephalic ostium (where its axis crosses the aortic
+//! wall) sits 0.5, 1.5 or 2.5 carotid diameters below the top of the arch's
+//! outer curvature.
 //!
 //! Each tube is the set where the distance to its centreline polyline, minus
 //! the radius interpolated along it, is negative; the tubes are joined by the
@@ -276,13 +277,13 @@ impl LumenTree {
         let mm = 1e-3;
         // Dense samples from the descending end (u = 0) to the root (u = 1),
         // radii as in mesh::arch (linear in arc length to and from the top).
-        let dense: Vec<Vec3> = (0..=3000)
-            .map(|i| aorta_centerline_mm(a, i as f64 / 3000.0))
-            .collect();
+        let dense: Vec<Vec3> = (0..=3000).map(|i| aorta_centerline_mm(a, i as f64 / 3000.0)).collect();
         let pts = resample(&dense, 2.0);
         let s = arc_lengths(&pts);
         let total = *s.last().unwrap_or(&1.0);
-        let top = (0..pts.len()).max_by(|&i, &j| pts[i].z.total_cmp(&pts[j].z)).unwrap_or(0);
+        let top = (0..pts.len())
+            .max_by(|&i, &j| pts[i].z.total_cmp(&pts[j].z))
+            .unwrap_or(0);
         let s_top = s[top] / total;
         let [r0, r1, r2] = a.lumen_radius_mm;
         let radius = |u: f64| {
@@ -298,32 +299,64 @@ impl LumenTree {
         apts.reverse();
         radii.reverse();
         let s_root = arc_lengths(&apts);
-        let top_from_root = total - s[top];
 
-        // Branch origins: the brachiocephalic origin on the outer curvature
-        // sits `depth` below the arch top; on the arch circle (radius R about
-        // the arch centre) that is the angle θ with (R + r) (1 − cos θ) = depth.
-        let r_arch = (nalgebra::Vector2::from(a.ascending_xy_mm) - nalgebra::Vector2::from(a.descending_xy_mm)).norm()
-            * 0.5;
-        let depth = params.arch_type.depth_in_carotid_diameters() * 2.0 * params.branch_radius_mm[1];
-        let cos_t = 1.0 - depth / (r_arch + r1);
-        if !(-1.0..=1.0).contains(&cos_t) {
-            return Err(ImplicitError::BadParameter(format!(
-                "arch type {:?}: the brachiocephalic origin would sit {depth} mm below the arch top, beyond the arch",
-                params.arch_type
-            )));
-        }
-        let s_bct = top_from_root - r_arch * cos_t.acos();
-        let origins = [
-            s_bct,
-            s_bct + params.branch_spacing_mm[0],
-            s_bct + params.branch_spacing_mm[0] + params.branch_spacing_mm[1],
-        ];
         let at = |s: f64| -> Vec3 {
             let i = s_root.partition_point(|&x| x < s).clamp(1, apts.len() - 1);
             let w = ((s - s_root[i - 1]) / (s_root[i] - s_root[i - 1]).max(1e-12)).clamp(0.0, 1.0);
             apts[i - 1] + (apts[i] - apts[i - 1]) * w
         };
+        let dirs: Vec<Vec3> = (0..3)
+            .map(|b| {
+                let phi = params.takeoff_deg[b].to_radians();
+                let side = if b == 0 { -1.0 } else { 1.0 };
+                Vec3::new(side * phi.sin(), 0.0, phi.cos())
+            })
+            .collect();
+        // Where a branch from centreline arc length s along `dir` crosses
+        // the aortic wall (its origin, the ostium), in mm.
+        let ostium = |s: f64, dir: &Vec3| -> Vec3 {
+            let o = at(s);
+            let (mut lo_t, mut hi_t) = (0.0, 3.0 * r2.max(r1).max(r0));
+            for _ in 0..50 {
+                let m = 0.5 * (lo_t + hi_t);
+                if tube_query(&apts, &radii, &(o + dir * m)).0 < 0.0 {
+                    lo_t = m;
+                } else {
+                    hi_t = m;
+                }
+            }
+            o + dir * lo_t
+        };
+        // The top of the arch's outer curvature (mm).
+        let top_z = apts
+            .iter()
+            .zip(&radii)
+            .map(|(p, r)| p.z + r)
+            .fold(f64::NEG_INFINITY, f64::max);
+        // The brachiocephalic ostium sits `depth` below it: bisection on its
+        // position between the root and the arch top.
+        let depth = params.arch_type.depth_in_carotid_diameters() * 2.0 * params.branch_radius_mm[1];
+        let (mut s_lo, mut s_hi) = (0.0, total - s[top]);
+        if top_z - ostium(s_lo, &dirs[0]).z < depth {
+            return Err(ImplicitError::BadParameter(format!(
+                "arch type {:?}: the brachiocephalic origin would sit {depth} mm below the arch top, below the aortic root",
+                params.arch_type
+            )));
+        }
+        for _ in 0..60 {
+            let m = 0.5 * (s_lo + s_hi);
+            if top_z - ostium(m, &dirs[0]).z > depth {
+                s_lo = m;
+            } else {
+                s_hi = m;
+            }
+        }
+        let s_bct = 0.5 * (s_lo + s_hi);
+        let origins = [
+            s_bct,
+            s_bct + params.branch_spacing_mm[0],
+            s_bct + params.branch_spacing_mm[0] + params.branch_spacing_mm[1],
+        ];
         let aorta = Segment {
             name: SEGMENT_NAMES[0].to_string(),
             points: apts.iter().map(|p| p * mm).collect(),
@@ -342,9 +375,7 @@ impl LumenTree {
                 )));
             }
             let o = at(origins[b]);
-            let phi = params.takeoff_deg[b].to_radians();
-            let side = if b == 0 { -1.0 } else { 1.0 };
-            let dir = Vec3::new(side * phi.sin(), 0.0, phi.cos());
+            let dir = dirs[b];
             let len = params.branch_length_mm[b];
             let n = ((len / 2.0).ceil() as usize).max(2);
             let points: Vec<Vec3> = (0..=n).map(|i| (o + dir * (len * i as f64 / n as f64)) * mm).collect();
@@ -364,10 +395,7 @@ impl LumenTree {
                 .find(|&i| tube_query(&parent.points, &parent.radii, &seg.points[i]).0 > 0.0)
                 .map(|i| sl[i])
                 .ok_or_else(|| {
-                    ImplicitError::BadParameter(format!(
-                        "branch {} never leaves the aorta (length {len} mm)",
-                        seg.name
-                    ))
+                    ImplicitError::BadParameter(format!("branch {} never leaves the aorta (length {len} mm)", seg.name))
                 })?;
             seg.proper_from = exit + params.blend_mm * mm;
             if seg.proper_from >= *sl.last().unwrap_or(&0.0) {
@@ -420,7 +448,11 @@ impl LumenTree {
             }
             if s.open_start {
                 out.push(TreeEnd {
-                    name: if i == 0 { "inlet".into() } else { format!("inlet_{}", s.name) },
+                    name: if i == 0 {
+                        "inlet".into()
+                    } else {
+                        format!("inlet_{}", s.name)
+                    },
                     segment: i,
                     centre: s.points[0],
                     normal: (s.points[0] - s.points[1]).normalize(),
@@ -519,9 +551,15 @@ pub struct LumenSurface {
     pub isosurface_triangles: usize,
 }
 
-/// Extracts the lumen of `tree` on a grid of spacing `h` (m), prolongs each
-/// open end and cuts it exactly at its end plane: an open surface whose
-/// boundary loops are the end sections, normals out of the lumen.
+/// Extracts the lumen of `tree` on a grid of spacing about `h` (m), prolongs
+/// each open end and cuts it exactly at its end plane: an open surface whose
+/// boundary loops are the end sections, normals out of the lumen, checked
+/// ([`check_surface`]: manifold, one body, oriented).
+///
+/// Surface nets can make a non-manifold edge where a grid face is ambiguous
+/// (a saddle of the blended field crossing it); such an extraction is
+/// refused by the check and redone on a grid a few percent finer or coarser
+/// (up to six spacings; the error of the last is returned).
 pub fn isosurface(tree: &LumenTree, h: f64) -> Result<SurfaceMesh, ImplicitError> {
     if !(h.is_finite() && h > 0.0) || h > 0.5 * tree.min_radius() {
         return Err(ImplicitError::BadParameter(format!(
@@ -529,6 +567,34 @@ pub fn isosurface(tree: &LumenTree, h: f64) -> Result<SurfaceMesh, ImplicitError
             tree.min_radius()
         )));
     }
+    let expected = tree.ends().len();
+    let mut last = None;
+    for f in [1.0, 0.973, 1.029, 0.947, 1.057, 0.921] {
+        let mut mesh = extract(tree, h * f)?;
+        compact(&mut mesh);
+        if let Err(e) = super::remesh::input_boundary_loops(&mesh) {
+            last = Some(ImplicitError::Remesh(e));
+            continue;
+        }
+        let opts = CheckOptions {
+            self_intersections: false,
+            ..CheckOptions::default()
+        };
+        match check_surface(&mesh, &opts) {
+            Ok(c) if c.report.boundary_loops.len() == expected && c.report.flipped == 0 => return Ok(c.mesh),
+            Ok(c) => {
+                last = Some(ImplicitError::Openings {
+                    found: c.report.boundary_loops.len(),
+                    expected,
+                })
+            }
+            Err(e) => last = Some(ImplicitError::Surface(e)),
+        }
+    }
+    Err(last.expect("at least one attempt"))
+}
+
+fn extract(tree: &LumenTree, h: f64) -> Result<SurfaceMesh, ImplicitError> {
     let ends = tree.ends();
     let ext = 4.0 * h;
     let ext_tree = tree.extended(ext);
@@ -705,7 +771,48 @@ fn grid_spacing(tree: &LumenTree, size: f64) -> f64 {
     (0.5 * size).min(0.25 * tree.min_radius())
 }
 
-fn finish(tree: &LumenTree, iso_tris: usize, remeshed: super::remesh::Remeshed) -> Result<LumenSurface, ImplicitError> {
+/// Moves each vertex onto the zero level of the tree's function (Newton
+/// steps along its gradient, central differences): the isosurface is only
+/// accurate to a fraction of its grid spacing. Boundary vertices move within
+/// their end plane.
+fn snap_to_lumen(tree: &LumenTree, r: &mut super::remesh::Remeshed) {
+    let ends = tree.ends();
+    let eps = 1e-3 * tree.min_radius();
+    for (p, bl) in r.mesh.vertices.iter_mut().zip(&r.boundary_loop) {
+        let plane = bl.and_then(|_| {
+            ends.iter()
+                .min_by(|a, b| (a.centre - *p).norm().total_cmp(&(b.centre - *p).norm()))
+                .map(|e| e.normal)
+        });
+        for _ in 0..4 {
+            let f = tree.sdf(p);
+            let mut g = Vec3::zeros();
+            for k in 0..3 {
+                let mut d = Vec3::zeros();
+                d[k] = eps;
+                g[k] = (tree.sdf(&(*p + d)) - tree.sdf(&(*p - d))) / (2.0 * eps);
+            }
+            if let Some(n) = plane {
+                g -= n * n.dot(&g);
+            }
+            let g2 = g.norm_squared();
+            if g2 < 1e-6 {
+                break;
+            }
+            *p -= g * (f / g2);
+            if f.abs() < 1e-9 {
+                break;
+            }
+        }
+    }
+}
+
+fn finish(
+    tree: &LumenTree,
+    iso_tris: usize,
+    mut remeshed: super::remesh::Remeshed,
+) -> Result<LumenSurface, ImplicitError> {
+    snap_to_lumen(tree, &mut remeshed);
     let checked = check_surface(
         &remeshed.mesh,
         &CheckOptions {
@@ -752,13 +859,12 @@ fn finish(tree: &LumenTree, iso_tris: usize, remeshed: super::remesh::Remeshed) 
 }
 
 /// The lumen surface of `tree` remeshed to edge length `size` (m), graded
-/// so every vessel keeps at least 8 vertices around (size ≤ 2π r / 8).
+/// so every vessel keeps at least 8 vertices around ([`graded_size`]).
 pub fn lumen_surface(tree: &LumenTree, size: f64) -> Result<LumenSurface, ImplicitError> {
     if !(size.is_finite() && size > 0.0) {
         return Err(ImplicitError::BadParameter(format!("size {size} m must be positive")));
     }
-    let mut iso = isosurface(tree, grid_spacing(tree, size))?;
-    compact(&mut iso);
+    let iso = isosurface(tree, grid_spacing(tree, size))?;
     let radius = |p: &Vec3| tree.local_radius(p);
     let field = graded_size(size, 8, &radius);
     let r = remesh(&iso, &field, &RemeshOptions::default())?;
@@ -778,9 +884,9 @@ pub fn lumen_surface_with_vertices(
     let coarse = isosurface(tree, 0.25 * tree.min_radius())?;
     let area = super::remesh::surface_area(&coarse);
     let size0 = (2.0 * area / (3f64.sqrt() * vertices.max(4) as f64)).sqrt();
-    let mut iso = isosurface(tree, grid_spacing(tree, size0))?;
-    compact(&mut iso);
-    let cap = |p: &Vec3| 2.0 * std::f64::consts::PI * tree.local_radius(p) / 8.0;
+    let iso = isosurface(tree, grid_spacing(tree, size0))?;
+    let c = super::remesh::around_cap(8);
+    let cap = |p: &Vec3| c * tree.local_radius(p);
     let (size, r) = remesh_to_vertex_count(&iso, vertices, &cap, &RemeshOptions::default(), tolerance)?;
     Ok((size, finish(tree, iso.triangles.len(), r)?))
 }

@@ -124,9 +124,7 @@ pub enum RemeshError {
     #[error("invalid remesh option: {0}")]
     BadOption(String),
     /// [`remesh_to_vertex_count`] did not reach the count.
-    #[error(
-        "no size within the tolerance of {target} vertices: the closest was {best} vertices at size {size:.6e} m"
-    )]
+    #[error("no size within the tolerance of {target} vertices: the closest was {best} vertices at size {size:.6e} m")]
     CountNotReached {
         /// The vertex count asked for.
         target: usize,
@@ -632,7 +630,11 @@ impl<'a> Work<'a> {
                 let tri = self.tris[t as usize];
                 (0..3).any(|k| tri[k] == x && tri[(k + 1) % 3] == y)
             };
-            let (t1, t2) = if runs(ts[0], a, b) { (ts[0], ts[1]) } else { (ts[1], ts[0]) };
+            let (t1, t2) = if runs(ts[0], a, b) {
+                (ts[0], ts[1])
+            } else {
+                (ts[1], ts[0])
+            };
             let opp = |t: u32| {
                 let tri = self.tris[t as usize];
                 *tri.iter().find(|&&v| v != a && v != b).expect("third vertex")
@@ -691,7 +693,11 @@ impl<'a> Work<'a> {
                 let tri = self.tris[t as usize];
                 (0..3).any(|k| tri[k] == x && tri[(k + 1) % 3] == y)
             };
-            let (t1, t2) = if runs(ts[0], a, b) { (ts[0], ts[1]) } else { (ts[1], ts[0]) };
+            let (t1, t2) = if runs(ts[0], a, b) {
+                (ts[0], ts[1])
+            } else {
+                (ts[1], ts[0])
+            };
             let opp = |t: u32| {
                 let tri = self.tris[t as usize];
                 *tri.iter().find(|&&v| v != a && v != b).expect("third vertex")
@@ -738,7 +744,11 @@ impl<'a> Work<'a> {
             if !self.alive_t[t] {
                 continue;
             }
-            let nrm = tri_normal(&self.p[tri[0] as usize], &self.p[tri[1] as usize], &self.p[tri[2] as usize]);
+            let nrm = tri_normal(
+                &self.p[tri[0] as usize],
+                &self.p[tri[1] as usize],
+                &self.p[tri[2] as usize],
+            );
             for &v in tri {
                 normal[v as usize] += nrm;
             }
@@ -810,11 +820,7 @@ impl<'a> Work<'a> {
 /// every vertex onto the input surface. The input must be a consistently
 /// oriented manifold surface (as [`crate::mesh::surface::check_surface`]
 /// leaves it); its boundary loops are kept.
-pub fn remesh(
-    input: &SurfaceMesh,
-    size: &dyn Fn(&Vec3) -> f64,
-    opts: &RemeshOptions,
-) -> Result<Remeshed, RemeshError> {
+pub fn remesh(input: &SurfaceMesh, size: &dyn Fn(&Vec3) -> f64, opts: &RemeshOptions) -> Result<Remeshed, RemeshError> {
     if opts.iterations == 0 {
         return Err(RemeshError::BadOption("iterations must be at least 1".into()));
     }
@@ -957,20 +963,24 @@ pub fn surface_area(mesh: &SurfaceMesh) -> f64 {
         .sum()
 }
 
-/// A size field that is `base` everywhere except where the lumen is thin:
-/// at most `2π r / nodes_around` where `radius(x)` is the local lumen radius,
-/// so a branch of radius r keeps at least `nodes_around` vertices around.
-pub fn graded_size<'a>(
-    base: f64,
-    nodes_around: usize,
-    radius: &'a dyn Fn(&Vec3) -> f64,
-) -> impl Fn(&Vec3) -> f64 + 'a {
-    let n = nodes_around.max(3) as f64;
-    move |p: &Vec3| base.min(2.0 * std::f64::consts::PI * radius(p) / n)
+/// A size field that is `base` everywhere except where the lumen is thin,
+/// so a vessel of radius r keeps at least `nodes_around` vertices around:
+/// edges are left alone up to 4/3 of the size, so the size is capped at
+/// `(3/4) 2π r / nodes_around` (`radius(x)` is the local lumen radius).
+pub fn graded_size<'a>(base: f64, nodes_around: usize, radius: &'a dyn Fn(&Vec3) -> f64) -> impl Fn(&Vec3) -> f64 + 'a {
+    let cap = around_cap(nodes_around);
+    move |p: &Vec3| base.min(cap * radius(p))
+}
+
+/// The factor c such that the size c·r keeps `nodes_around` vertices around
+/// a vessel of radius r: (3/4) 2π / `nodes_around` (edges up to 4/3 of the
+/// size are not split).
+pub fn around_cap(nodes_around: usize) -> f64 {
+    0.75 * 2.0 * std::f64::consts::PI / nodes_around.max(3) as f64
 }
 
 /// Remeshes with the uniform size `s` capped by `cap(x)` (use
-/// `|_| f64::INFINITY` for no cap, or `2π r(x)/8` for branches), choosing `s`
+/// `|_| f64::INFINITY` for no cap, or `around_cap(8) r(x)` for branches), choosing `s`
 /// so the output has `target` vertices within the relative `tolerance`
 /// (e.g. 0.01). Starts from the area estimate `s² = 2A / (√3 V)` and refines
 /// by a secant step on (ln s, ln V); each trial remeshes the input afresh.
@@ -988,7 +998,9 @@ pub fn remesh_to_vertex_count(
         )));
     }
     if !(tolerance > 0.0 && tolerance.is_finite()) {
-        return Err(RemeshError::BadOption(format!("tolerance must be positive, got {tolerance}")));
+        return Err(RemeshError::BadOption(format!(
+            "tolerance must be positive, got {tolerance}"
+        )));
     }
     validate(input)?;
     let area = surface_area(input);
