@@ -264,12 +264,13 @@ impl LumenTree {
     pub fn arch(params: &BranchedArchParams) -> Result<LumenTree, ImplicitError> {
         let a = &params.aorta;
         let positive = |v: f64| v.is_finite() && v > 0.0;
-        if !a.lumen_radius_mm.iter().all(|&r| positive(r))
-            || !params.branch_radius_mm.iter().all(|&r| positive(r))
-            || !params.branch_length_mm.iter().all(|&r| positive(r))
-            || !params.branch_spacing_mm.iter().all(|&r| r.is_finite() && r >= 0.0)
-            || !(params.blend_mm.is_finite() && params.blend_mm >= 0.0)
-        {
+        let valid = a.lumen_radius_mm.iter().all(|&r| positive(r))
+            && params.branch_radius_mm.iter().all(|&r| positive(r))
+            && params.branch_length_mm.iter().all(|&r| positive(r))
+            && params.branch_spacing_mm.iter().all(|&r| r.is_finite() && r >= 0.0)
+            && params.blend_mm.is_finite()
+            && params.blend_mm >= 0.0;
+        if !valid {
             return Err(ImplicitError::BadParameter(format!(
                 "radii, lengths, spacings and the blend must be positive and finite: {params:?}"
             )));
@@ -915,8 +916,10 @@ mod tests {
         assert!(t.sdf(&a.points[10]) < -0.01);
         assert!(t.sdf(&Vec3::new(0.3, 0.0, 0.0)) > 0.2);
         // Arch types move the branches toward the root.
-        let mut p = BranchedArchParams::default();
-        p.arch_type = ArchType::III;
+        let p = BranchedArchParams {
+            arch_type: ArchType::III,
+            ..BranchedArchParams::default()
+        };
         let t3 = LumenTree::arch(&p).unwrap();
         assert!(t3.segments[1].points[0].z < t.segments[1].points[0].z);
     }
