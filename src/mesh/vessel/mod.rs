@@ -12,6 +12,8 @@
 
 pub mod caps;
 pub mod error;
+pub mod implicit;
+pub mod remesh;
 pub mod wall;
 
 pub use error::VesselError;
