@@ -270,12 +270,23 @@ enum BenchCmd {
 enum MeshCmd {
     /// Generate the built-in aortic arch wall mesh.
     Arch {
-        /// Target number of nodes (the result is within 0.75 %).
+        /// Target number of nodes (the unbranched arch is within 0.75 %, the branched one within 1 %).
         #[arg(long, default_value_t = 5832)]
         nodes: usize,
         /// Output file; the format comes from the extension (.msh .vtk .vtu .node .ply .obj .stl).
         #[arg(long)]
         out: PathBuf,
+        /// `none`: the unbranched tube (structured grid); `three`: the arch with the brachiocephalic
+        /// trunk, left common carotid and left subclavian, meshed by the vessel pipeline (docs/VESSEL.md).
+        #[arg(long, default_value = "none")]
+        branches: String,
+        /// Arch type of the branched arch (I, II or III: how far the brachiocephalic origin sits below
+        /// the arch top).
+        #[arg(long, default_value = "I")]
+        arch_type: String,
+        /// Element layers through the wall of the branched arch.
+        #[arg(long, default_value_t = 1)]
+        layers: usize,
     },
     /// Build a tetrahedral vessel wall from a lumen surface (.stl .obj .ply .vtk .vtp): openings from
     /// boundary loops, planar caps or --cut planes; the wall offset outward (docs/VESSEL.md).
@@ -371,7 +382,17 @@ fn main() -> ExitCode {
         } => cli::run::soak(config, minutes, seed, json.as_deref(), quiet),
         Command::CheckRt { config, json } => cli::run::check_rt(config.as_ref(), json),
         Command::Mesh(cmd) => match cmd {
-            MeshCmd::Arch { nodes, out } => cli::mesh::arch(nodes, &out),
+            MeshCmd::Arch {
+                nodes,
+                out,
+                branches,
+                arch_type,
+                layers,
+            } => match branches.as_str() {
+                "none" => cli::mesh::arch(nodes, &out),
+                "three" => cli::mesh::branched_arch(nodes, &out, &arch_type, layers),
+                other => Err(format!("--branches {other}: expected none or three").into()),
+            },
             MeshCmd::Vessel {
                 surface,
                 out,

@@ -33,6 +33,68 @@ pub fn arch(nodes: usize, out: &Path) -> Result<()> {
     Ok(())
 }
 
+/// `nvtmm mesh arch --branches three`: the branched arch through the vessel
+/// pipeline.
+pub fn branched_arch(nodes: usize, out: &Path, arch_type: &str, layers: usize) -> Result<()> {
+    use nvtmm::mesh::vessel::branched::{branched_arch, default_wall_ratio};
+    use nvtmm::mesh::vessel::implicit::{ArchType, BranchedArchParams};
+    let arch_type = match arch_type {
+        "I" | "1" => ArchType::I,
+        "II" | "2" => ArchType::II,
+        "III" | "3" => ArchType::III,
+        other => return Err(format!("--arch-type {other}: expected I, II or III").into()),
+    };
+    nvtmm::mesh::io::Format::from_path(out)?;
+    let params = BranchedArchParams {
+        arch_type,
+        ..BranchedArchParams::default()
+    };
+    let t0 = Instant::now();
+    let b = branched_arch(&params, nodes, layers, default_wall_ratio(&params))?;
+    let gen_s = t0.elapsed().as_secs_f64();
+    write_mesh(&b.wall.mesh, out)?;
+    let m = &b.wall.mesh;
+    let q = &b.wall.quality;
+    println!(
+        "wrote {}: branched arch (type {:?}), {} nodes, {} tets, {} layer(s), lumen edge {:.2} mm, meshed in {:.2} s",
+        out.display(),
+        arch_type,
+        m.num_nodes(),
+        m.tets().len(),
+        layers,
+        b.surface_size_m * 1e3,
+        gen_s
+    );
+    for o in &b.wall.openings {
+        println!(
+            "  {:<28} centre {} mm  normal {}  area {:.1} mm^2",
+            o.name,
+            vec_fmt(&o.centre, 1e3, 1),
+            vec_fmt(&o.normal, 1.0, 3),
+            o.area * 1e6
+        );
+    }
+    if let Some((names, label)) = m.segment_labels() {
+        for (s, name) in names.iter().enumerate() {
+            println!(
+                "  segment {:<22} {} nodes",
+                name,
+                label.iter().filter(|&&l| l as usize == s).count()
+            );
+        }
+    }
+    println!(
+        "  quality: dihedral {:.2}° .. {:.2}°, aspect max {:.2}, inverted {}, wall {:.2} .. {:.2} mm",
+        q.min_dihedral_deg,
+        q.max_dihedral_deg,
+        q.max_aspect_ratio,
+        m.report().inverted,
+        b.wall.thickness_range.0 * 1e3,
+        b.wall.thickness_range.1 * 1e3
+    );
+    Ok(())
+}
+
 /// Parses `--cut px,py,pz,nx,ny,nz` (the point scaled by `scale` into metres).
 fn parse_cut(k: usize, text: &str, scale: f64) -> Result<CutPlane> {
     let v: Vec<f64> = text

@@ -514,6 +514,11 @@ impl TetMesh {
         Some((names, label))
     }
 
+    /// Removes a node set; returns whether it was there.
+    pub fn remove_node_set(&mut self, name: &str) -> bool {
+        self.node_sets.remove(name).is_some()
+    }
+
     /// Adds or replaces a named node set (indices are sorted and deduplicated).
     pub fn set_node_set(&mut self, name: &str, mut ids: Vec<u32>) -> Result<(), TopologyError> {
         if let Some(&bad) = ids.iter().find(|&&i| i as usize >= self.rest.len()) {

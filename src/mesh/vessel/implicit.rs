@@ -101,7 +101,7 @@ impl Default for BranchedArchParams {
             branch_radius_mm: [6.25, 4.15, 5.2],
             takeoff_deg: [45.0, 26.0, 29.0],
             branch_length_mm: [45.0, 55.0, 50.0],
-            blend_mm: 4.0,
+            blend_mm: 8.0,
         }
     }
 }

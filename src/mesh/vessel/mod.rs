@@ -10,6 +10,7 @@
 //!   -> node sets (openings, inner_wall, outer_wall) + segment labels
 //! ```
 
+pub mod branched;
 pub mod caps;
 pub mod error;
 pub mod implicit;

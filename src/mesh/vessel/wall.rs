@@ -225,7 +225,42 @@ pub fn build_wall(surface: &CheckedSurface, opts: &WallOptions) -> Result<Wall, 
             .map(|r| f * r)
             .collect(),
     };
-    let layers = opts.layers;
+    build_wall_per_vertex(surface, &thickness, opts.layers)
+}
+
+/// [`build_wall`] with the thickness given at every vertex of the surface
+/// (m), e.g. from a known local lumen radius.
+pub fn build_wall_per_vertex(surface: &CheckedSurface, thickness: &[f64], layers: usize) -> Result<Wall, VesselError> {
+    let m = &surface.mesh;
+    let loops = &surface.report.boundary_loops;
+    let n = m.vertices.len();
+    if layers == 0 || layers > 64 {
+        return Err(VesselError::BadOption(format!(
+            "layers must be between 1 and 64, got {layers}"
+        )));
+    }
+    if thickness.len() != n {
+        return Err(VesselError::BadOption(format!(
+            "{} thickness values for {n} surface vertices",
+            thickness.len()
+        )));
+    }
+    if let Some((v, t)) = thickness
+        .iter()
+        .enumerate()
+        .find(|(_, t)| !(t.is_finite() && **t > 0.0))
+    {
+        return Err(VesselError::BadOption(format!(
+            "wall thickness at vertex {v} must be finite and positive, got {t} m"
+        )));
+    }
+    if loops.is_empty() {
+        return Err(VesselError::NoOpening {
+            triangles: m.triangles.len(),
+        });
+    }
+    let dir = offset_directions(surface)?;
+    let nb = neighbours(n, &m.triangles);
     let mut rest = Vec::with_capacity(n * (layers + 1));
     for k in 0..=layers {
         let s = k as f64 / layers as f64;

@@ -1,0 +1,79 @@
+//! The built-in branched arch (the aorta with the brachiocephalic trunk, the
+//! left common carotid and the left subclavian), made by the vessel
+//! pipeline: node counts within 1 % of the paper's sizes, no inverted tet,
+//! min dihedral ≥ 10°, the named openings and wall sets, and segment
+//! labels on every node that survive a file round trip.
+
+use nvtmm::mesh::vessel::branched::{branched_arch, default_wall_ratio};
+use nvtmm::mesh::vessel::implicit::{BranchedArchParams, SEGMENT_NAMES};
+
+fn check(nodes: usize) {
+    let params = BranchedArchParams::default();
+    let b = branched_arch(&params, nodes, 1, default_wall_ratio(&params)).expect("branched arch");
+    let m = &b.wall.mesh;
+    let err = (m.num_nodes() as f64 / nodes as f64 - 1.0).abs();
+    assert!(err <= 0.01, "{} nodes for {nodes}", m.num_nodes());
+    assert_eq!(m.report().inverted, 0);
+    assert!(
+        b.wall.quality.min_dihedral_deg >= 10.0,
+        "min dihedral {:.2}° at {nodes} nodes",
+        b.wall.quality.min_dihedral_deg
+    );
+    for set in [
+        "inlet",
+        "outlet_descending",
+        "outlet_brachiocephalic",
+        "outlet_left_common_carotid",
+        "outlet_left_subclavian",
+        "inner_wall",
+        "outer_wall",
+    ] {
+        let ids = m
+            .node_set(set)
+            .unwrap_or_else(|| panic!("node set {set} at {nodes} nodes"));
+        assert!(ids.len() >= 16, "{set}: {} nodes", ids.len());
+    }
+    assert!(m.node_sets().keys().all(|k| !k.starts_with("opening_")));
+    let (names, label) = m.segment_labels().expect("segment labels");
+    let mut expected: Vec<String> = SEGMENT_NAMES.iter().map(|s| s.to_string()).collect();
+    expected.sort();
+    assert_eq!(names, expected);
+    assert!(label.iter().all(|&l| (l as usize) < names.len()), "every node labelled");
+    for (s, name) in names.iter().enumerate() {
+        let count = label.iter().filter(|&&l| l as usize == s).count();
+        assert!(count >= 50, "segment {name}: {count} nodes");
+    }
+    // Each outlet's nodes carry its branch's label.
+    for (set, seg) in [
+        ("outlet_brachiocephalic", "brachiocephalic"),
+        ("outlet_left_common_carotid", "left_common_carotid"),
+        ("outlet_left_subclavian", "left_subclavian"),
+        ("outlet_descending", "aorta"),
+    ] {
+        let s = names.iter().position(|n| n == seg).unwrap();
+        assert!(
+            m.node_set(set)
+                .unwrap()
+                .iter()
+                .all(|&i| label[i as usize] as usize == s),
+            "{set} labelled {seg}"
+        );
+    }
+    // The labels and sets survive a file round trip.
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("arch.vtu");
+    nvtmm::mesh::io::write_mesh(m, &path).unwrap();
+    let back = nvtmm::mesh::io::read_mesh(&path).unwrap();
+    assert_eq!(back.segment_labels(), m.segment_labels());
+    assert_eq!(back.node_sets(), m.node_sets());
+}
+
+#[test]
+fn branched_arch_at_5832_nodes() {
+    check(5832);
+}
+
+#[test]
+fn branched_arch_at_23328_nodes() {
+    check(23328);
+}
