@@ -290,7 +290,7 @@ pub fn build_wall_per_vertex(surface: &CheckedSurface, thickness: &[f64], layers
                     .map(|(a, b)| (x[b] - x[a]).norm())
                     .fold(0.0, f64::max);
                 if vol.is_nan() || vol <= 1e-9 * lmax.powi(3) {
-                    return Err(inverted(surface, &dir, &thickness, &nb, ti, k));
+                    return Err(inverted(surface, &dir, thickness, &nb, ti, k));
                 }
                 tets.push(tet);
             }
