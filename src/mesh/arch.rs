@@ -65,7 +65,7 @@ impl ArchParams {
     /// The centreline point (mm) at curve parameter u in [0, 1]: descending
     /// part on [0, 1/3], arch on [1/3, 2/3], ascending part on [2/3, 1]
     /// (the parameter is not arc length; callers resample).
-    fn centerline_at(&self, u: f64) -> Vec3 {
+    pub(crate) fn centerline_at(&self, u: f64) -> Vec3 {
         let d = nalgebra::Vector2::from(self.descending_xy_mm);
         let a = nalgebra::Vector2::from(self.ascending_xy_mm);
         let zc = self.arch_center_z_mm;

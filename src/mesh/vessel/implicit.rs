@@ -217,29 +217,6 @@ fn arc_lengths(points: &[Vec3]) -> Vec<f64> {
     s
 }
 
-/// The unbranched arch's centreline (mm) at parameter u in [0, 1] (0: the
-/// descending end, 1: the aortic root), as in [`crate::mesh::arch`].
-fn aorta_centerline_mm(a: &ArchParams, u: f64) -> Vec3 {
-    let d = nalgebra::Vector2::from(a.descending_xy_mm);
-    let asc = nalgebra::Vector2::from(a.ascending_xy_mm);
-    let zc = a.arch_center_z_mm;
-    if u <= 1.0 / 3.0 {
-        let w = 3.0 * u;
-        let xy = d * (std::f64::consts::FRAC_PI_2 * w).sin();
-        Vec3::new(xy.x, xy.y, zc * w)
-    } else if u <= 2.0 / 3.0 {
-        let th = std::f64::consts::PI * (1.0 - (3.0 * u - 1.0));
-        let c = (d + asc) * 0.5;
-        let r = (asc - d).norm() * 0.5;
-        let h = (asc - d) / (2.0 * r).max(f64::MIN_POSITIVE);
-        let xy = c + h * r * th.cos();
-        Vec3::new(xy.x, xy.y, zc + r * th.sin())
-    } else {
-        let w = 3.0 * u - 2.0;
-        Vec3::new(asc.x, asc.y, zc + (a.ascending_end_z_mm - zc) * w)
-    }
-}
-
 /// Resamples a polyline at (about) equal spacing `step`.
 fn resample(points: &[Vec3], step: f64) -> Vec<Vec3> {
     let s = arc_lengths(points);
@@ -278,7 +255,7 @@ impl LumenTree {
         let mm = 1e-3;
         // Dense samples from the descending end (u = 0) to the root (u = 1),
         // radii as in mesh::arch (linear in arc length to and from the top).
-        let dense: Vec<Vec3> = (0..=3000).map(|i| aorta_centerline_mm(a, i as f64 / 3000.0)).collect();
+        let dense: Vec<Vec3> = (0..=3000).map(|i| a.centerline_at(i as f64 / 3000.0)).collect();
         let pts = resample(&dense, 2.0);
         let s = arc_lengths(&pts);
         let total = *s.last().unwrap_or(&1.0);
