@@ -618,34 +618,40 @@ impl<'a> Work<'a> {
         true
     }
 
+    /// The interior edge a–b as a flip candidate: its triangles t1 (running
+    /// a→b) and t2 (b→a) and their opposite vertices c and d, or None where
+    /// a flip is impossible (a boundary or non-manifold edge, c–d already an
+    /// edge, or an end vertex of valence 3 or less).
+    fn flip_candidate(&self, a: u32, b: u32) -> Option<(u32, u32, u32, u32)> {
+        let (ts, cnt) = self.edge_tris(a, b);
+        if cnt != 2 {
+            return None;
+        }
+        let runs = |t: u32| {
+            let tri = self.tris[t as usize];
+            (0..3).any(|k| tri[k] == a && tri[(k + 1) % 3] == b)
+        };
+        let (t1, t2) = if runs(ts[0]) { (ts[0], ts[1]) } else { (ts[1], ts[0]) };
+        let opp = |t: u32| {
+            let tri = self.tris[t as usize];
+            tri.iter().copied().find(|&v| v != a && v != b)
+        };
+        let (c, d) = (opp(t1)?, opp(t2)?);
+        if c == d || self.vt[c as usize].iter().any(|&t| self.tris[t as usize].contains(&d)) {
+            return None;
+        }
+        if self.valence(a) <= 3 || self.valence(b) <= 3 {
+            return None;
+        }
+        Some((t1, t2, c, d))
+    }
+
     fn flip_valence(&mut self) -> usize {
         let mut n = 0;
         for (a, b) in self.edges() {
-            let (ts, cnt) = self.edge_tris(a, b);
-            if cnt != 2 {
+            let Some((t1, t2, c, d)) = self.flip_candidate(a, b) else {
                 continue;
-            }
-            // Orient: t1 runs a→b, t2 runs b→a.
-            let runs = |t: u32, x: u32, y: u32| {
-                let tri = self.tris[t as usize];
-                (0..3).any(|k| tri[k] == x && tri[(k + 1) % 3] == y)
             };
-            let (t1, t2) = if runs(ts[0], a, b) {
-                (ts[0], ts[1])
-            } else {
-                (ts[1], ts[0])
-            };
-            let opp = |t: u32| {
-                let tri = self.tris[t as usize];
-                *tri.iter().find(|&&v| v != a && v != b).expect("third vertex")
-            };
-            let (c, d) = (opp(t1), opp(t2));
-            if c == d || self.vt[c as usize].iter().any(|&t| self.tris[t as usize].contains(&d)) {
-                continue;
-            }
-            if self.valence(a) <= 3 || self.valence(b) <= 3 {
-                continue;
-            }
             let dev = |v: u32, delta: i64| (self.valence(v) + delta - self.target_valence(v)).abs();
             let before = dev(a, 0) + dev(b, 0) + dev(c, 0) + dev(d, 0);
             let after = dev(a, -1) + dev(b, -1) + dev(c, 1) + dev(d, 1);
@@ -685,30 +691,9 @@ impl<'a> Work<'a> {
     fn flip_angles(&mut self) -> usize {
         let mut n = 0;
         for (a, b) in self.edges() {
-            let (ts, cnt) = self.edge_tris(a, b);
-            if cnt != 2 {
+            let Some((t1, t2, c, d)) = self.flip_candidate(a, b) else {
                 continue;
-            }
-            let runs = |t: u32, x: u32, y: u32| {
-                let tri = self.tris[t as usize];
-                (0..3).any(|k| tri[k] == x && tri[(k + 1) % 3] == y)
             };
-            let (t1, t2) = if runs(ts[0], a, b) {
-                (ts[0], ts[1])
-            } else {
-                (ts[1], ts[0])
-            };
-            let opp = |t: u32| {
-                let tri = self.tris[t as usize];
-                *tri.iter().find(|&&v| v != a && v != b).expect("third vertex")
-            };
-            let (c, d) = (opp(t1), opp(t2));
-            if c == d || self.vt[c as usize].iter().any(|&t| self.tris[t as usize].contains(&d)) {
-                continue;
-            }
-            if self.valence(a) <= 3 || self.valence(b) <= 3 {
-                continue;
-            }
             let [pa, pb, pc, pd] = [a, b, c, d].map(|v| self.p[v as usize]);
             let angle = |p: &Vec3, q: &Vec3, r: &Vec3| {
                 let (u, v) = (q - p, r - p);
