@@ -213,6 +213,23 @@ fn set_fifo(priority: u8) -> Result<(), String> {
     .map_err(|e| format!("{e:?}"))
 }
 
+/// Sets the calling thread's nice value (Linux: per thread). A thread at
+/// nice 19 gets only the CPU time that threads at nice 0 leave (CFS weights
+/// 15 against 1024). Returns the OS error text when refused.
+pub fn set_current_nice(nice: i32) -> Result<(), String> {
+    // SAFETY: gettid and setpriority take integers only; on Linux
+    // PRIO_PROCESS with a thread id applies to that thread alone.
+    let r = unsafe {
+        let tid = libc::syscall(libc::SYS_gettid) as libc::id_t;
+        libc::setpriority(libc::PRIO_PROCESS, tid, nice)
+    };
+    if r == 0 {
+        Ok(())
+    } else {
+        Err(std::io::Error::last_os_error().to_string())
+    }
+}
+
 /// Whether the calling thread runs under SCHED_FIFO now.
 pub fn current_is_fifo() -> bool {
     // SAFETY: sched_getscheduler(0) queries the calling thread; no pointers.

@@ -416,7 +416,6 @@ pub fn run<const R: usize>(mut bg: Background<R>, mut io: BackgroundIo<R>) -> Ba
     let mut last_request_ns = clock::now_ns();
     let dt_min = bg.solver.params().dt;
     let t_start = clock::now_ns();
-    let mut last_t0 = t_start;
     let mut sim = 0.0;
     while !io.stop.load(Ordering::Relaxed) {
         if FaultSwitches::take(&io.faults.panic_background) {
@@ -428,10 +427,13 @@ pub fn run<const R: usize>(mut bg: Background<R>, mut io: BackgroundIo<R>) -> Ba
             FaultSwitches::served(&io.faults.stalls_served);
         }
         let t0 = clock::now_ns();
-        // Follow real time: the step covers the wall time since the last
-        // one, between dt_min and dt_max (implicit Euler is stable for any).
-        let dt = ((t0 - last_t0) as f64 * 1e-9).clamp(dt_min, bg.dt_max.max(dt_min));
-        last_t0 = t0;
+        // Follow real time: the step covers the time the solve is behind
+        // the wall clock, between dt_min and dt_max (implicit Euler is
+        // stable for any). A slow step is made up by the next ones (each
+        // covers more than its own duration) instead of being lost, so the
+        // solve keeps up whenever its mean step takes less than dt_max.
+        let behind = (t0 - t_start) as f64 * 1e-9 - sim;
+        let dt = behind.clamp(dt_min, bg.dt_max.max(dt_min));
         bg.solver.set_dt(dt);
         // Average the loop's contact forces since the last step.
         while let Ok(msg) = io.contact.pop() {

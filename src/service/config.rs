@@ -232,6 +232,10 @@ pub struct BackgroundConfig {
     /// displacement has changed by this much at some node since the basis
     /// in use was computed (m).
     pub basis_refresh_m: f64,
+    /// Nice value (0..=19) of the basis thread and of its own rayon pool:
+    /// the basis recomputation takes only the CPU time the full solve
+    /// leaves, so it never slows the full solve down (docs/SERVICE.md).
+    pub basis_nice: i32,
 }
 
 impl Default for BackgroundConfig {
@@ -243,6 +247,7 @@ impl Default for BackgroundConfig {
             cpu: -1,
             basis_refresh_s: 5.0,
             basis_refresh_m: 5e-4,
+            basis_nice: 19,
         }
     }
 }
@@ -370,6 +375,7 @@ impl ServiceConfig {
             "s (0: off)",
         )?;
         c.f64_in("background.basis_refresh_m", b.basis_refresh_m, 0.0, 1.0, "m")?;
+        c.int_in("background.basis_nice", b.basis_nice, 0, 19)?;
         let r = &self.rings;
         c.int_in("rings.pose", r.pose, 2, 65_536)?;
         c.int_in("rings.force", r.force, 2, 65_536)?;

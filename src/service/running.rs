@@ -25,7 +25,7 @@ use crate::math::Vec3;
 use crate::reduced::{basis_rows, BasisParams, Refresher};
 use crate::rt::clock::{self, Nanos};
 use crate::rt::stats::Percentiles;
-use crate::rt::thread::{lock_memory, setup_current, RtRequest};
+use crate::rt::thread::{lock_memory, set_current_nice, setup_current, RtRequest};
 use crate::service::config::RingConfig;
 use crate::solver::ImplicitEuler;
 use nalgebra::SVector;
@@ -395,17 +395,32 @@ pub(super) fn start_with<const R: usize>(p: Prepared) -> Result<Running<R>, Serv
             };
             let stop_b = stop.clone();
             let faults_b = faults.clone();
+            let nice = cfg.background.basis_nice;
             let h = std::thread::Builder::new()
                 .name("nvtmm-basis".into())
                 .spawn(move || {
-                    if bg_cpu.is_some() {
-                        setup_current(&RtRequest {
-                            fifo_priority: None,
-                            cpu: bg_cpu,
-                            prefault_stack_bytes: 0,
-                        });
+                    // The recomputation runs on its own rayon pool (its
+                    // `rayon::join`s would otherwise run on the global pool,
+                    // beside the full solve's work, at the same priority),
+                    // every thread of it at `basis_nice` and unpinned: it
+                    // takes the CPU time the full solve leaves on either
+                    // core. Raising one's own nice value is never refused
+                    // on Linux; if it were, the basis would only compete
+                    // as before, so a refusal is not fatal.
+                    let _ = set_current_nice(nice);
+                    let pool = rayon::ThreadPoolBuilder::new()
+                        .num_threads(rayon::current_num_threads())
+                        .thread_name(|i| format!("nvtmm-basis-{i}"))
+                        .start_handler(move |_| {
+                            let _ = set_current_nice(nice);
+                        })
+                        .build();
+                    match pool {
+                        Ok(pool) => {
+                            pool.install(|| background::basis_thread::<R>(worker, job_rx, new_tx, stop_b, faults_b))
+                        }
+                        Err(_) => background::basis_thread::<R>(worker, job_rx, new_tx, stop_b, faults_b),
                     }
-                    background::basis_thread::<R>(worker, job_rx, new_tx, stop_b, faults_b)
                 })
                 .map_err(|e| ServiceError::Thread("basis", e.to_string()))?;
             basis_handle = Some(h);
