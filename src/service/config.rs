@@ -213,17 +213,19 @@ impl Default for WatchdogConfig {
 #[derive(Debug, Clone, Copy, PartialEq, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct BackgroundConfig {
-    /// Smallest time step of the full solve (s). Each step covers the wall
-    /// time since the previous one, clamped to [dt, dt_max], so the full
-    /// solve follows real time; it never runs ahead (it sleeps).
+    /// Smallest time step of the full solve (s). Each step covers the time
+    /// the solve is behind the wall clock, clamped to [dt, dt_max], so the
+    /// full solve follows real time and makes up for a slow step with the
+    /// next ones; it never runs ahead (it sleeps).
     pub dt: f64,
     /// Largest time step of the full solve (s).
     pub dt_max: f64,
     /// Run the full solve and refresh the reduced model (false: the loop
     /// keeps the model linearized at rest, a linear reduced model).
     pub enabled: bool,
-    /// CPU of the background thread (-1: not pinned). The basis thread
-    /// runs there too.
+    /// CPU of the background thread (-1: not pinned). The basis
+    /// recomputation is not pinned: it runs at `basis_nice` on its own
+    /// rayon pool, on whichever core the full solve leaves idle.
     pub cpu: i32,
     /// Background basis refresh: shortest time between recomputations of
     /// the modal basis at the full solve's state (s); 0 turns it off.
