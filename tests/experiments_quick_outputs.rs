@@ -102,6 +102,18 @@ fn trade_quick_errors_shrink_with_dt_and_resolution() {
     );
     let mesh: Vec<_> = rows.iter().filter(|r| r.knob == "mesh_nodes").collect();
     assert!(mesh.first().unwrap().err_load_disp > mesh.last().unwrap().err_load_disp);
+    // The service's background solve against the converged run of the same
+    // press: measured, and longer steps are further off.
+    let bg: Vec<_> = rows.iter().filter(|r| r.knob == "background").collect();
+    assert!(bg.len() >= 2, "{bg:?}");
+    assert!(
+        bg.iter().all(|r| r.err_load_disp.is_finite() && r.err_load_disp < 1.0),
+        "{bg:?}"
+    );
+    assert!(
+        bg.first().unwrap().err_load_disp < bg.last().unwrap().err_load_disp,
+        "longer background steps must be further from the reference: {bg:?}"
+    );
     for f in ["trade.csv", "trade.png", "trade.md"] {
         assert!(dir.path().join(f).exists(), "{f}");
     }

@@ -531,11 +531,7 @@ pub fn background_rows(arch: &Arch, quick: bool) -> Result<Vec<TradeRow>, Experi
     // Background steps: the old shipped dt_max (50 ms), a typical service
     // step at 5832 nodes (60 ms), 100 ms, and the shipped dt_max (250 ms:
     // taken after a slow step at 5832 nodes, and every step at 23 328).
-    let dts: &[f64] = if quick {
-        &[0.05, 0.25]
-    } else {
-        &[0.05, 0.06, 0.1, 0.25]
-    };
+    let dts: &[f64] = if quick { &[0.05, 0.25] } else { &[0.05, 0.06, 0.1, 0.25] };
     // Sample the reference on the 10 ms grid every background step lies on.
     let grid: f64 = 0.01;
     let ref_every = (grid / dt_ref).round() as usize;
@@ -554,9 +550,19 @@ pub fn background_rows(arch: &Arch, quick: bool) -> Result<Vec<TradeRow>, Experi
     let node = standard_load(arch, STANDARD_FORCE_N).node as usize;
     let surf = arch.mesh.surface_nodes();
     let rms = |u: &[Vec3]| (surf.iter().map(|&i| u[i as usize].norm_squared()).sum::<f64>() / surf.len() as f64).sqrt();
-    let peak_node = reference.u.iter().map(|u| u[node].norm()).fold(0.0, f64::max).max(1e-300);
+    let peak_node = reference
+        .u
+        .iter()
+        .map(|u| u[node].norm())
+        .fold(0.0, f64::max)
+        .max(1e-300);
     let peak_rms = reference.u.iter().map(|u| rms(u)).fold(0.0, f64::max).max(1e-300);
-    let peak_reac = reference.reaction.iter().map(|r| r.norm()).fold(0.0, f64::max).max(1e-300);
+    let peak_reac = reference
+        .reaction
+        .iter()
+        .map(|r| r.norm())
+        .fold(0.0, f64::max)
+        .max(1e-300);
     let mut rows = Vec::new();
     for &dt in dts {
         let stride = (dt / grid).round() as usize;
