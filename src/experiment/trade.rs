@@ -411,7 +411,7 @@ pub const BACKGROUND_FORCE_N: f64 = 0.3;
 
 /// The background study's load history, in seconds: press (ramp in),
 /// hold, release (ramp out), then rest; the service's hand script has the
-/// same phases ([interaction] in `rt-config/nvtmm.toml`).
+/// same phases (`[interaction]` in `rt-config/nvtmm.toml`).
 pub const BACKGROUND_PHASES_S: [f64; 4] = [1.0, 1.0, 1.0, 0.5];
 
 /// The background full solve's integrator as the service scene sets it
