@@ -21,6 +21,7 @@ fn pose(seq: u64, x: f64) -> PoseDatagram {
         buttons: 1,
         status: 0,
         error_code: 0,
+        gimbal_rad: [0.0; 3],
     }
 }
 
