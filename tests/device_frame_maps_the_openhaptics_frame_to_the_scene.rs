@@ -65,7 +65,10 @@ fn any_rotation_round_trips_and_preserves_power() {
         // The power the scene asks of the hand is the power the device renders.
         let p_scene = force.dot(&f.vector_to_scene(v));
         let p_dev = f.force_to_device(force).dot(&v);
-        assert!((p_scene - p_dev).abs() < 1e-12 * (1.0 + p_scene.abs()), "{p_scene} vs {p_dev}");
+        assert!(
+            (p_scene - p_dev).abs() < 1e-12 * (1.0 + p_scene.abs()),
+            "{p_scene} vs {p_dev}"
+        );
         let r = f.rotation();
         assert!((r.determinant() - 1.0).abs() < 1e-12, "a proper rotation");
     }

@@ -287,6 +287,15 @@ fn the_drive_steers_a_wire_and_feels_a_dead_end() {
         f = d.hand_force(&s, rep.hub_axial_force_n);
     }
     // The hand is pushed back toward the user (+z), against its push (−z).
+    println!(
+        "dead end: wire inserted {:.4} m, hand force {:.3} N along +z; free: {:.2e} N",
+        wire.inserted(),
+        f.z,
+        f_free.norm()
+    );
     assert!(f.z > 0.5, "the dead end is felt: {f:?}");
-    assert!(f.x.abs() < 1e-12 && f.y.abs() < 1e-12, "on the axis, no guide force: {f:?}");
+    assert!(
+        f.x.abs() < 1e-12 && f.y.abs() < 1e-12,
+        "on the axis, no guide force: {f:?}"
+    );
 }

@@ -329,7 +329,14 @@ fn udp_datagram_v2_carries_the_gimbal_angles() {
     .expect("the last valid pose is still fresh");
     let c = d.counters();
     assert_eq!(
-        (c.short, c.long, c.bad_version, c.non_finite, c.gimbal_out_of_range, c.accepted),
+        (
+            c.short,
+            c.long,
+            c.bad_version,
+            c.non_finite,
+            c.gimbal_out_of_range,
+            c.accepted
+        ),
         (1, 2, 2, 1, 1, 2),
         "{c:?}"
     );

@@ -84,7 +84,11 @@ fn drive_errors_name_the_key_and_the_range() {
             "drive.force_scale",
             "[0, 3] (≤ insertion_scale, so the map adds no energy)",
         ),
-        ("[drive]\nguide_stiffness_n_per_m = -1.0", "drive.guide_stiffness_n_per_m", "[0, 5000] N/m"),
+        (
+            "[drive]\nguide_stiffness_n_per_m = -1.0",
+            "drive.guide_stiffness_n_per_m",
+            "[0, 5000] N/m",
+        ),
         ("[drive]\nmax_force_n = 1000.0", "drive.max_force_n", "[0, 100] N"),
     ];
     for (text, key, range) in cases {

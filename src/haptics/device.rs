@@ -73,7 +73,9 @@ impl DeviceSample {
     /// Whether every gimbal angle is finite and within
     /// ±[`GIMBAL_LIMIT_RAD`].
     pub fn gimbal_in_range(&self) -> bool {
-        self.gimbal_rad.iter().all(|a| a.is_finite() && a.abs() <= GIMBAL_LIMIT_RAD)
+        self.gimbal_rad
+            .iter()
+            .all(|a| a.is_finite() && a.abs() <= GIMBAL_LIMIT_RAD)
     }
 
     /// Whether the sample can be used: every number finite and the gimbal

@@ -382,7 +382,6 @@ impl GimbalScript {
     }
 }
 
-
 /// The simulated device's true internal state (for tests and reports; a real
 /// device does not expose it).
 #[derive(Debug, Clone, Copy, PartialEq)]

@@ -233,7 +233,11 @@ pub fn decode_pose(b: &[u8]) -> Result<PoseDatagram, Reject> {
         },
     };
     let finite = d.device_time_s.is_finite()
-        && d.position.iter().chain(&d.velocity).chain(&d.gimbal_rad).all(|v| v.is_finite());
+        && d.position
+            .iter()
+            .chain(&d.velocity)
+            .chain(&d.gimbal_rad)
+            .all(|v| v.is_finite());
     if !finite {
         return Err(Reject::NonFinite);
     }
