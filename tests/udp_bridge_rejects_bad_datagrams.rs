@@ -3,8 +3,8 @@
 //! poses and forces with a peer thread on loopback.
 
 use nvtmm::haptics::udp::{
-    decode_force, decode_pose, encode_force, encode_pose, ForceDatagram, PoseDatagram, Reject, UdpDevice, UdpParams,
-    FLAG_SATURATED, FLAG_STOP, FORCE_LEN, POSE_LEN, STATUS_FAULT,
+    decode_force, decode_pose, encode_force, encode_pose, encode_pose_v2, ForceDatagram, PoseDatagram, Reject,
+    UdpDevice, UdpParams, FLAG_SATURATED, FLAG_STOP, FORCE_LEN, POSE_LEN, POSE_LEN_V2, STATUS_FAULT,
 };
 use nvtmm::haptics::{DeviceError, HapticDevice};
 use nvtmm::math::Vec3;
@@ -21,6 +21,7 @@ fn pose(seq: u64, x: f64) -> PoseDatagram {
         buttons: 1,
         status: 0,
         error_code: 0,
+        gimbal_rad: [0.0; 3],
     }
 }
 
@@ -70,6 +71,23 @@ proptest! {
             Ok(d) => prop_assert!(d.position.iter().chain(&d.velocity).all(|v| v.is_finite())),
             Err(r) => prop_assert_eq!(r, Reject::NonFinite),
         }
+    }
+
+    #[test]
+    fn any_v2_body_with_a_valid_header_decodes_or_is_non_finite(body in proptest::collection::vec(any::<u8>(), POSE_LEN_V2 - 8)) {
+        let mut b = encode_pose_v2(&pose(1, 0.0)).to_vec();
+        b[8..].copy_from_slice(&body);
+        match decode_pose(&b) {
+            Ok(d) => prop_assert!(d.position.iter().chain(&d.velocity).chain(&d.gimbal_rad).all(|v| v.is_finite())),
+            Err(r) => prop_assert_eq!(r, Reject::NonFinite),
+        }
+    }
+
+    #[test]
+    fn finite_v2_datagrams_round_trip(seq in any::<u64>(), x in -1.0f64..1.0, a in proptest::array::uniform3(-7.0f64..7.0)) {
+        let mut p = pose(seq, x);
+        p.gimbal_rad = a;
+        prop_assert_eq!(decode_pose(&encode_pose_v2(&p)), Ok(p));
     }
 
     #[test]
@@ -254,4 +272,75 @@ fn poses_and_forces_round_trip_with_a_peer_on_loopback() {
     assert_eq!(c.accepted, N);
     assert_eq!(c.forces_sent, N + 1);
     assert_eq!(c.out_of_order + c.short + c.bad_magic + c.non_finite, 0);
+}
+
+#[test]
+fn udp_datagram_v2_carries_the_gimbal_angles() {
+    let (mut d, addr) = bridge(10.0);
+    let peer = UdpSocket::bind("127.0.0.1:0").expect("peer");
+    let mut p = pose(1, 0.01);
+    p.gimbal_rad = [0.5, -1.25, 3.0];
+    let v2 = encode_pose_v2(&p);
+    assert_eq!(v2.len(), 108);
+    assert_eq!(&v2[4..6], &2u16.to_le_bytes(), "version 2");
+    assert_eq!(&v2[..4], b"NVTP");
+    assert_eq!(v2[84..92], 0.5f64.to_le_bytes(), "the angles follow version 1's fields");
+    peer.send_to(&v2, addr).expect("send");
+    let s = read_until(&mut d, 0.0, |d| d.counters().accepted == 1).expect("a v2 pose");
+    assert_eq!(s.gimbal_rad, [0.5, -1.25, 3.0]);
+    assert_eq!(s.roll_rad(), 3.0);
+    assert_eq!(s.position, Vec3::new(0.01, 0.01, -0.02));
+    // Version 1 is still accepted, with zero angles.
+    peer.send_to(&encode_pose(&pose(2, 0.02)), addr).expect("send");
+    let s = read_until(&mut d, 0.0, |d| d.counters().accepted == 2).expect("a v1 pose");
+    assert_eq!(s.gimbal_rad, [0.0; 3]);
+    assert_eq!(s.position.x, 0.02);
+
+    // Bad version-2 datagrams are rejected and counted by reason.
+    let good = encode_pose_v2(&pose(3, 0.0));
+    let mut sends: Vec<Vec<u8>> = Vec::new();
+    sends.push(good[..POSE_LEN_V2 - 1].to_vec()); // short (a v2 missing its last byte)
+    let mut long = good.to_vec();
+    long.push(0);
+    sends.push(long); // long
+    let mut v1_as_v2 = encode_pose(&pose(4, 0.0));
+    v1_as_v2[4] = 2;
+    sends.push(v1_as_v2.to_vec()); // a v1 layout claiming version 2: bad version
+    let mut v2_as_v1 = good;
+    v2_as_v1[4] = 1;
+    sends.push(v2_as_v1.to_vec()); // a v2 layout claiming version 1: bad version
+    let mut nan = pose(5, 0.0);
+    nan.gimbal_rad[2] = f64::NAN;
+    sends.push(encode_pose_v2(&nan).to_vec()); // non-finite angle
+    let mut wild = pose(6, 0.0);
+    wild.gimbal_rad[2] = 7.0; // beyond one turn
+    sends.push(encode_pose_v2(&wild).to_vec());
+    let mut v1_long = encode_pose(&pose(7, 0.0)).to_vec();
+    v1_long.extend_from_slice(&[0; 10]);
+    sends.push(v1_long); // a v1 with 10 trailing bytes: long
+    for s in &sends {
+        peer.send_to(s, addr).expect("send");
+    }
+    let n = sends.len() as u64;
+    read_until(&mut d, 0.0, |d| {
+        let c = d.counters();
+        c.short + c.long + c.bad_version + c.non_finite + c.gimbal_out_of_range >= n
+    })
+    .expect("the last valid pose is still fresh");
+    let c = d.counters();
+    assert_eq!(
+        (
+            c.short,
+            c.long,
+            c.bad_version,
+            c.non_finite,
+            c.gimbal_out_of_range,
+            c.accepted
+        ),
+        (1, 2, 2, 1, 1, 2),
+        "{c:?}"
+    );
+    assert_eq!(decode_pose(&good[..POSE_LEN_V2 - 1]), Err(Reject::Short));
+    assert_eq!(decode_pose(&v1_as_v2), Err(Reject::BadVersion));
+    assert_eq!(decode_pose(&encode_pose_v2(&nan)), Err(Reject::NonFinite));
 }

@@ -94,6 +94,7 @@ fn sample(pos: Vec3, seq: u64, t: f64) -> DeviceSample {
         buttons: 0,
         time_s: t,
         seq,
+        gimbal_rad: [0.0; 3],
     }
 }
 

@@ -61,3 +61,53 @@ fn impossible_values_name_the_key_and_the_range() {
         Err(WireError::Hub(_))
     ));
 }
+
+#[test]
+fn drive_errors_name_the_key_and_the_range() {
+    let path = Path::new("rt-config/guidewire.toml");
+    // A [drive] table (`[wire.drive]` in a service file) with every key.
+    let text = "friction = 0.1\n[drive]\naxis = [0.0, 0.0, -1.0]\norigin_m = [0.0, 0.0, 0.0]\n\
+                inserted_at_origin_m = 0.2\ninsertion_scale = 2.5\nmax_speed_m_s = 0.1\nroll_index = 2\n\
+                roll_scale = -1.0\nmax_roll_speed_rad_s = 6.0\nforce_scale = 1.0\n\
+                guide_stiffness_n_per_m = 300.0\nguide_damping_ns_per_m = 2.0\nmax_force_n = 4.0\n";
+    let p = WireParams::from_toml_str(text, path).expect("a full drive table");
+    assert_eq!(p.drive.insertion_scale, 2.5);
+    assert_eq!(p.drive.roll_scale, -1.0);
+    let cases: [(&str, &str, &str); 8] = [
+        ("[drive]\naxis = [0.0, 0.0, 0.0]", "drive.axis", "non-zero vector"),
+        ("[drive]\naxis = [nan, 0.0, 1.0]", "drive.axis[0]", "[-1000, 1000]"),
+        ("[drive]\ninsertion_scale = 0.0", "drive.insertion_scale", "[0.1, 100]"),
+        ("[drive]\nmax_speed_m_s = 0.0", "drive.max_speed_m_s", "[0.001, 10] m/s"),
+        ("[drive]\nroll_index = 3", "drive.roll_index", "0..=2"),
+        (
+            "[drive]\nforce_scale = 4.0",
+            "drive.force_scale",
+            "[0, 3] (≤ insertion_scale, so the map adds no energy)",
+        ),
+        (
+            "[drive]\nguide_stiffness_n_per_m = -1.0",
+            "drive.guide_stiffness_n_per_m",
+            "[0, 5000] N/m",
+        ),
+        ("[drive]\nmax_force_n = 1000.0", "drive.max_force_n", "[0, 100] N"),
+    ];
+    for (text, key, range) in cases {
+        let e = WireParams::from_toml_str(text, path).expect_err(text);
+        assert_eq!(e.key, key, "{text}: {e}");
+        let msg = e.to_string();
+        assert!(msg.starts_with("rt-config/guidewire.toml: drive."), "{msg}");
+        assert!(msg.contains(range), "{text}: {msg} lacks {range}");
+    }
+    let e = WireParams::from_toml_str("[drive]\naxes = [0.0, 0.0, 1.0]", path).expect_err("unknown key");
+    assert!(e.msg.contains("axes"), "{e}");
+    // The drive itself refuses an invalid table the same way.
+    let p = WireParams {
+        drive: nvtmm::wire::DriveParams {
+            roll_scale: 20.0,
+            ..Default::default()
+        },
+        ..WireParams::default()
+    };
+    let e = nvtmm::wire::HubDrive::new(&p, 0.1, 0.0).expect_err("bad roll scale");
+    assert_eq!(e.key, "drive.roll_scale");
+}

@@ -1,15 +1,18 @@
 #!/usr/bin/env python3
 """Reference peer for nvtmm's UDP device bridge (src/haptics/udp.rs).
 
-Plays a scripted pose (a circle in the device's x-y plane, SI units) at a
-fixed rate to the service, and prints the force datagrams it gets back.
+Plays a scripted pose (a circle in the device's x-y plane, SI units, with
+the stylus rolling at a steady rate) at a fixed rate to the service, and
+prints the force datagrams it gets back.
 Standard library only. A real peer would read the pose from the vendor
 driver instead of the script and command the force it receives.
 
-Datagram layouts (little-endian, version 1) are in docs/DEVICE.md:
-  pose  (84 bytes): b"NVTP", u16 version, u16 reserved, u64 seq, f64 device
+Datagram layouts (little-endian) are in docs/DEVICE.md:
+  pose v1 (84 bytes): b"NVTP", u16 version, u16 reserved, u64 seq, f64 device
                     time (s), 3 f64 position (m), 3 f64 velocity (m/s),
                     u32 buttons, u32 status, i32 vendor error code
+  pose v2 (108 bytes): v1 (version 2), then 3 f64 gimbal angles (rad, the
+                    stylus roll last), as HD_CURRENT_GIMBAL_ANGLES gives them
   force (56 bytes): b"NVTF", u16 version, u16 reserved, u64 seq, u64 echoed
                     pose seq, 3 f64 force (N), u32 flags, u32 reserved
 
@@ -25,9 +28,10 @@ import sys
 import time
 
 POSE = struct.Struct("<4sHHQd3d3dIIi")
+POSE_V2 = struct.Struct("<4sHHQd3d3dIIi3d")
 FORCE = struct.Struct("<4sHHQQ3dII")
 VERSION = 1
-assert POSE.size == 84 and FORCE.size == 56
+assert POSE.size == 84 and POSE_V2.size == 108 and FORCE.size == 56
 
 
 def addr(text):
@@ -43,6 +47,8 @@ def main():
     ap.add_argument("--seconds", type=float, default=2.0, help="how long to play")
     ap.add_argument("--radius", type=float, default=0.02, help="circle radius (m)")
     ap.add_argument("--period", type=float, default=1.0, help="circle period (s)")
+    ap.add_argument("--roll-rate", type=float, default=1.0, help="stylus roll rate (rad/s)")
+    ap.add_argument("--pose-version", type=int, choices=(1, 2), default=2, help="1: no gimbal angles")
     ap.add_argument("--print-every", type=int, default=100, help="print every n-th force")
     a = ap.parse_args()
 
@@ -66,7 +72,13 @@ def main():
         seq += 1
         pos = (a.radius * math.cos(w * t), a.radius * math.sin(w * t), 0.0)
         vel = (-a.radius * w * math.sin(w * t), a.radius * w * math.cos(w * t), 0.0)
-        sock.sendto(POSE.pack(b"NVTP", VERSION, 0, seq, t, *pos, *vel, 0, 0, 0), service)
+        if a.pose_version == 2:
+            # The roll as a device reports it: wrapped to (-pi, pi].
+            roll = math.remainder(a.roll_rate * t, 2.0 * math.pi)
+            pose = POSE_V2.pack(b"NVTP", 2, 0, seq, t, *pos, *vel, 0, 0, 0, 0.0, 0.0, roll)
+        else:
+            pose = POSE.pack(b"NVTP", VERSION, 0, seq, t, *pos, *vel, 0, 0, 0)
+        sock.sendto(pose, service)
         while True:
             try:
                 data, _ = sock.recvfrom(256)

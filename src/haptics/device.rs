@@ -10,7 +10,8 @@
 
 use crate::math::Vec3;
 
-/// One pose sample from the device, in the service's frame (SI units).
+/// One pose sample from the device, in the device's frame (SI units; see
+/// [`crate::haptics::frame`] for the map to the scene).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct DeviceSample {
     /// Stylus tip position (m).
@@ -25,6 +26,30 @@ pub struct DeviceSample {
     /// Sequence number, incremented by the backend per fresh sample; a
     /// repeated number means no new data arrived.
     pub seq: u64,
+    /// The stylus's three gimbal angles (rad), in the order OpenHaptics
+    /// reports `HD_CURRENT_GIMBAL_ANGLES` (joints 4, 5, 6 of the arm: the two
+    /// gimbal joints, then the roll of the stylus about its own axis, see
+    /// [`GIMBAL_ROLL`]). Zero from a backend that does not measure them.
+    pub gimbal_rad: [f64; 3],
+}
+
+/// Index of the stylus roll in [`DeviceSample::gimbal_rad`].
+pub const GIMBAL_ROLL: usize = 2;
+
+/// Largest magnitude (rad) a gimbal angle may report: one full turn either
+/// way. No Touch X gimbal joint turns further; a larger value is a device
+/// fault, as a NaN pose is.
+pub const GIMBAL_LIMIT_RAD: f64 = 2.0 * std::f64::consts::PI;
+
+/// `a` (rad) wrapped to (−π, π]; NaN stays NaN.
+pub fn wrap_angle(a: f64) -> f64 {
+    use std::f64::consts::{PI, TAU};
+    let w = a - TAU * (a / TAU).round();
+    if w <= -PI {
+        w + TAU
+    } else {
+        w
+    }
 }
 
 impl DeviceSample {
@@ -35,11 +60,33 @@ impl DeviceSample {
         buttons: 0,
         time_s: 0.0,
         seq: 0,
+        gimbal_rad: [0.0; 3],
     };
 
-    /// Whether every number in the sample is finite.
+    /// Whether every number in the sample (gimbal angles included) is finite.
     pub fn is_finite(&self) -> bool {
-        self.position.iter().chain(self.velocity.iter()).all(|v| v.is_finite()) && self.time_s.is_finite()
+        self.position.iter().chain(self.velocity.iter()).all(|v| v.is_finite())
+            && self.time_s.is_finite()
+            && self.gimbal_rad.iter().all(|a| a.is_finite())
+    }
+
+    /// Whether every gimbal angle is finite and within
+    /// ±[`GIMBAL_LIMIT_RAD`].
+    pub fn gimbal_in_range(&self) -> bool {
+        self.gimbal_rad
+            .iter()
+            .all(|a| a.is_finite() && a.abs() <= GIMBAL_LIMIT_RAD)
+    }
+
+    /// Whether the sample can be used: every number finite and the gimbal
+    /// angles in range. Anything else is a device fault (force to zero).
+    pub fn is_valid(&self) -> bool {
+        self.is_finite() && self.gimbal_in_range()
+    }
+
+    /// The stylus roll (rad), [`DeviceSample::gimbal_rad`]`[`[`GIMBAL_ROLL`]`]`.
+    pub fn roll_rad(&self) -> f64 {
+        self.gimbal_rad[GIMBAL_ROLL]
     }
 }
 

@@ -8,7 +8,8 @@
 //!   `hdStartScheduler()`.
 //! - The servo callback (the vendor's 1 kHz scheduler thread):
 //!   `hdBeginFrame`, `hdGetDoublev(HD_CURRENT_POSITION)`,
-//!   `hdGetDoublev(HD_CURRENT_VELOCITY)`, `hdGetIntegerv(HD_CURRENT_BUTTONS)`,
+//!   `hdGetDoublev(HD_CURRENT_VELOCITY)`,
+//!   `hdGetDoublev(HD_CURRENT_GIMBAL_ANGLES)` (rad), `hdGetIntegerv(HD_CURRENT_BUTTONS)`,
 //!   `hdSetDoublev(HD_CURRENT_FORCE)` with the force last written,
 //!   `hdEndFrame`, then `hdGetError`. It publishes the pose through a
 //!   seqlock of atomics and reads the force from another; no locks, no
@@ -18,8 +19,10 @@
 //! - `stop`: zero force, `hdStopScheduler`, `hdUnschedule`,
 //!   `hdDisableDevice`.
 //!
-//! Units: the HD API works in mm, mm/s and N; the conversion to SI happens
-//! here and nowhere else.
+//! Units: the HD API works in mm, mm/s, rad and N; the conversion to SI
+//! happens here and nowhere else ([`crate::haptics::frame::HD_LENGTH_M`]).
+//! A sample with a gimbal angle beyond ±[`crate::haptics::device::GIMBAL_LIMIT_RAD`] is refused as
+//! [`DeviceError::BadData`], like a non-finite one.
 //!
 //! Constants are those of OpenHaptics 3.0 `HD/hdDefines.h`, `HD/hdDevice.h`
 //! and `HD/hdScheduler.h` as found in public copies of the SDK headers
@@ -33,6 +36,7 @@
 //! openhaptics` works (nothing is linked).
 
 use crate::haptics::device::{DeviceError, DeviceSample, HapticDevice};
+use crate::haptics::frame::HD_LENGTH_M;
 use crate::math::Vec3;
 use std::ffi::{c_char, c_int, c_uint, c_ulong, c_ushort, c_void};
 use std::sync::atomic::{fence, AtomicBool, AtomicU32, AtomicU64, Ordering};
@@ -60,6 +64,7 @@ const HD_SUCCESS: c_uint = 0x0000;
 const HD_CURRENT_BUTTONS: HdEnum = 0x2000;
 const HD_CURRENT_POSITION: HdEnum = 0x2050;
 const HD_CURRENT_VELOCITY: HdEnum = 0x2051;
+const HD_CURRENT_GIMBAL_ANGLES: HdEnum = 0x2150;
 const HD_NOMINAL_MAX_FORCE: HdEnum = 0x2603;
 const HD_NOMINAL_MAX_CONTINUOUS_FORCE: HdEnum = 0x2604;
 const HD_CURRENT_FORCE: HdEnum = 0x2700;
@@ -149,8 +154,9 @@ impl<const N: usize> SeqLock<N> {
 /// What the servo callback and the device I/O thread share (heap-pinned).
 struct Shared {
     handle: AtomicU32,
-    /// Pose: position (m) ×3, velocity (m/s) ×3, buttons, time (s).
-    pose: SeqLock<8>,
+    /// Pose: position (m) ×3, velocity (m/s) ×3, buttons, time (s), gimbal
+    /// angles (rad) ×3.
+    pose: SeqLock<11>,
     /// Force (N) ×3.
     force: SeqLock<3>,
     /// Last HD error code seen by the callback (0 = none).
@@ -170,6 +176,7 @@ unsafe extern "C" fn servo(user: *mut c_void) -> HdCallbackCode {
     let h = sh.handle.load(Ordering::Relaxed);
     let mut pos = [0.0f64; 3];
     let mut vel = [0.0f64; 3];
+    let mut gimbal = [0.0f64; 3];
     let mut buttons: c_int = 0;
     let f = if sh.running.load(Ordering::Acquire) && sh.error.load(Ordering::Relaxed) == HD_SUCCESS {
         sh.force.read(4).map_or([0.0; 3], |(f, _)| f)
@@ -178,12 +185,13 @@ unsafe extern "C" fn servo(user: *mut c_void) -> HdCallbackCode {
     };
     // SAFETY: called on the HD scheduler thread with a device initialised by
     // `start`; the pointers are to live stack arrays of the sizes the HD API
-    // writes/reads (3 doubles for position, velocity and force, 1 int for
-    // buttons).
+    // writes/reads (3 doubles for position, velocity, gimbal angles and
+    // force, 1 int for buttons).
     unsafe {
         hdBeginFrame(h);
         hdGetDoublev(HD_CURRENT_POSITION, pos.as_mut_ptr());
         hdGetDoublev(HD_CURRENT_VELOCITY, vel.as_mut_ptr());
+        hdGetDoublev(HD_CURRENT_GIMBAL_ANGLES, gimbal.as_mut_ptr());
         hdGetIntegerv(HD_CURRENT_BUTTONS, &mut buttons);
         hdSetDoublev(HD_CURRENT_FORCE, f.as_ptr());
         hdEndFrame(h);
@@ -191,16 +199,21 @@ unsafe extern "C" fn servo(user: *mut c_void) -> HdCallbackCode {
     // SAFETY: plain call, no pointers.
     let err = unsafe { hdGetError() };
     let t = crate::rt::clock::now_s();
-    // mm -> m, mm/s -> m/s: the only unit conversion in the service.
+    // mm -> m, mm/s -> m/s: the only unit conversion in the service (the
+    // gimbal angles are already in rad).
+    let mm = HD_LENGTH_M;
     sh.pose.write(&[
-        pos[0] * 1e-3,
-        pos[1] * 1e-3,
-        pos[2] * 1e-3,
-        vel[0] * 1e-3,
-        vel[1] * 1e-3,
-        vel[2] * 1e-3,
+        pos[0] * mm,
+        pos[1] * mm,
+        pos[2] * mm,
+        vel[0] * mm,
+        vel[1] * mm,
+        vel[2] * mm,
         buttons as u32 as f64,
         t,
+        gimbal[0],
+        gimbal[1],
+        gimbal[2],
     ]);
     if err.error_code != HD_SUCCESS {
         sh.error.store(err.error_code, Ordering::Release);
@@ -333,8 +346,9 @@ impl HapticDevice for OpenHapticsDevice {
             buttons: v[6] as u32,
             time_s: v[7],
             seq: frames,
+            gimbal_rad: [v[8], v[9], v[10]],
         };
-        if !s.is_finite() {
+        if !s.is_valid() {
             return Err(DeviceError::BadData);
         }
         Ok(s)

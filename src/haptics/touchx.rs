@@ -24,6 +24,12 @@
 //! - **Port energy.** ∫ max(F·v, 0) dt (delivered to the hand) and
 //!   ∫ max(−F·v, 0) dt (absorbed from it) with the true sub-step motion:
 //!   F·Δx per sub-step, so a constant force gives exactly F·(x₁ − x₀).
+//! - **Gimbal angles.** The stylus's three gimbal angles (yaw, pitch, roll
+//!   of the stylus; [`DeviceSample::gimbal_rad`]) follow a second, kinematic
+//!   script ([`TouchXSim::set_gimbal_script`], cosine-eased like the hand;
+//!   zero without one): the Touch X renders no torque, so nothing pushes
+//!   back on them. Reported quantized to `gimbal_resolution_rad` and wrapped
+//!   to (−π, π], as an absolute angle sensor reads a continuous roll.
 //! - **Fault injection** for watchdog tests: [`TouchXSim::inject_silence`]
 //!   (reads fail with [`DeviceError::Stale`] over a time window, the stylus
 //!   keeps moving) and [`TouchXSim::inject_non_finite`] (one sample with a
@@ -36,7 +42,7 @@
 //! `docs/DEVICE.md`.
 
 use crate::config::{load_toml, parse_toml, Checker, ConfigError};
-use crate::haptics::device::{DeviceError, DeviceSample, HapticDevice, PortEnergy};
+use crate::haptics::device::{wrap_angle, DeviceError, DeviceSample, HapticDevice, PortEnergy};
 use crate::math::Vec3;
 use std::path::Path;
 
@@ -75,6 +81,15 @@ pub struct TouchXParams {
     /// Longest gap between reads that is integrated (s); a longer gap is
     /// integrated over its last `max_catchup_s` only, and counted.
     pub max_catchup_s: f64,
+    /// Resolution of the reported gimbal angles (rad); 0 = no quantization.
+    /// Optional in the file (older files lack it): the default applies.
+    #[serde(default = "default_gimbal_resolution")]
+    pub gimbal_resolution_rad: f64,
+}
+
+/// 12 bits a turn: a modelling choice, no vendor figure.
+fn default_gimbal_resolution() -> f64 {
+    2.0 * std::f64::consts::PI / 4096.0
 }
 
 impl Default for TouchXParams {
@@ -94,6 +109,7 @@ impl Default for TouchXParams {
             hand_stiffness_n_per_m: 300.0,
             hand_damping_ns_per_m: 5.0,
             max_catchup_s: 0.1,
+            gimbal_resolution_rad: default_gimbal_resolution(),
         }
     }
 }
@@ -152,6 +168,13 @@ impl TouchXParams {
         c.f64_in("hand_stiffness_n_per_m", self.hand_stiffness_n_per_m, 0.0, 1e5, "N/m")?;
         c.f64_in("hand_damping_ns_per_m", self.hand_damping_ns_per_m, 0.0, 1e3, "N·s/m")?;
         c.f64_in("max_catchup_s", self.max_catchup_s, 1e-3, 10.0, "s")?;
+        c.f64_in(
+            "gimbal_resolution_rad",
+            self.gimbal_resolution_rad,
+            0.0,
+            0.1,
+            "rad (0 = no quantization)",
+        )?;
         // Semi-implicit Euler on m ẍ = −k x − c ẋ is stable for ω dt < 2 and
         // c dt / m < 2; keep a wide margin so the sim's own dynamics are
         // accurate, not merely bounded.
@@ -195,6 +218,18 @@ pub struct Waypoint {
     pub t_s: f64,
     /// Target tip position (m).
     pub position: Vec3,
+}
+
+/// One waypoint of the stylus's gimbal script: the three gimbal angles
+/// (rad, [`DeviceSample::gimbal_rad`] order: roll last) the hand holds the
+/// stylus at, at a script time (s, the same clock as [`Waypoint`]). Angles
+/// may exceed ±π: a roll of 4 rad is reported as 4 − 2π.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct GimbalWaypoint {
+    /// Script time (s).
+    pub t_s: f64,
+    /// Gimbal angles (rad).
+    pub angles_rad: [f64; 3],
 }
 
 /// Why a hand script was refused.
@@ -295,6 +330,58 @@ impl HandScript {
     }
 }
 
+/// A cosine-eased trajectory of gimbal angles (see [`HandScript`]).
+#[derive(Debug, Clone)]
+pub struct GimbalScript {
+    points: Vec<GimbalWaypoint>,
+    cursor: usize,
+}
+
+impl GimbalScript {
+    /// Checks and stores the waypoints (finite, times strictly increasing).
+    pub fn new(points: &[GimbalWaypoint]) -> Result<GimbalScript, ScriptError> {
+        if points.is_empty() {
+            return Err(ScriptError::Empty);
+        }
+        for (i, p) in points.iter().enumerate() {
+            if !p.t_s.is_finite() || !p.angles_rad.iter().all(|v| v.is_finite()) {
+                return Err(ScriptError::NonFinite(i));
+            }
+            if i > 0 && p.t_s <= points[i - 1].t_s {
+                return Err(ScriptError::NotIncreasing(i));
+            }
+        }
+        Ok(GimbalScript {
+            points: points.to_vec(),
+            cursor: 0,
+        })
+    }
+
+    /// The (unwrapped) angles at script time `t`.
+    pub fn target(&mut self, t: f64) -> [f64; 3] {
+        let p = &self.points;
+        let n = p.len();
+        if n == 1 || t <= p[0].t_s {
+            return p[0].angles_rad;
+        }
+        if t >= p[n - 1].t_s {
+            return p[n - 1].angles_rad;
+        }
+        let mut i = self.cursor.min(n - 2);
+        if p[i].t_s > t {
+            i = 0;
+        }
+        while i + 1 < n - 1 && p[i + 1].t_s <= t {
+            i += 1;
+        }
+        self.cursor = i;
+        let (a, b) = (p[i], p[i + 1]);
+        let u = (t - a.t_s) / (b.t_s - a.t_s);
+        let s = 0.5 * (1.0 - (std::f64::consts::PI * u).cos());
+        std::array::from_fn(|k| a.angles_rad[k] + (b.angles_rad[k] - a.angles_rad[k]) * s)
+    }
+}
+
 /// The simulated device's true internal state (for tests and reports; a real
 /// device does not expose it).
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -307,6 +394,8 @@ pub struct TouchXState {
     pub applied_force: Vec3,
     /// Force the hand exerts on the stylus (N), last sub-step.
     pub hand_force: Vec3,
+    /// True gimbal angles (rad, unwrapped) at the last read.
+    pub gimbal_rad: [f64; 3],
     /// Filtered RMS force √s of the thermal model (N).
     pub rms_force_n: f64,
     /// Simulated time reached (s, caller's clock).
@@ -330,6 +419,8 @@ pub struct TouchXSim {
     half: Vec3,
     dt: f64,
     script: HandScript,
+    gimbal: Option<GimbalScript>,
+    gimbal_rad: [f64; 3],
     started: bool,
     /// Caller time of the first read (script time 0), once known.
     origin_s: Option<f64>,
@@ -369,6 +460,8 @@ impl TouchXSim {
             dt: 1.0 / params.substep_hz,
             p: params,
             script,
+            gimbal: None,
+            gimbal_rad: [0.0; 3],
             started: false,
             origin_s: None,
             n: 0,
@@ -409,6 +502,7 @@ impl TouchXSim {
             velocity: self.v,
             applied_force: self.force,
             hand_force: self.hand_force,
+            gimbal_rad: self.gimbal_rad,
             rms_force_n: self.mean_f2.sqrt(),
             time_s: self.origin_s.map_or(0.0, |o| o + self.n as f64 * self.dt),
             substeps: self.n,
@@ -417,6 +511,29 @@ impl TouchXSim {
             thermal_limits: self.thermal_limits,
             catchup_skips: self.catchup_skips,
         }
+    }
+
+    /// Scripts the stylus's gimbal angles (same script clock as the hand's
+    /// waypoints); replaces any earlier gimbal script. Allocates: call before
+    /// [`HapticDevice::start`].
+    pub fn set_gimbal_script(&mut self, points: &[GimbalWaypoint]) -> Result<(), ScriptError> {
+        let mut g = GimbalScript::new(points)?;
+        self.gimbal_rad = g.target(f64::NEG_INFINITY);
+        self.gimbal = Some(g);
+        Ok(())
+    }
+
+    /// The gimbal angles as reported: quantized, wrapped to (−π, π].
+    fn reported_gimbal(&self) -> [f64; 3] {
+        let r = self.p.gimbal_resolution_rad;
+        self.gimbal_rad.map(|a| {
+            let w = wrap_angle(a);
+            if r > 0.0 {
+                wrap_angle((w / r).round() * r)
+            } else {
+                w
+            }
+        })
     }
 
     /// Fault injection: reads at caller times in `[from_s, from_s +
@@ -540,6 +657,9 @@ impl HapticDevice for TouchXSim {
         }
         let first = self.origin_s.is_none();
         self.advance(now_s);
+        if let Some(g) = self.gimbal.as_mut() {
+            self.gimbal_rad = g.target(self.n as f64 * self.dt);
+        }
         let q = self.quantize(self.x);
         if first {
             self.last_q = q;
@@ -564,12 +684,14 @@ impl HapticDevice for TouchXSim {
             buttons: 0,
             time_s: now_s,
             seq: self.seq,
+            gimbal_rad: self.reported_gimbal(),
         };
         if let Some(t) = self.nan_at_s {
             if now_s >= t {
                 self.nan_at_s = None;
                 sample.position = Vec3::new(f64::NAN, f64::NAN, f64::NAN);
                 sample.velocity = Vec3::new(f64::NAN, f64::NAN, f64::NAN);
+                sample.gimbal_rad = [f64::NAN; 3];
             }
         }
         Ok(sample)
@@ -654,6 +776,16 @@ mod tests {
             HandScript::new(&[w(0.0, 0.5)], &p).unwrap_err(),
             ScriptError::OutsideWorkspace { index: 0, .. }
         ));
+    }
+
+    #[test]
+    fn angles_wrap_to_minus_pi_exclusive_pi_inclusive() {
+        use std::f64::consts::PI;
+        assert_eq!(wrap_angle(PI), PI);
+        assert_eq!(wrap_angle(-PI), PI);
+        assert!((wrap_angle(4.0) - (4.0 - 2.0 * PI)).abs() < 1e-15);
+        assert!((wrap_angle(-7.0) - (-7.0 + 2.0 * PI)).abs() < 1e-15);
+        assert_eq!(wrap_angle(0.5), 0.5);
     }
 
     #[test]

@@ -20,6 +20,17 @@
 //! | 76     | u32      | status: 0 ok, 1 communication error, 2 fault       |
 //! | 80     | i32      | vendor error code (e.g. an HD error), 0 if none    |
 //!
+//! ## Pose datagram, version 2, 108 bytes
+//!
+//! Version 1's fields at the same offsets (with version = 2), then:
+//!
+//! | offset | type     | field                                              |
+//! |-------:|----------|----------------------------------------------------|
+//! | 84     | 3 × f64  | gimbal angles (rad), `HD_CURRENT_GIMBAL_ANGLES`    |
+//! |        |          | order: the two gimbal joints, then the stylus roll |
+//!
+//! Both versions are accepted; a version-1 pose has zero gimbal angles.
+//!
 //! ## Force datagram (service → peer), version 1, 56 bytes
 //!
 //! | offset | type     | field                                              |
@@ -40,15 +51,19 @@
 //! newest valid pose. Datagrams are rejected, and counted by reason
 //! ([`UdpCounters`]), when they are short, long, have a bad magic or version,
 //! carry a non-finite number, a position outside the configured workspace or
-//! a speed above the configured limit, or a sequence number not above the
-//! last accepted one (out of order or duplicated). A read returns
+//! a speed above the configured limit, a gimbal angle beyond
+//! ±[`GIMBAL_LIMIT_RAD`], or a sequence number not above the last accepted
+//! one (out of order or duplicated). The length picks the layout: shorter
+//! than version 1 is short, longer than version 2 long, and a datagram of
+//! one version's length whose version field names the other is a bad
+//! version. A read returns
 //! [`DeviceError::Stale`] when the newest valid pose arrived more than
 //! `max_age_s` ago; with no new datagram but a recent one it returns the same
 //! sample again (same `seq`). The decoder never panics on any bytes
 //! (property-tested).
 
 use crate::config::{load_toml, parse_toml, Checker, ConfigError};
-use crate::haptics::device::{DeviceError, DeviceSample, HapticDevice};
+use crate::haptics::device::{DeviceError, DeviceSample, HapticDevice, GIMBAL_LIMIT_RAD};
 use crate::math::Vec3;
 use std::io::ErrorKind;
 use std::net::{SocketAddr, UdpSocket};
@@ -58,10 +73,15 @@ use std::path::Path;
 pub const POSE_MAGIC: [u8; 4] = *b"NVTP";
 /// Magic of a force datagram.
 pub const FORCE_MAGIC: [u8; 4] = *b"NVTF";
-/// Datagram format version.
+/// Datagram format version 1 (the force datagram's only version, and the
+/// pose datagram without gimbal angles).
 pub const VERSION: u16 = 1;
+/// Pose datagram version 2: version 1 plus the three gimbal angles.
+pub const POSE_VERSION_2: u16 = 2;
 /// Length of a version-1 pose datagram (bytes).
 pub const POSE_LEN: usize = 84;
+/// Length of a version-2 pose datagram (bytes).
+pub const POSE_LEN_V2: usize = 108;
 /// Length of a version-1 force datagram (bytes).
 pub const FORCE_LEN: usize = 56;
 /// Force flag: the force was saturated by the service.
@@ -95,6 +115,8 @@ pub struct PoseDatagram {
     pub status: u32,
     /// Vendor error code.
     pub error_code: i32,
+    /// Gimbal angles (rad); zero in a version-1 datagram.
+    pub gimbal_rad: [f64; 3],
 }
 
 /// A decoded force datagram.
@@ -167,9 +189,35 @@ fn header(b: &[u8], len: usize, magic: [u8; 4]) -> Result<(), Reject> {
     Ok(())
 }
 
-/// Decodes a pose datagram (any bytes; never panics).
+/// Checks a pose datagram's length, magic and version; returns the version.
+fn pose_header(b: &[u8]) -> Result<u16, Reject> {
+    if b.len() < POSE_LEN {
+        return Err(Reject::Short);
+    }
+    if b.len() > POSE_LEN_V2 {
+        return Err(Reject::Long);
+    }
+    if b[0..4] != POSE_MAGIC {
+        return Err(Reject::BadMagic);
+    }
+    let v = u16_at(b, 4);
+    let want = match v {
+        VERSION => POSE_LEN,
+        POSE_VERSION_2 => POSE_LEN_V2,
+        _ => return Err(Reject::BadVersion),
+    };
+    match b.len() {
+        n if n == want => Ok(v),
+        // The other version's layout with this version's number.
+        POSE_LEN | POSE_LEN_V2 => Err(Reject::BadVersion),
+        n if n < want => Err(Reject::Short),
+        _ => Err(Reject::Long),
+    }
+}
+
+/// Decodes a pose datagram of either version (any bytes; never panics).
 pub fn decode_pose(b: &[u8]) -> Result<PoseDatagram, Reject> {
-    header(b, POSE_LEN, POSE_MAGIC)?;
+    let version = pose_header(b)?;
     let d = PoseDatagram {
         seq: u64_at(b, 8),
         device_time_s: f64_at(b, 16),
@@ -178,17 +226,45 @@ pub fn decode_pose(b: &[u8]) -> Result<PoseDatagram, Reject> {
         buttons: u32_at(b, 72),
         status: u32_at(b, 76),
         error_code: u32_at(b, 80) as i32,
+        gimbal_rad: if version == POSE_VERSION_2 {
+            vec_at(b, 84)
+        } else {
+            [0.0; 3]
+        },
     };
-    let finite = d.device_time_s.is_finite() && d.position.iter().chain(&d.velocity).all(|v| v.is_finite());
+    let finite = d.device_time_s.is_finite()
+        && d.position
+            .iter()
+            .chain(&d.velocity)
+            .chain(&d.gimbal_rad)
+            .all(|v| v.is_finite());
     if !finite {
         return Err(Reject::NonFinite);
     }
     Ok(d)
 }
 
-/// Encodes a pose datagram.
+/// Encodes a version-1 pose datagram (no gimbal angles: `d.gimbal_rad` is
+/// not sent).
 pub fn encode_pose(d: &PoseDatagram) -> [u8; POSE_LEN] {
     let mut b = [0u8; POSE_LEN];
+    write_pose_v1(d, &mut b);
+    b
+}
+
+/// Encodes a version-2 pose datagram (with the gimbal angles).
+pub fn encode_pose_v2(d: &PoseDatagram) -> [u8; POSE_LEN_V2] {
+    let mut b = [0u8; POSE_LEN_V2];
+    write_pose_v1(d, &mut b[..POSE_LEN]);
+    b[4..6].copy_from_slice(&POSE_VERSION_2.to_le_bytes());
+    for i in 0..3 {
+        b[84 + 8 * i..92 + 8 * i].copy_from_slice(&d.gimbal_rad[i].to_le_bytes());
+    }
+    b
+}
+
+/// Writes version 1's 84 bytes into `b` (exactly [`POSE_LEN`] long).
+fn write_pose_v1(d: &PoseDatagram, b: &mut [u8]) {
     b[0..4].copy_from_slice(&POSE_MAGIC);
     b[4..6].copy_from_slice(&VERSION.to_le_bytes());
     b[8..16].copy_from_slice(&d.seq.to_le_bytes());
@@ -200,7 +276,6 @@ pub fn encode_pose(d: &PoseDatagram) -> [u8; POSE_LEN] {
     b[72..76].copy_from_slice(&d.buttons.to_le_bytes());
     b[76..80].copy_from_slice(&d.status.to_le_bytes());
     b[80..84].copy_from_slice(&d.error_code.to_le_bytes());
-    b
 }
 
 /// Decodes a force datagram (any bytes; never panics).
@@ -344,6 +419,8 @@ pub struct UdpCounters {
     pub non_finite: u64,
     /// Rejected: position outside the workspace or speed above the limit.
     pub out_of_range: u64,
+    /// Rejected: a gimbal angle beyond ±[`GIMBAL_LIMIT_RAD`] (version 2).
+    pub gimbal_out_of_range: u64,
     /// Rejected: sequence number not above the last accepted one.
     pub out_of_order: u64,
     /// Times the bridge accepted a restarted peer's sequence.
@@ -373,7 +450,7 @@ pub struct UdpDevice {
     consecutive_out_of_order: u64,
     force_seq: u64,
     counters: UdpCounters,
-    buf: [u8; 2 * POSE_LEN],
+    buf: [u8; 2 * POSE_LEN_V2],
 }
 
 impl UdpDevice {
@@ -392,7 +469,7 @@ impl UdpDevice {
             consecutive_out_of_order: 0,
             force_seq: 0,
             counters: UdpCounters::default(),
-            buf: [0; 2 * POSE_LEN],
+            buf: [0; 2 * POSE_LEN_V2],
         }
     }
 
@@ -432,6 +509,10 @@ impl UdpDevice {
         };
         if !self.in_range(&d) {
             self.counters.out_of_range += 1;
+            return;
+        }
+        if d.gimbal_rad.iter().any(|a| a.abs() > GIMBAL_LIMIT_RAD) {
+            self.counters.gimbal_out_of_range += 1;
             return;
         }
         if let Some(s) = self.last_seq {
@@ -514,6 +595,7 @@ impl HapticDevice for UdpDevice {
             buttons: d.buttons,
             time_s: t,
             seq: self.sample_seq,
+            gimbal_rad: d.gimbal_rad,
         })
     }
 
@@ -594,8 +676,16 @@ mod tests {
             buttons: 3,
             status: 0,
             error_code: -5,
+            gimbal_rad: [0.0; 3],
         };
         assert_eq!(decode_pose(&encode_pose(&p)), Ok(p));
+        let p2 = PoseDatagram {
+            gimbal_rad: [0.1, -0.2, 3.0],
+            ..p
+        };
+        assert_eq!(decode_pose(&encode_pose_v2(&p2)), Ok(p2));
+        // Version 1 drops the angles.
+        assert_eq!(decode_pose(&encode_pose(&p2)), Ok(p));
         let f = ForceDatagram {
             seq: 9,
             pose_seq: 7,

@@ -296,6 +296,7 @@ impl SoakDevice {
             buttons: s.buttons,
             status: 0,
             error_code: 0,
+            gimbal_rad: [0.0; 3],
         };
         if nan {
             d.position[0] = f64::NAN;

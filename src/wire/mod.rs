@@ -10,14 +10,18 @@
 //! - [`lumen`]: what the wire touches (rigid tubes, a moving triangle
 //!   surface).
 //! - [`band`]: the banded Cholesky solve behind the implicit step.
+//! - [`drive`]: the hub drive, stylus to insertion and roll and the wire's
+//!   resistance back to the hand (`[wire.drive]` keys).
 //!
 //! The formulation and why it was chosen: docs/WIRE.md. The service wiring
-//! (device angles, report keys, the stream's polyline) lives elsewhere.
+//! (report keys, the stream's polyline) lives elsewhere.
 
 pub mod band;
+pub mod drive;
 pub mod lumen;
 pub mod rod;
 
+pub use drive::{DriveParams, HubCommand, HubDrive};
 pub use lumen::{CurvedTube, CurvedTubeShape, Lumen, LumenError, NoWall, StraightTube, TriangleLumen, WallHit};
 pub use rod::{StepReport, Wire, WireContact, WireError, WireFault};
 
@@ -68,6 +72,9 @@ pub struct WireParams {
     pub dt_s: f64,
     /// Newton iterations per step at most.
     pub newton_iterations: usize,
+    /// How the stylus drives the hub (the `[drive]` table, `[wire.drive]`
+    /// in a service file).
+    pub drive: DriveParams,
 }
 
 impl Default for WireParams {
@@ -89,6 +96,7 @@ impl Default for WireParams {
             drag_n_s_per_m2: 1e-3,
             dt_s: 1e-3,
             newton_iterations: 3,
+            drive: DriveParams::default(),
         }
     }
 }
@@ -143,7 +151,22 @@ impl WireParams {
         c.f64_in("drag_n_s_per_m2", self.drag_n_s_per_m2, 0.0, 1e3, "N·s/m²")?;
         c.f64_in("dt_s", self.dt_s, 1e-6, 0.01, "s")?;
         c.int_in("newton_iterations", self.newton_iterations, 1, 100)?;
+        self.drive.validate(path, "drive.")?;
         Ok(())
+    }
+
+    /// The fastest the hub feeds wire in or out (m/s): a quarter of the
+    /// diameter per step (see [`rod::Wire::step`]).
+    pub fn max_feed_speed_m_s(&self) -> f64 {
+        0.25 * self.diameter_m / self.dt_s
+    }
+
+    /// The most that can be inserted (m): the wire's length, or what
+    /// `max_nodes` segments hold (the hub edge may stretch to 1.5 segments),
+    /// whichever is less.
+    pub fn max_inserted_m(&self) -> f64 {
+        let h = self.segment_length_m;
+        (self.max_nodes.saturating_sub(3) as f64 * h + 1.5 * h).min(self.length_m)
     }
 
     /// Cross-section area (m²).

@@ -229,8 +229,7 @@ impl Wire {
         }
         let axis = axis / an;
         let cap = params.max_nodes;
-        let h = params.segment_length_m;
-        let max_inserted = ((cap - 3) as f64 * h + 1.5 * h).min(params.length_m);
+        let max_inserted = params.max_inserted_m();
         let mut w = Wire {
             p: params.clone(),
             cap,
