@@ -31,6 +31,33 @@ pub enum BranchedArchError {
 /// prisms of the branches (edges of 2-3 mm) split into tets of fair shape.
 pub const MIN_WALL_M: f64 = 1.0e-3;
 
+/// The thinnest wall relative to the mean length of the lumen edges at a
+/// vertex: prisms flatter than this split into tets with small dihedral
+/// angles.
+pub const MIN_WALL_PER_EDGE: f64 = 0.3;
+
+/// The mean length of the edges at each vertex (m).
+fn mean_edge_lengths(mesh: &crate::mesh::surface::SurfaceMesh) -> Vec<f64> {
+    let mut sum = vec![0.0; mesh.vertices.len()];
+    let mut count = vec![0usize; mesh.vertices.len()];
+    for t in &mesh.triangles {
+        for k in 0..3 {
+            let (a, b) = (t[k] as usize, t[(k + 1) % 3] as usize);
+            // Each interior edge is seen twice, once from each side: both
+            // ends count it twice, so the mean is unchanged.
+            let l = (mesh.vertices[a] - mesh.vertices[b]).norm();
+            sum[a] += l;
+            sum[b] += l;
+            count[a] += 1;
+            count[b] += 1;
+        }
+    }
+    sum.iter()
+        .zip(&count)
+        .map(|(s, &c)| if c > 0 { s / c as f64 } else { 0.0 })
+        .collect()
+}
+
 /// A built branched arch.
 #[derive(Debug, Clone)]
 pub struct BranchedArch {
@@ -54,8 +81,9 @@ pub fn default_wall_ratio(params: &BranchedArchParams) -> f64 {
 
 /// Builds the branched arch with `nodes` nodes (within 1 %), `layers`
 /// element layers through the wall and a wall `wall_ratio` times the local
-/// lumen radius thick (the tree's exact radius at the nearest centreline
-/// point, [`LumenTree::local_radius`]), and at least [`MIN_WALL_M`].
+/// lumen radius thick ([`LumenTree::local_radius`], which a junction's
+/// fillet takes from the branch), at least [`MIN_WALL_M`] and at least
+/// [`MIN_WALL_PER_EDGE`] times the mean lumen edge at the vertex.
 pub fn branched_arch(
     params: &BranchedArchParams,
     nodes: usize,
@@ -88,11 +116,24 @@ pub fn branched_arch(
             ..CheckOptions::default()
         },
     )?;
+    // The thickness follows the radius the surface is meshed to
+    // (LumenTree::local_radius: a junction's fillet takes the branch's), so
+    // the thin branch wall goes with the branch's finer mesh.
+    // Prisms flatter than about 1 : 4 split into tets with dihedral angles
+    // below 10°: where the mesh is coarse for the wall (the junctions of
+    // a coarse arch, meshed at the parent's size), the wall is at least
+    // MIN_WALL_PER_EDGE of the mean edge at the vertex.
+    let edge = mean_edge_lengths(&checked.mesh);
     let thickness: Vec<f64> = checked
         .mesh
         .vertices
         .iter()
-        .map(|p| (wall_ratio * tree.local_radius(p)).max(MIN_WALL_M))
+        .zip(&edge)
+        .map(|(p, &e)| {
+            (wall_ratio * tree.local_radius(p))
+                .max(MIN_WALL_M)
+                .max(MIN_WALL_PER_EDGE * e)
+        })
         .collect();
     let mut wall = build_wall_per_vertex(&checked, &thickness, layers)?;
     // Name the openings after the tree's ends (nearest centre).
