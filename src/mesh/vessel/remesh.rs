@@ -1042,6 +1042,7 @@ fn secant_count(
     tolerance: f64,
 ) -> Result<(f64, Remeshed), RemeshError> {
     let mut x = x0;
+    let (mut lo, mut hi) = (0.0f64, f64::INFINITY);
     let mut hist: Vec<(f64, usize)> = Vec::new();
     let mut best: Option<(f64, f64, Remeshed)> = None;
     for _ in 0..12 {
@@ -1066,8 +1067,18 @@ fn secant_count(
                 slope = m;
             }
         }
+        // Bracket: the largest x with too many vertices, the smallest with
+        // too few; a step outside it is replaced by bisection (in ln x).
+        if n > target {
+            lo = lo.max(x);
+        } else {
+            hi = hi.min(x);
+        }
         let step = ((target as f64).ln() - (n as f64).ln()) / slope;
-        let next = x * step.clamp(-0.5, 0.5).exp();
+        let mut next = x * step.clamp(-0.5, 0.5).exp();
+        if hi.is_finite() && lo > 0.0 && !(next > lo && next < hi) {
+            next = (lo * hi).sqrt();
+        }
         // Past saturation only once: the count there is the floor.
         x = if next > x_sat && x < x_sat { x_sat } else { next };
     }
