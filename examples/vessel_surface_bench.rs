@@ -32,6 +32,10 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         buf.extend_from_slice(&[0u8; 2]);
     }
     std::fs::File::create(&out)?.write_all(&buf)?;
-    println!("wrote {out}: {} triangles, {} vertices, grid {h_mm} mm", s.triangles.len(), s.vertices.len());
+    println!(
+        "wrote {out}: {} triangles, {} vertices, grid {h_mm} mm",
+        s.triangles.len(),
+        s.vertices.len()
+    );
     Ok(())
 }
