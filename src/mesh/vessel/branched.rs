@@ -58,6 +58,29 @@ fn mean_edge_lengths(mesh: &crate::mesh::surface::SurfaceMesh) -> Vec<f64> {
         .collect()
 }
 
+/// `passes` Jacobi steps replacing each value by the mean over the vertex
+/// and its neighbours, never below its own value before the step: the wall
+/// thickness changes over a few edges where the radius it follows jumps
+/// (a junction), so neighbouring prisms' tops do not tilt.
+fn smooth_over_neighbours(mesh: &crate::mesh::surface::SurfaceMesh, mut t: Vec<f64>, passes: usize) -> Vec<f64> {
+    let n = t.len();
+    for _ in 0..passes {
+        let mut sum = t.clone();
+        let mut count = vec![1usize; n];
+        for tri in &mesh.triangles {
+            for k in 0..3 {
+                let (a, b) = (tri[k] as usize, tri[(k + 1) % 3] as usize);
+                sum[a] += t[b];
+                count[a] += 1;
+                sum[b] += t[a];
+                count[b] += 1;
+            }
+        }
+        t = (0..n).map(|v| (sum[v] / count[v] as f64).max(t[v])).collect();
+    }
+    t
+}
+
 /// A built branched arch.
 #[derive(Debug, Clone)]
 pub struct BranchedArch {
@@ -83,7 +106,9 @@ pub fn default_wall_ratio(params: &BranchedArchParams) -> f64 {
 /// element layers through the wall and a wall `wall_ratio` times the local
 /// lumen radius thick ([`LumenTree::local_radius`], which a junction's
 /// fillet takes from the branch), at least [`MIN_WALL_M`] and at least
-/// [`MIN_WALL_PER_EDGE`] times the mean lumen edge at the vertex.
+/// [`MIN_WALL_PER_EDGE`] times the mean lumen edge at the vertex; then
+/// four passes of a one-ring mean that only ever thickens, so the wall
+/// does not step where the radius it follows jumps (at a junction).
 pub fn branched_arch(
     params: &BranchedArchParams,
     nodes: usize,
@@ -135,6 +160,7 @@ pub fn branched_arch(
                 .max(MIN_WALL_PER_EDGE * e)
         })
         .collect();
+    let thickness = smooth_over_neighbours(&checked.mesh, thickness, 4);
     let mut wall = build_wall_per_vertex(&checked, &thickness, layers)?;
     // Name the openings after the tree's ends (nearest centre).
     let mut renamed = Vec::new();
