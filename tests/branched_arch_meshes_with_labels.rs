@@ -4,21 +4,35 @@
 //! min dihedral ≥ 10°, the named openings and wall sets, and segment
 //! labels on every node that survive a file round trip.
 
-use nvtmm::mesh::vessel::branched::{branched_arch, default_wall_ratio};
-use nvtmm::mesh::vessel::implicit::{BranchedArchParams, SEGMENT_NAMES};
+use nvtmm::mesh::surface::SurfaceMesh;
+use nvtmm::mesh::vessel::branched::{branched_arch, default_wall_ratio, BranchedArch};
+use nvtmm::mesh::vessel::implicit::{label_vertices, nodes_around, BranchedArchParams, LumenTree, SEGMENT_NAMES};
 
 fn check(nodes: usize) {
-    let params = BranchedArchParams::default();
-    let b = branched_arch(&params, nodes, 1, default_wall_ratio(&params)).expect("branched arch");
-    let m = &b.wall.mesh;
-    let err = (m.num_nodes() as f64 / nodes as f64 - 1.0).abs();
-    assert!(err <= 0.01, "{} nodes for {nodes}", m.num_nodes());
-    assert_eq!(m.report().inverted, 0);
+    let b = arch(nodes);
     assert!(
         b.wall.quality.min_dihedral_deg >= 10.0,
         "min dihedral {:.2}° at {nodes} nodes",
         b.wall.quality.min_dihedral_deg
     );
+}
+
+/// The arch at `nodes`: count within 1 %, no inverted tet, sets and labels
+/// (everything but the dihedral bound).
+fn arch(nodes: usize) -> BranchedArch {
+    let params = BranchedArchParams::default();
+    let b = branched_arch(&params, nodes, 1, default_wall_ratio(&params)).expect("branched arch");
+    let m = &b.wall.mesh;
+    println!(
+        "{nodes}: {} nodes, {} tets, min dihedral {:.2}°, max aspect {:.2}",
+        m.num_nodes(),
+        m.tets().len(),
+        b.wall.quality.min_dihedral_deg,
+        b.wall.quality.max_aspect_ratio
+    );
+    let err = (m.num_nodes() as f64 / nodes as f64 - 1.0).abs();
+    assert!(err <= 0.01, "{} nodes for {nodes}", m.num_nodes());
+    assert_eq!(m.report().inverted, 0);
     for set in [
         "inlet",
         "outlet_descending",
@@ -66,6 +80,42 @@ fn check(nodes: usize) {
     let back = nvtmm::mesh::io::read_mesh(&path).unwrap();
     assert_eq!(back.segment_labels(), m.segment_labels());
     assert_eq!(back.node_sets(), m.node_sets());
+    b
+}
+
+/// At 1458 nodes (729 lumen vertices) even the capped size gives too many
+/// vertices, so the cap factor itself is searched; every vessel must still
+/// keep eight vertices around ([`nodes_around`]).
+#[test]
+fn branched_arch_at_1458_nodes_counts_sets_and_labels() {
+    let b = arch(1458);
+    let m = &b.wall.mesh;
+    let tree = LumenTree::arch(&BranchedArchParams::default()).unwrap();
+    let n = m.node_set("inner_wall").unwrap().len();
+    let lumen = SurfaceMesh {
+        vertices: m.rest()[..n].to_vec(),
+        triangles: lumen_triangles(m, n),
+    };
+    let labels = label_vertices(&tree, &lumen.vertices);
+    let around = nodes_around(&tree, &lumen, &labels);
+    println!("nodes around: {around:?}");
+    assert!(around.iter().all(|&k| (8..usize::MAX).contains(&k)), "{around:?}");
+}
+
+#[test]
+#[ignore = "issue 14 open: at 1458 nodes the worst tet's min dihedral is 8.5° (coarse concave junction fillets; aorta edges ~11 mm, 8 around, over a 2 mm wall); the bound is 10°"]
+fn branched_arch_at_1458_nodes() {
+    check(1458);
+}
+
+/// The inner-wall triangles of a one-layer wall: the boundary faces of the
+/// mesh whose three nodes are all lumen nodes.
+fn lumen_triangles(m: &nvtmm::mesh::TetMesh, n: usize) -> Vec<[u32; 3]> {
+    m.surface()
+        .iter()
+        .filter(|f| f.iter().all(|&v| (v as usize) < n))
+        .copied()
+        .collect()
 }
 
 #[test]

@@ -62,6 +62,17 @@ fn arch_tensor_mass_equals_fem() {
     compare(&arch.mesh, 9, 0.15);
 }
 
+/// The branched arch (the vessel pipeline's wall, with its three
+/// supra-aortic branches) at the paper's smallest size.
+#[test]
+fn branched_arch_tensor_mass_equals_fem() {
+    use nvtmm::mesh::vessel::branched::{branched_arch, default_wall_ratio};
+    use nvtmm::mesh::vessel::implicit::BranchedArchParams;
+    let p = BranchedArchParams::default();
+    let b = branched_arch(&p, 1458, 1, default_wall_ratio(&p)).expect("branched arch");
+    compare(&b.wall.mesh, 9, 0.15);
+}
+
 #[test]
 fn rest_tangent_is_linear_tensor_mass() {
     let mesh = block(2, 2, 1, 0.01);

@@ -5,8 +5,9 @@ use nvtmm::mesh::io::{read_mesh_scaled, write_mesh};
 use nvtmm::mesh::quality::MeshQuality;
 use nvtmm::mesh::render::{render_surface, write_png, RenderOptions};
 use nvtmm::mesh::surface::{read_and_check, CheckOptions};
-use nvtmm::mesh::vessel::caps::{open_surface, CapOptions, CutPlane};
-use nvtmm::mesh::vessel::wall::{build_wall, Thickness, WallOptions};
+use nvtmm::mesh::vessel::caps::CutPlane;
+use nvtmm::mesh::vessel::pipeline::{mesh_vessel, SurfaceSize, VesselOptions};
+use nvtmm::mesh::vessel::wall::{Thickness, WallOptions};
 use nvtmm::mesh::TetMesh;
 use std::path::Path;
 use std::time::Instant;
@@ -128,11 +129,11 @@ fn vec_fmt(v: &nvtmm::math::Vec3, scale: f64, prec: usize) -> String {
 pub fn vessel(
     surface: &Path,
     out: &Path,
-    wall_thickness: Option<f64>,
-    wall_ratio: Option<f64>,
+    (wall_thickness, wall_ratio): (Option<f64>, Option<f64>),
     layers: usize,
     scale: f64,
     cuts: &[String],
+    size: SurfaceSize,
 ) -> Result<()> {
     let t0 = Instant::now();
     // Refuse an unknown output format before any work.
@@ -148,11 +149,22 @@ pub fn vessel(
         (Some(t), None) => Thickness::Absolute(t),
         (None, None) => WallOptions::default().thickness,
     };
-    let checked = read_and_check(surface, scale, &CheckOptions::default())?;
-    let opened =
-        open_surface(&checked, &cuts, &CapOptions::default()).map_err(|e| format!("{}: {e}", surface.display()))?;
-    let wall = build_wall(&opened.surface, &WallOptions { thickness, layers })
-        .map_err(|e| format!("{}: {e}", surface.display()))?;
+    let checked = read_and_check(
+        surface,
+        scale,
+        &CheckOptions {
+            scale,
+            ..CheckOptions::default()
+        },
+    )?;
+    let opts = VesselOptions {
+        wall: WallOptions { thickness, layers },
+        size,
+        cuts,
+        ..VesselOptions::default()
+    };
+    let opened = mesh_vessel(&checked, &opts).map_err(|e| format!("{}: {e}", surface.display()))?;
+    let wall = &opened.wall;
     write_mesh(&wall.mesh, out)?;
     let m = &wall.mesh;
     println!(
@@ -165,6 +177,14 @@ pub fn vessel(
         wall.thickness_range.1 * 1e3,
         t0.elapsed().as_secs_f64()
     );
+    if let Some((st, s)) = &opened.remesh {
+        println!(
+            "  remeshed lumen: {} vertices, target edge {:.3} mm (capped for 8 around), min angle {:.1}°",
+            st.vertices,
+            s * 1e3,
+            st.min_angle_deg
+        );
+    }
     for (k, pieces) in opened.dropped_pieces.iter().enumerate() {
         if !pieces.is_empty() {
             println!(
@@ -191,6 +211,15 @@ pub fn vessel(
             o.area * 1e6,
             o.nodes
         );
+    }
+    if let Some((names, label)) = m.segment_labels() {
+        for (k, name) in names.iter().enumerate() {
+            println!(
+                "  segment {:<16} {} nodes",
+                name,
+                label.iter().filter(|&&l| l as usize == k).count()
+            );
+        }
     }
     let q = &wall.quality;
     println!("  volume             {:.6e} m^3", m.total_volume());

@@ -24,6 +24,17 @@ pub struct Built {
     pub roi_to_full: Option<Vec<u32>>,
 }
 
+/// The wall of `[mesh] vessel` and where it came from.
+#[derive(Debug, Clone)]
+pub struct VesselBuild {
+    /// The wall.
+    pub mesh: TetMesh,
+    /// Whether it was read from the cache.
+    pub cache_hit: bool,
+    /// The cache file.
+    pub path: std::path::PathBuf,
+}
+
 impl Scene {
     /// Builds the mesh.
     pub fn build_mesh(&self) -> Result<TetMesh, SceneError> {
@@ -36,6 +47,9 @@ impl Scene {
         if let Some(b) = &m.block {
             return block(b.cells, b.size).map_err(|e| self.err("mesh.block", e.to_string()));
         }
+        if m.vessel.is_some() {
+            return self.vessel_mesh().map(|v| v.mesh);
+        }
         let file = m.file.as_ref().ok_or_else(|| self.err("mesh", "no mesh source"))?;
         let full = if file.is_absolute() {
             file.clone()
@@ -43,6 +57,116 @@ impl Scene {
             self.base_dir.join(file)
         };
         read_mesh_scaled(&full, m.scale).map_err(|e| self.err("mesh.file", e.to_string()))
+    }
+
+    /// The cache key of `[mesh] vessel`: FNV-1a 64 of a tag, the surface
+    /// file's bytes and every option (thickness, layers, size, scale).
+    pub fn vessel_key(&self) -> Result<u64, SceneError> {
+        let v = self
+            .mesh
+            .vessel
+            .as_ref()
+            .ok_or_else(|| self.err("mesh.vessel", "not given"))?;
+        let path = self.resolve(&v.surface);
+        let bytes =
+            std::fs::read(&path).map_err(|e| self.err("mesh.vessel.surface", format!("{}: {e}", path.display())))?;
+        let mut h = crate::reduced::cache::Fnv1a::default();
+        h.str("nvtmm vessel mesh v1");
+        h.u64(bytes.len() as u64);
+        h.bytes(&bytes);
+        let opt = |h: &mut crate::reduced::cache::Fnv1a, x: Option<f64>| match x {
+            Some(x) => {
+                h.u64(1);
+                h.f64(x);
+            }
+            None => h.u64(0),
+        };
+        opt(&mut h, v.wall_thickness);
+        opt(&mut h, v.wall_ratio);
+        h.u64(v.layers as u64);
+        opt(&mut h, v.nodes.map(|n| n as f64));
+        opt(&mut h, v.edge_length);
+        h.f64(v.scale);
+        Ok(h.finish())
+    }
+
+    fn resolve(&self, p: &std::path::Path) -> std::path::PathBuf {
+        if p.is_absolute() {
+            p.to_path_buf()
+        } else {
+            self.base_dir.join(p)
+        }
+    }
+
+    /// The wall of `[mesh] vessel`: read from the cache
+    /// (`<cache_dir>/vessel-<key>.vtu`) if there, else meshed from the
+    /// surface and written there (through a temporary file and a rename).
+    /// A cached file that cannot be read is meshed again. Errors name the
+    /// key (`mesh.vessel.…`) and the surface.
+    pub fn vessel_mesh(&self) -> Result<VesselBuild, SceneError> {
+        use crate::mesh::surface::{read_and_check, CheckOptions};
+        use crate::mesh::vessel::pipeline::{mesh_vessel, SurfaceSize, VesselOptions};
+        use crate::mesh::vessel::wall::{Thickness, WallOptions};
+        let v = self
+            .mesh
+            .vessel
+            .as_ref()
+            .ok_or_else(|| self.err("mesh.vessel", "not given"))?;
+        let key = self.vessel_key()?;
+        let dir = self.cache_dir();
+        let path = dir.join(format!("vessel-{key:016x}.vtu"));
+        if path.exists() {
+            if let Ok(mesh) = crate::mesh::io::read_mesh(&path) {
+                return Ok(VesselBuild {
+                    mesh,
+                    cache_hit: true,
+                    path,
+                });
+            }
+        }
+        let surface = self.resolve(&v.surface);
+        let checked = read_and_check(
+            &surface,
+            v.scale,
+            &CheckOptions {
+                scale: v.scale,
+                ..CheckOptions::default()
+            },
+        )
+        .map_err(|e| self.err("mesh.vessel.surface", e.to_string()))?;
+        let thickness = match (v.wall_thickness, v.wall_ratio) {
+            (_, Some(f)) => Thickness::Ratio(f),
+            (Some(t), None) => Thickness::Absolute(t),
+            (None, None) => WallOptions::default().thickness,
+        };
+        let size = match (v.nodes, v.edge_length) {
+            (Some(n), _) => SurfaceSize::Nodes(n),
+            (None, Some(e)) => SurfaceSize::EdgeLength(e),
+            (None, None) => SurfaceSize::Input,
+        };
+        let opts = VesselOptions {
+            wall: WallOptions {
+                thickness,
+                layers: v.layers,
+            },
+            size,
+            ..VesselOptions::default()
+        };
+        let built =
+            mesh_vessel(&checked, &opts).map_err(|e| self.err("mesh.vessel", format!("{}: {e}", surface.display())))?;
+        let mesh = built.wall.mesh;
+        std::fs::create_dir_all(&dir)
+            .map_err(|e| self.err("mesh.vessel", format!("cache directory {}: {e}", dir.display())))?;
+        let tmp = dir.join(format!("vessel-{key:016x}.{}.tmp.vtu", std::process::id()));
+        crate::mesh::io::write_mesh(&mesh, &tmp)
+            .map_err(|e| e.to_string())
+            .and_then(|_| std::fs::rename(&tmp, &path).map_err(|e| e.to_string()))
+            .map_err(|e| self.err("mesh.vessel", format!("caching the wall in {}: {e}", path.display())))?;
+        Ok(VesselBuild {
+            mesh,
+            cache_hit: false,
+            path,
+        })
     }
 
     /// Builds the mesh the scene simulates: the whole mesh, or with a

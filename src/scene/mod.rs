@@ -44,9 +44,43 @@ pub struct MeshConfig {
     pub block: Option<BlockConfig>,
     /// A mesh file (.msh .vtk .vtu .node/.ele), relative to the scene file.
     pub file: Option<PathBuf>,
+    /// A vessel wall meshed at load from a lumen surface
+    /// ([`crate::mesh::vessel::pipeline`]), cached on disk.
+    pub vessel: Option<VesselConfig>,
     /// Factor applied to the file's coordinates (0.001 for millimetres).
     #[serde(default = "one")]
     pub scale: f64,
+}
+
+/// `[mesh] vessel = { surface = "…", … }`: the options of `nvtmm mesh
+/// vessel`. The wall is meshed when the scene is built and cached in the
+/// basis cache directory ([`Scene::cache_dir`]) as
+/// `vessel-<key>.vtu`, the key a hash of the surface file's bytes and
+/// these options ([`Scene::vessel_key`]).
+#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct VesselConfig {
+    /// The lumen surface (.stl .obj .ply .vtk .vtp), relative to the scene file.
+    pub surface: PathBuf,
+    /// Wall thickness (m); default 1.5 mm unless `wall_ratio` is given.
+    pub wall_thickness: Option<f64>,
+    /// Wall thickness as a fraction of the local lumen radius.
+    pub wall_ratio: Option<f64>,
+    /// Element layers through the wall.
+    #[serde(default = "one_usize")]
+    pub layers: usize,
+    /// Node count of the wall (within 2 %); the surface's own triangles if
+    /// neither this nor `edge_length` is given.
+    pub nodes: Option<usize>,
+    /// Lumen edge length (m).
+    pub edge_length: Option<f64>,
+    /// Factor applied to the surface's coordinates (0.001 for millimetres).
+    #[serde(default = "one")]
+    pub scale: f64,
+}
+
+fn one_usize() -> usize {
+    1
 }
 
 /// A box mesh.

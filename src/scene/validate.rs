@@ -7,9 +7,44 @@ impl Scene {
     /// Checks every key against its allowed range.
     pub fn validate(&self) -> Result<(), SceneError> {
         let m = &self.mesh;
-        let sources = m.arch_nodes.is_some() as u8 + m.block.is_some() as u8 + m.file.is_some() as u8;
+        let sources =
+            m.arch_nodes.is_some() as u8 + m.block.is_some() as u8 + m.file.is_some() as u8 + m.vessel.is_some() as u8;
         if sources != 1 {
-            return Err(self.err("mesh", "give exactly one of arch_nodes, block, file"));
+            return Err(self.err("mesh", "give exactly one of arch_nodes, block, file, vessel"));
+        }
+        if let Some(v) = &m.vessel {
+            if v.wall_thickness.is_some() && v.wall_ratio.is_some() {
+                return Err(self.err("mesh.vessel", "give wall_thickness or wall_ratio, not both"));
+            }
+            if let Some(t) = v.wall_thickness {
+                if !(t.is_finite() && t > 0.0 && t <= 0.05) {
+                    return Err(self.err("mesh.vessel.wall_thickness", format!("{t}: must be in (0, 0.05] m")));
+                }
+            }
+            if let Some(f) = v.wall_ratio {
+                if !(f.is_finite() && f > 0.0 && f <= 2.0) {
+                    return Err(self.err("mesh.vessel.wall_ratio", format!("{f}: must be in (0, 2]")));
+                }
+            }
+            if !(1..=64).contains(&v.layers) {
+                return Err(self.err("mesh.vessel.layers", format!("{}: must be in 1..=64", v.layers)));
+            }
+            if v.nodes.is_some() && v.edge_length.is_some() {
+                return Err(self.err("mesh.vessel", "give nodes or edge_length, not both"));
+            }
+            if let Some(n) = v.nodes {
+                if !(32..=2_000_000).contains(&n) {
+                    return Err(self.err("mesh.vessel.nodes", format!("{n}: must be in 32..=2000000")));
+                }
+            }
+            if let Some(e) = v.edge_length {
+                if !(e.is_finite() && e > 0.0 && e <= 0.1) {
+                    return Err(self.err("mesh.vessel.edge_length", format!("{e}: must be in (0, 0.1] m")));
+                }
+            }
+            if !(v.scale.is_finite() && v.scale > 0.0) {
+                return Err(self.err("mesh.vessel.scale", format!("{}: must be finite and > 0", v.scale)));
+            }
         }
         if let Some(n) = m.arch_nodes {
             if !(crate::mesh::arch::MIN_NODES..=crate::mesh::arch::MAX_NODES).contains(&n) {

@@ -31,6 +31,56 @@ pub enum BranchedArchError {
 /// prisms of the branches (edges of 2-3 mm) split into tets of fair shape.
 pub const MIN_WALL_M: f64 = 1.0e-3;
 
+/// The thinnest wall relative to the mean length of the lumen edges at a
+/// vertex: prisms flatter than this split into tets with small dihedral
+/// angles.
+pub const MIN_WALL_PER_EDGE: f64 = 0.3;
+
+/// The mean length of the edges at each vertex (m).
+fn mean_edge_lengths(mesh: &crate::mesh::surface::SurfaceMesh) -> Vec<f64> {
+    let mut sum = vec![0.0; mesh.vertices.len()];
+    let mut count = vec![0usize; mesh.vertices.len()];
+    for t in &mesh.triangles {
+        for k in 0..3 {
+            let (a, b) = (t[k] as usize, t[(k + 1) % 3] as usize);
+            // Each interior edge is seen twice, once from each side: both
+            // ends count it twice, so the mean is unchanged.
+            let l = (mesh.vertices[a] - mesh.vertices[b]).norm();
+            sum[a] += l;
+            sum[b] += l;
+            count[a] += 1;
+            count[b] += 1;
+        }
+    }
+    sum.iter()
+        .zip(&count)
+        .map(|(s, &c)| if c > 0 { s / c as f64 } else { 0.0 })
+        .collect()
+}
+
+/// `passes` Jacobi steps replacing each value by the mean over the vertex
+/// and its neighbours, never below its own value before the step: the wall
+/// thickness changes over a few edges where the radius it follows jumps
+/// (a junction), so neighbouring prisms' tops do not tilt.
+fn smooth_over_neighbours(mesh: &crate::mesh::surface::SurfaceMesh, mut t: Vec<f64>, passes: usize) -> Vec<f64> {
+    let n = t.len();
+    for _ in 0..passes {
+        let mut sum = t.clone();
+        let mut count = vec![1usize; n];
+        for tri in &mesh.triangles {
+            for k in 0..3 {
+                let (a, b) = (tri[k] as usize, tri[(k + 1) % 3] as usize);
+                sum[a] += t[b];
+                count[a] += 1;
+                sum[b] += t[a];
+                count[b] += 1;
+            }
+        }
+        t = (0..n).map(|v| (sum[v] / count[v] as f64).max(t[v])).collect();
+    }
+    t
+}
+
 /// A built branched arch.
 #[derive(Debug, Clone)]
 pub struct BranchedArch {
@@ -54,8 +104,11 @@ pub fn default_wall_ratio(params: &BranchedArchParams) -> f64 {
 
 /// Builds the branched arch with `nodes` nodes (within 1 %), `layers`
 /// element layers through the wall and a wall `wall_ratio` times the local
-/// lumen radius thick (the tree's exact radius at the nearest centreline
-/// point, [`LumenTree::local_radius`]), and at least [`MIN_WALL_M`].
+/// lumen radius thick ([`LumenTree::local_radius`], which a junction's
+/// fillet takes from the branch), at least [`MIN_WALL_M`] and at least
+/// [`MIN_WALL_PER_EDGE`] times the mean lumen edge at the vertex; then
+/// four passes of a one-ring mean that only ever thickens, so the wall
+/// does not step where the radius it follows jumps (at a junction).
 pub fn branched_arch(
     params: &BranchedArchParams,
     nodes: usize,
@@ -88,12 +141,26 @@ pub fn branched_arch(
             ..CheckOptions::default()
         },
     )?;
+    // The thickness follows the radius the surface is meshed to
+    // (LumenTree::local_radius: a junction's fillet takes the branch's), so
+    // the thin branch wall goes with the branch's finer mesh.
+    // Prisms flatter than about 1 : 4 split into tets with dihedral angles
+    // below 10°: where the mesh is coarse for the wall (the junctions of
+    // a coarse arch, meshed at the parent's size), the wall is at least
+    // MIN_WALL_PER_EDGE of the mean edge at the vertex.
+    let edge = mean_edge_lengths(&checked.mesh);
     let thickness: Vec<f64> = checked
         .mesh
         .vertices
         .iter()
-        .map(|p| (wall_ratio * tree.local_radius(p)).max(MIN_WALL_M))
+        .zip(&edge)
+        .map(|(p, &e)| {
+            (wall_ratio * tree.local_radius(p))
+                .max(MIN_WALL_M)
+                .max(MIN_WALL_PER_EDGE * e)
+        })
         .collect();
+    let thickness = smooth_over_neighbours(&checked.mesh, thickness, 4);
     let mut wall = build_wall_per_vertex(&checked, &thickness, layers)?;
     // Name the openings after the tree's ends (nearest centre).
     let mut renamed = Vec::new();

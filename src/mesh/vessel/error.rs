@@ -88,6 +88,21 @@ pub enum VesselError {
         /// Its estimated concave curvature radius (m; infinite if convex).
         curvature_radius: f64,
     },
+    /// The node count asked for cannot keep eight vertices around the
+    /// thinnest vessel.
+    #[error(
+        "{nodes} nodes are too few for this surface: keeping 8 nodes around its thinnest vessel \
+         (lumen radius {:.3} mm) takes at least about {fewest} nodes; ask for more (--nodes) or give an --edge-length",
+        thinnest_radius * 1e3
+    )]
+    TooCoarse {
+        /// The node count asked for.
+        nodes: usize,
+        /// The fewest nodes the size cap gives.
+        fewest: usize,
+        /// The smallest local lumen radius (m).
+        thinnest_radius: f64,
+    },
     /// The tetrahedral mesh was refused (should not happen after the checks above).
     #[error("building the tetrahedral wall: {0}")]
     Mesh(#[from] TopologyError),

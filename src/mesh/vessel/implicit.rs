@@ -32,7 +32,9 @@
 //! `h = max(k − |a − b|, 0) / k` (blend radius k), which rounds each junction
 //! over about k.
 
-use super::remesh::{graded_size, remesh, remesh_to_vertex_count, RemeshError, RemeshOptions, RemeshStats};
+use super::remesh::{
+    graded_size, remesh, remesh_to_vertex_count, remesh_to_vertex_count_scaled, RemeshError, RemeshOptions, RemeshStats,
+};
 use crate::math::Vec3;
 use crate::mesh::arch::ArchParams;
 use crate::mesh::surface::{check_surface, BoundaryLoop, CheckOptions, SurfaceDefect, SurfaceMesh};
@@ -119,6 +121,15 @@ pub enum ImplicitError {
     /// Remeshing failed.
     #[error("remeshing the lumen: {0}")]
     Remesh(#[from] RemeshError),
+    /// The vertex count asked for is too small to keep enough vertices
+    /// around every vessel.
+    #[error("{vertices} lumen vertices are too few for this tree: {what}; ask for more nodes")]
+    TooCoarse {
+        /// The vertex count asked for.
+        vertices: usize,
+        /// What fell short.
+        what: String,
+    },
     /// An opening of the tree was not found on the surface.
     #[error("the lumen surface has {found} openings, the tree has {expected} ends")]
     Openings {
@@ -403,16 +414,59 @@ impl LumenTree {
         f
     }
 
-    /// The lumen radius of the vessel whose wall is nearest to p (m).
+    /// The lumen radius the surface is meshed to at p (m): the radius of
+    /// the vessel whose wall is nearest to p, or the smallest radius of the
+    /// vessels whose walls pass within one blend radius of p, if smaller.
+    /// A junction's fillet, which curves with about the blend radius, is
+    /// thus meshed at the branch's size: at the parent's, its vertex
+    /// normals would differ by 60° across one triangle and the wall's
+    /// prisms there would shear into flat tets.
     pub fn local_radius(&self, p: &Vec3) -> f64 {
         let mut best = (f64::INFINITY, 0.0);
+        let mut near = f64::INFINITY;
         for s in &self.segments {
             let (d, _, r) = tube_query(&s.points, &s.radii, p);
             if d.abs() < best.0 {
                 best = (d.abs(), r);
             }
+            if d.abs() <= self.blend {
+                near = near.min(r);
+            }
         }
-        best.1
+        best.1.min(near)
+    }
+
+    /// The segment label of p ([`label_vertices`]) and the lumen radius of
+    /// that segment at its centreline point nearest to p (m): the radius the
+    /// size and the wall thickness of the branched arch follow, so a
+    /// junction (labelled with the parent) is meshed and walled like the
+    /// parent, and a branch like itself from where its label starts.
+    pub fn label_and_radius(&self, p: &Vec3) -> (usize, f64) {
+        let mut best = (f64::INFINITY, 0usize, 0.0, 0.0);
+        for (i, s) in self.segments.iter().enumerate() {
+            let (d, sl, r) = tube_query(&s.points, &s.radii, p);
+            if d.abs() < best.0 {
+                best = (d.abs(), i, sl, r);
+            }
+        }
+        let (_, i, sl, r) = best;
+        match self
+            .segments
+            .get(i)
+            .and_then(|s| s.parent.filter(|_| sl < s.proper_from))
+        {
+            Some(parent) => (parent, self.segment_radius(parent, p)),
+            None => (i, r),
+        }
+    }
+
+    /// The lumen radius of segment `segment` at the point of its centreline
+    /// nearest to p (m); 0 for an index out of range.
+    pub fn segment_radius(&self, segment: usize, p: &Vec3) -> f64 {
+        self.segments
+            .get(segment)
+            .map(|s| tube_query(&s.points, &s.radii, p).2)
+            .unwrap_or(0.0)
     }
 
     /// The openings of the tree: the aortic root (`inlet`), the descending
@@ -452,6 +506,14 @@ impl LumenTree {
         out
     }
 
+    /// Largest lumen radius of the tree (m).
+    pub fn max_radius(&self) -> f64 {
+        self.segments
+            .iter()
+            .flat_map(|s| s.radii.iter().copied())
+            .fold(0.0, f64::max)
+    }
+
     /// Smallest lumen radius of the tree (m).
     pub fn min_radius(&self) -> f64 {
         self.segments
@@ -484,25 +546,7 @@ impl LumenTree {
 /// except that points of a branch before its proper start (the blended
 /// junction) go to the parent.
 pub fn label_vertices(tree: &LumenTree, points: &[Vec3]) -> Vec<u8> {
-    points
-        .iter()
-        .map(|p| {
-            let mut best = (f64::INFINITY, 0usize, 0.0);
-            for (i, s) in tree.segments.iter().enumerate() {
-                let (d, sl, _) = tube_query(&s.points, &s.radii, p);
-                if d.abs() < best.0 {
-                    best = (d.abs(), i, sl);
-                }
-            }
-            let (_, mut i, sl) = best;
-            if let Some(parent) = tree.segments[i].parent {
-                if sl < tree.segments[i].proper_from {
-                    i = parent;
-                }
-            }
-            i as u8
-        })
-        .collect()
+    points.iter().map(|p| tree.label_and_radius(p).0 as u8).collect()
 }
 
 /// An opening of the lumen surface with its name.
@@ -849,9 +893,78 @@ pub fn lumen_surface(tree: &LumenTree, size: f64) -> Result<LumenSurface, Implic
     finish(tree, iso.triangles.len(), r)
 }
 
+/// The fewest vertices around each vessel of `tree` that
+/// [`lumen_surface_with_vertices`] accepts.
+pub const MIN_NODES_AROUND: usize = 8;
+
+/// How many vertices each segment of `tree` keeps around, at its thinnest:
+/// the surface is cut by planes normal to the segment's centreline at each
+/// centreline point (of a branch: past its proper start plus one radius),
+/// and at each cut the vertices of that segment's label just before the
+/// plane, at the ends of the edges it crosses within 1.5 radii of the axis,
+/// are counted (a ring of k vertices counts k). The smallest count over the
+/// cuts and over the segment's openings is returned per segment
+/// (`usize::MAX` for a segment with no cut).
+pub fn nodes_around(tree: &LumenTree, mesh: &SurfaceMesh, labels: &[u8]) -> Vec<usize> {
+    let mut edges: Vec<(u32, u32)> = mesh
+        .triangles
+        .iter()
+        .flat_map(|t| (0..3).map(move |k| (t[k].min(t[(k + 1) % 3]), t[k].max(t[(k + 1) % 3]))))
+        .collect();
+    edges.sort_unstable();
+    edges.dedup();
+    let label = |v: u32| labels.get(v as usize).copied().unwrap_or(u8::MAX) as usize;
+    let mut out = vec![usize::MAX; tree.segments.len()];
+    let mut below = Vec::new();
+    for (si, seg) in tree.segments.iter().enumerate() {
+        let own: Vec<(u32, u32)> = edges
+            .iter()
+            .copied()
+            .filter(|&(a, b)| label(a) == si && label(b) == si)
+            .collect();
+        let n = seg.points.len();
+        let mut arc = 0.0;
+        for i in 1..n.saturating_sub(1) {
+            arc += (seg.points[i] - seg.points[i - 1]).norm();
+            let r = seg.radii[i];
+            if seg.parent.is_some() && arc < seg.proper_from + r {
+                continue;
+            }
+            let p = seg.points[i];
+            let axis = (seg.points[i + 1] - seg.points[i - 1]).normalize();
+            below.clear();
+            for &(a, b) in &own {
+                let (pa, pb) = (mesh.vertices[a as usize], mesh.vertices[b as usize]);
+                let (da, db) = ((pa - p).dot(&axis), (pb - p).dot(&axis));
+                if (da < 0.0) != (db < 0.0) {
+                    let q = pa + (pb - pa) * (da / (da - db));
+                    if (q - p).norm() < 1.5 * r {
+                        below.push(if da < 0.0 { a } else { b });
+                    }
+                }
+            }
+            below.sort_unstable();
+            below.dedup();
+            if below.len() >= 3 {
+                out[si] = out[si].min(below.len());
+            }
+        }
+    }
+    out
+}
+
 /// The lumen surface of `tree` with `vertices` vertices (within the relative
-/// `tolerance`), graded as in [`lumen_surface`]. Returns the uniform size
-/// found (m) with the surface.
+/// `tolerance`), graded as in [`lumen_surface`]: a uniform size capped so
+/// that every vessel keeps [`MIN_NODES_AROUND`] vertices around.
+///
+/// When even the capped size everywhere gives more vertices than asked
+/// (small counts: the aorta itself is then at its cap), the size becomes
+/// c·r everywhere (r the local lumen radius) and the factor c is searched,
+/// up to 2π/8 (eight edges of the size around); the result is then
+/// measured ([`nodes_around`]) and refused with
+/// [`ImplicitError::TooCoarse`] if any vessel keeps fewer than eight
+/// vertices around. Returns the largest target edge length used (m) with
+/// the surface.
 pub fn lumen_surface_with_vertices(
     tree: &LumenTree,
     vertices: usize,
@@ -863,10 +976,47 @@ pub fn lumen_surface_with_vertices(
     let area = super::remesh::surface_area(&coarse);
     let size0 = (2.0 * area / (3f64.sqrt() * vertices.max(4) as f64)).sqrt();
     let iso = isosurface(tree, grid_spacing(tree, size0))?;
-    let c = super::remesh::around_cap(8);
-    let cap = |p: &Vec3| c * tree.local_radius(p);
-    let (size, r) = remesh_to_vertex_count(&iso, vertices, &cap, &RemeshOptions::default(), tolerance)?;
-    Ok((size, finish(tree, iso.triangles.len(), r)?))
+    let c0 = super::remesh::around_cap(MIN_NODES_AROUND);
+    let radius = |p: &Vec3| tree.local_radius(p);
+    let cap = |p: &Vec3| c0 * radius(p);
+    let opts = RemeshOptions::default();
+    let (size, r) = match remesh_to_vertex_count(&iso, vertices, &cap, &opts, tolerance) {
+        Ok((s, r)) => (s.min(c0 * tree.max_radius()), r),
+        Err(RemeshError::CountNotReached { best, .. }) if best > vertices => {
+            let c_max = 2.0 * std::f64::consts::PI / MIN_NODES_AROUND as f64;
+            let start = (c0 * (best as f64 / vertices as f64).sqrt()).min(c_max);
+            let (c, r) = remesh_to_vertex_count_scaled(&iso, vertices, &radius, start, c_max, &opts, tolerance)
+                .map_err(|e| match e {
+                    RemeshError::CountNotReached { best, .. } => ImplicitError::TooCoarse {
+                        vertices,
+                        what: format!(
+                            "with {MIN_NODES_AROUND} edges around every vessel the surface still has {best} vertices"
+                        ),
+                    },
+                    e => ImplicitError::Remesh(e),
+                })?;
+            (c * tree.max_radius(), r)
+        }
+        Err(e) => return Err(e.into()),
+    };
+    let surface = finish(tree, iso.triangles.len(), r)?;
+    let around = nodes_around(tree, &surface.mesh, &surface.labels);
+    if let Some((si, &k)) = around
+        .iter()
+        .enumerate()
+        .filter(|(_, &k)| k < MIN_NODES_AROUND)
+        .min_by_key(|(_, &k)| k)
+    {
+        return Err(ImplicitError::TooCoarse {
+            vertices,
+            what: format!(
+                "the {} (lumen radius {:.2} mm) keeps only {k} vertices around; at least {MIN_NODES_AROUND} are needed",
+                tree.segments[si].name,
+                tree.segments[si].radii.iter().copied().fold(f64::INFINITY, f64::min) * 1e3
+            ),
+        });
+    }
+    Ok((size, surface))
 }
 
 #[cfg(test)]

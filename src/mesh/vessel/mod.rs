@@ -12,8 +12,10 @@
 
 pub mod branched;
 pub mod caps;
+pub mod centreline;
 pub mod error;
 pub mod implicit;
+pub mod pipeline;
 pub mod remesh;
 pub mod wall;
 

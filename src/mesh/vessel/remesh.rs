@@ -123,14 +123,16 @@ pub enum RemeshError {
     /// An option is out of range.
     #[error("invalid remesh option: {0}")]
     BadOption(String),
-    /// [`remesh_to_vertex_count`] did not reach the count.
-    #[error("no size within the tolerance of {target} vertices: the closest was {best} vertices at size {size:.6e} m")]
+    /// [`remesh_to_vertex_count`] (or [`remesh_to_vertex_count_scaled`])
+    /// did not reach the count.
+    #[error("no size within the tolerance of {target} vertices: the closest was {best} vertices (size parameter {size:.6e})")]
     CountNotReached {
         /// The vertex count asked for.
         target: usize,
         /// The closest count found.
         best: usize,
-        /// The size that gave it (m).
+        /// What gave it: the size (m), or the factor of
+        /// [`remesh_to_vertex_count_scaled`].
         size: f64,
     },
 }
@@ -968,7 +970,10 @@ pub fn around_cap(nodes_around: usize) -> f64 {
 /// so the output has `target` vertices within the relative `tolerance`
 /// (e.g. 0.01). Starts from the area estimate `s² = 2A / (√3 V)` and refines
 /// by a secant step on (ln s, ln V); each trial remeshes the input afresh.
-/// Returns the size found and the remeshed surface.
+/// Once `s` exceeds the cap everywhere on the input, a larger `s` changes
+/// nothing: the search stops there and reports the count it gives (the
+/// fewest vertices the cap allows). Returns the size found and the
+/// remeshed surface.
 pub fn remesh_to_vertex_count(
     input: &SurfaceMesh,
     target: usize,
@@ -976,6 +981,40 @@ pub fn remesh_to_vertex_count(
     opts: &RemeshOptions,
     tolerance: f64,
 ) -> Result<(f64, Remeshed), RemeshError> {
+    check_count_options(input, target, tolerance)?;
+    let area = surface_area(input);
+    let s0 = (2.0 * area / (3f64.sqrt() * target as f64)).sqrt();
+    let cap_max = input.vertices.iter().map(cap).fold(0.0f64, |a, b| a.max(b));
+    let field = |s: f64, p: &Vec3| s.min(cap(p));
+    secant_count(input, target, s0, cap_max, &field, opts, tolerance)
+}
+
+/// Remeshes with the size `c · base(x)`, choosing the factor `c` so the
+/// output has `target` vertices within the relative `tolerance`, with `c`
+/// at most `c_max`. The size keeps the shape of `base` (e.g. a fraction of
+/// the local lumen radius, so every vessel keeps the same number of
+/// vertices around); see [`remesh_to_vertex_count`] for the search.
+/// Returns the factor found and the remeshed surface.
+pub fn remesh_to_vertex_count_scaled(
+    input: &SurfaceMesh,
+    target: usize,
+    base: &dyn Fn(&Vec3) -> f64,
+    c0: f64,
+    c_max: f64,
+    opts: &RemeshOptions,
+    tolerance: f64,
+) -> Result<(f64, Remeshed), RemeshError> {
+    check_count_options(input, target, tolerance)?;
+    if !(c0.is_finite() && c0 > 0.0 && c_max >= c0) {
+        return Err(RemeshError::BadOption(format!(
+            "size factors must be positive with c0 <= c_max, got {c0} and {c_max}"
+        )));
+    }
+    let field = |c: f64, p: &Vec3| c.min(c_max) * base(p);
+    secant_count(input, target, c0, c_max, &field, opts, tolerance)
+}
+
+fn check_count_options(input: &SurfaceMesh, target: usize, tolerance: f64) -> Result<(), RemeshError> {
     if target < 4 {
         return Err(RemeshError::BadOption(format!(
             "a target of {target} vertices is too small (at least 4)"
@@ -986,44 +1025,71 @@ pub fn remesh_to_vertex_count(
             "tolerance must be positive, got {tolerance}"
         )));
     }
-    validate(input)?;
-    let area = surface_area(input);
-    let mut s = (2.0 * area / (3f64.sqrt() * target as f64)).sqrt();
+    validate(input)
+}
+
+/// Secant search on (ln x, ln V) for the parameter `x` of the size field
+/// `field(x, p)` (a size that grows with x, about in proportion) giving
+/// `target` vertices; `x` beyond `x_sat` changes nothing, so the search
+/// stops once it is there with too many vertices.
+fn secant_count(
+    input: &SurfaceMesh,
+    target: usize,
+    x0: f64,
+    x_sat: f64,
+    field: &dyn Fn(f64, &Vec3) -> f64,
+    opts: &RemeshOptions,
+    tolerance: f64,
+) -> Result<(f64, Remeshed), RemeshError> {
+    let mut x = x0;
+    let (mut lo, mut hi) = (0.0f64, f64::INFINITY);
     let mut hist: Vec<(f64, usize)> = Vec::new();
     let mut best: Option<(f64, f64, Remeshed)> = None;
     for _ in 0..12 {
-        let field = |p: &Vec3| s.min(cap(p));
-        let r = remesh(input, &field, opts)?;
+        let f = |p: &Vec3| field(x, p);
+        let r = remesh(input, &f, opts)?;
         let n = r.stats.vertices;
         let err = (n as f64 / target as f64 - 1.0).abs();
-        hist.push((s, n));
+        hist.push((x, n));
         if best.as_ref().is_none_or(|b| err < b.0) {
-            best = Some((err, s, r));
+            best = Some((err, x, r));
         }
-        if err <= tolerance {
+        if err <= tolerance || (x >= x_sat && n > target) {
             break;
         }
-        // Secant on ln V = c + m ln s (m ≈ −2 for a uniform size).
+        // Secant on ln V = c + m ln x (m ≈ −2 for a size proportional to x).
         let mut slope = -2.0;
         if hist.len() >= 2 {
-            let (s0, n0) = hist[hist.len() - 2];
-            let (s1, n1) = hist[hist.len() - 1];
-            let m = ((n1 as f64).ln() - (n0 as f64).ln()) / (s1.ln() - s0.ln());
+            let (x0, n0) = hist[hist.len() - 2];
+            let (x1, n1) = hist[hist.len() - 1];
+            let m = ((n1 as f64).ln() - (n0 as f64).ln()) / (x1.ln() - x0.ln());
             if m.is_finite() && (-4.0..=-0.5).contains(&m) {
                 slope = m;
             }
         }
+        // Bracket: the largest x with too many vertices, the smallest with
+        // too few; a step outside it is replaced by bisection (in ln x).
+        if n > target {
+            lo = lo.max(x);
+        } else {
+            hi = hi.min(x);
+        }
         let step = ((target as f64).ln() - (n as f64).ln()) / slope;
-        s *= step.clamp(-0.5, 0.5).exp();
+        let mut next = x * step.clamp(-0.5, 0.5).exp();
+        if hi.is_finite() && lo > 0.0 && !(next > lo && next < hi) {
+            next = (lo * hi).sqrt();
+        }
+        // Past saturation only once: the count there is the floor.
+        x = if next > x_sat && x < x_sat { x_sat } else { next };
     }
-    let (err, s, r) = best.expect("at least one trial");
+    let (err, x, r) = best.expect("at least one trial");
     if err <= tolerance {
-        Ok((s, r))
+        Ok((x, r))
     } else {
         Err(RemeshError::CountNotReached {
             target,
             best: r.stats.vertices,
-            size: s,
+            size: x,
         })
     }
 }

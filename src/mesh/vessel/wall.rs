@@ -187,6 +187,15 @@ fn concave_radius(v: usize, d: &Vec3, vertices: &[Vec3], nb: &[u32]) -> f64 {
         .fold(f64::INFINITY, f64::min)
 }
 
+/// The local lumen radius at each vertex of the surface (m), estimated as
+/// for [`Thickness::Ratio`] (see the module documentation).
+pub fn local_lumen_radius(surface: &CheckedSurface) -> Result<Vec<f64>, VesselError> {
+    let m = &surface.mesh;
+    let dir = offset_directions(surface)?;
+    let nb = neighbours(m.vertices.len(), &m.triangles);
+    lumen_radius(&m.vertices, &m.triangles, &dir, &nb)
+}
+
 /// Builds the wall; see the module documentation.
 pub fn build_wall(surface: &CheckedSurface, opts: &WallOptions) -> Result<Wall, VesselError> {
     let m = &surface.mesh;
