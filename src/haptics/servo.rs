@@ -300,7 +300,30 @@ impl<const R: usize> Servo<R> {
         let qd = new.transfer * self.model.dynamics.qd();
         if q.iter().chain(qd.iter()).all(|v| v.is_finite()) {
             let dq = self.contact_match(&new, &q);
-            new.dynamics.set_state(&(q + dq), &qd);
+            let mut q = q + dq;
+            if self.params.swap_blend_s > 0.0 && !self.contact.nodes.is_empty() {
+                // The cross-fade hides a step: start the new model at its
+                // equilibrium under the contact (one static Newton step),
+                // so it does not ring after the fade.
+                new.dynamics.set_state(&q, &qd);
+                eval_contact(
+                    &new,
+                    &self.index,
+                    &self.params.contact,
+                    &self.centers,
+                    &mut self.fade_scratch,
+                    &mut self.fade_contact,
+                );
+                let c = &self.fade_contact;
+                let k = new.dynamics.stiffness() + c.reduced_stiffness;
+                let r = c.reduced_force - new.f_bar - new.dynamics.stiffness() * q;
+                if let Some(step) = k.cholesky().map(|ch| ch.solve(&r)) {
+                    if step.iter().all(|v| v.is_finite()) {
+                        q += step;
+                    }
+                }
+            }
+            new.dynamics.set_state(&q, &qd);
         } else {
             new.dynamics.reset();
             self.counters.nonfinite += 1;
