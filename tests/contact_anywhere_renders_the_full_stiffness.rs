@@ -1,8 +1,9 @@
 //! Contact anywhere: at random points of the inner (lumen) and the outer
-//! wall of the whole arch, with no contact region declared (a basis of
-//! vibration modes only), the force the haptic loop renders for a probe held
-//! 0.5 mm into the wall matches the full linear model's at the same state
-//! (same sphere contact, exact K⁻¹ columns) within 10 % once settled.
+//! wall of the service's arch (5832 nodes, r = 32), with no contact region
+//! declared (a basis of vibration modes only), the force the haptic loop
+//! renders for a probe held 0.5 mm into the wall matches the full linear
+//! model's at the same state (same pressure contact on the deformed surface
+//! triangles, exact K⁻¹ columns) within 10 % once settled.
 //! Without the residual compliance the same basis is far too stiff (the
 //! problem this guards against), and on the first tick the loop is stiffer
 //! than settled (the modes have not moved yet: inertia), never softer.
@@ -11,7 +12,13 @@ use nvtmm::experiment::contact::{run, ContactExperiment};
 
 #[test]
 fn the_rendered_stiffness_matches_the_full_model_at_any_surface_point() {
-    let e = ContactExperiment::quick();
+    // The service's mesh: on the 1458-node arch the triangles (7-10 mm) are
+    // much larger than the probe's contact disk and the one-shape-per-patch
+    // series model renders up to 1.17x there (docs/REDUCED.md).
+    let e = ContactExperiment {
+        points: 60,
+        ..ContactExperiment::full()
+    };
     let r = run(&e).unwrap();
     let inner = r.points.iter().filter(|p| p.inner).count();
     let outer = r.points.len() - inner;
@@ -41,8 +48,9 @@ fn the_rendered_stiffness_matches_the_full_model_at_any_surface_point() {
             "{p:?}"
         );
     }
-    // What the design achieves on the first tick (measured: median 4.6,
-    // worst 15.0 on this set); bounded so a regression shows.
+    // What the design achieves on the first tick (measured on this set with
+    // the pressure on the surface triangles: median 3.4, worst 11.2 at 60
+    // points); bounded so a regression shows.
     assert!(
         r.ratio_first.p50 <= 6.0 && r.ratio_first.worst <= 18.0,
         "{:?}",

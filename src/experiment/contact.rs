@@ -301,20 +301,18 @@ impl Setup {
         Ok(Servo::new(m, self.index.clone(), self.sp, 0.0))
     }
 
-    /// Exact (K⁻¹)_SS on the touched nodes, and the full model's reaction
-    /// on each sphere with the same contact ([`full_forces`]).
+    /// The full model's reaction on each sphere with the same contact
+    /// ([`full_forces`]), on the nodes the spheres press at rest and the
+    /// ones the loop `touched`.
     pub fn full_reactions(&self, spheres: &[Vec3], touched: &[Touched]) -> Result<Vec<Vec3>, String> {
         let mut exact = ExactCompliance::new(&self.k, &self.fixed)?;
-        let nodes: Vec<u32> = touched.iter().map(|t| t.node).collect();
+        let mesh = &self.arch.mesh;
+        let mut nodes = pressed_at_rest(mesh, &self.cp, &self.index, spheres);
+        nodes.extend(touched.iter().map(|t| t.node));
+        nodes.sort_unstable();
+        nodes.dedup();
         let w = exact.blocks(&nodes)?;
-        Ok(full_forces(
-            &self.arch.mesh,
-            &self.cp,
-            &self.index,
-            spheres,
-            touched,
-            &w,
-        ))
+        Ok(full_forces(mesh, &self.cp, &self.index, spheres, &nodes, &w))
     }
 }
 
@@ -392,12 +390,15 @@ pub fn run(e: &ContactExperiment) -> Result<ContactResult, String> {
         let (trace_basis, _) = run_loop(false)?;
         // The full linear model with the same penalty contact, on the
         // nodes the probe touches (normals from the loop's last tick).
-        let nodes: Vec<u32> = touched.iter().map(|t| t.node).collect();
+        let mut nodes = pressed_at_rest(mesh, &cp, index, &[tool]);
+        nodes.extend(touched.iter().map(|t| t.node));
+        nodes.sort_unstable();
+        nodes.dedup();
         if nodes.is_empty() {
             continue;
         }
         let w = exact.blocks(&nodes)?;
-        let full = full_forces(mesh, &cp, index, &[tool], &touched, &w)[0].norm();
+        let full = full_forces(mesh, &cp, index, &[tool], &nodes, &w)[0].norm();
         if full.is_nan() || full <= 0.0 {
             continue;
         }
@@ -431,104 +432,218 @@ pub fn run(e: &ContactExperiment) -> Result<ContactResult, String> {
     })
 }
 
+/// The nodes the `spheres` press at rest (the plain contact on the
+/// undeformed surface), sorted.
+pub fn pressed_at_rest(
+    mesh: &crate::mesh::TetMesh,
+    cp: &ContactParams,
+    index: &SurfaceIndex,
+    spheres: &[Vec3],
+) -> Vec<u32> {
+    let mut scratch = crate::haptics::contact::Candidates::new();
+    let mut out = crate::haptics::contact::ContactOutput::<1>::for_index(index);
+    crate::haptics::contact::evaluate_spheres(
+        index,
+        cp,
+        spheres,
+        |i| mesh.rest()[i as usize],
+        |_| None,
+        None,
+        &mut scratch,
+        &mut out,
+    );
+    let mut nodes: Vec<u32> = out.nodes.iter().map(|c| c.node).collect();
+    nodes.sort_unstable();
+    nodes.dedup();
+    nodes
+}
+
 /// The full linear model's reactions on the tool `spheres` with the same
-/// sphere contact: the touched nodes sit at x = X + W f (W = (K⁻¹)_SS, all
-/// three components), f_a = p_a n_a, p = K_p max(0, ρ − |x_a − c_a|),
-/// n_a = (x_a − c_a)/|x_a − c_a| (c_a the centre of the node's sphere);
-/// solved by repeated series solves (K_p⁻¹ + NᵀWN) p' = d + NᵀWN p about
-/// the current state, releasing nodes pulled into the tool.
+/// contact as the loop (the pressure on the deformed surface triangles,
+/// [`crate::haptics::contact`]): the nodes `nodes` sit at x = X + u with
+/// u = W f(x) (W = (K⁻¹) on `nodes`, all three components; every other
+/// node at rest), solved by Newton's method with a finite-difference
+/// Jacobian of the contact forces. Non-finite if it does not converge.
 pub fn full_forces(
     mesh: &crate::mesh::TetMesh,
     cp: &ContactParams,
     index: &SurfaceIndex,
     spheres: &[Vec3],
-    touched: &[Touched],
+    nodes: &[u32],
     w: &DMatrix<f64>,
 ) -> Vec<Vec3> {
-    let m = touched.len();
-    let centre = |a: usize| spheres.get(touched[a].sphere).copied().unwrap_or_else(Vec3::zeros);
-    let rest: Vec<Vec3> = touched.iter().map(|t| mesh.rest()[t.node as usize]).collect();
-    let kp: Vec<f64> = touched
-        .iter()
-        .map(|t| cp.pressure_stiffness * index.area(t.node))
-        .collect();
-    let mut p = vec![0.0; m];
-    let mut nrm: Vec<Vec3> = touched.iter().map(|t| t.normal).collect();
-    for _ in 0..200 {
-        let x: Vec<Vec3> = (0..m)
-            .map(|a| {
-                let mut u = Vec3::zeros();
-                for b in 0..m {
-                    let f = nrm[b] * p[b];
-                    for i in 0..3 {
-                        for j in 0..3 {
-                            u[i] += w[(3 * a + i, 3 * b + j)] * f[j];
-                        }
-                    }
+    use crate::haptics::contact::{evaluate_spheres, Candidates, ContactOutput};
+    let m = nodes.len();
+    let slot: std::collections::HashMap<u32, usize> = nodes.iter().enumerate().map(|(a, &i)| (i, a)).collect();
+    let mut scratch = Candidates::new();
+    let mut out = ContactOutput::<1>::for_index(index);
+    // Node forces on `nodes` (3m) and the reaction on each sphere.
+    let mut forces = |u: &nalgebra::DVector<f64>| -> (nalgebra::DVector<f64>, Vec<Vec3>) {
+        evaluate_spheres(
+            index,
+            cp,
+            spheres,
+            |i| {
+                let x = mesh.rest()[i as usize];
+                match slot.get(&i) {
+                    Some(&a) => x + Vec3::new(u[3 * a], u[3 * a + 1], u[3 * a + 2]),
+                    None => x,
                 }
-                rest[a] + u
-            })
-            .collect();
-        let d: Vec<f64> = (0..m).map(|a| cp.tool_radius_m - (x[a] - centre(a)).norm()).collect();
-        nrm = (0..m)
-            .map(|a| {
-                let v = x[a] - centre(a);
-                if v.norm() > 0.0 {
-                    v / v.norm()
-                } else {
-                    nrm[a]
-                }
-            })
-            .collect();
-        let s = |a: usize, b: usize| -> f64 {
-            let mut s = 0.0;
-            for i in 0..3 {
-                for j in 0..3 {
-                    s += nrm[a][i] * w[(3 * a + i, 3 * b + j)] * nrm[b][j];
+            },
+            |_| None,
+            None,
+            &mut scratch,
+            &mut out,
+        );
+        let mut f = nalgebra::DVector::<f64>::zeros(3 * m);
+        for c in out.nodes.iter() {
+            if let Some(&a) = slot.get(&c.node) {
+                for k in 0..3 {
+                    f[3 * a + k] += c.force[k];
                 }
             }
-            s
-        };
-        let mut on = vec![true; m];
-        let next = loop {
-            let mut a_m = DMatrix::<f64>::zeros(m, m);
-            let mut rhs = nalgebra::DVector::<f64>::zeros(m);
-            for a in 0..m {
-                for b in 0..m {
-                    a_m[(a, b)] = if on[a] && on[b] {
-                        s(a, b) + if a == b { 1.0 / kp[a] } else { 0.0 }
-                    } else {
-                        (a == b) as u8 as f64
-                    };
-                }
-                if on[a] {
-                    rhs[a] = d[a] + (0..m).map(|b| s(a, b) * p[b]).sum::<f64>();
-                }
-            }
-            let Some(ch) = a_m.cholesky() else {
-                return vec![Vec3::repeat(f64::NAN); spheres.len()];
-            };
-            let q = ch.solve(&rhs);
-            match (0..m)
-                .filter(|&a| on[a] && q[a] < 0.0)
-                .min_by(|&a, &b| q[a].total_cmp(&q[b]))
-            {
-                Some(a) => on[a] = false,
-                None => break q,
-            }
-        };
-        let change = (0..m).map(|a| (next[a] - p[a]).abs()).fold(0.0, f64::max);
-        let scale = next.iter().fold(0.0f64, |s, v| s.max(v.abs())).max(1e-300);
-        p.copy_from_slice(next.as_slice());
-        if change <= 1e-10 * scale {
+        }
+        (f, out.sphere_forces.iter().copied().collect())
+    };
+    let mut u = nalgebra::DVector::<f64>::zeros(3 * m);
+    let h = 1e-4 * cp.tool_radius_m;
+    for _ in 0..60 {
+        let (f, _) = forces(&u);
+        let r = &u - w * &f;
+        if r.norm() <= 1e-12 * cp.tool_radius_m {
             break;
         }
-    }
-    let mut out = vec![Vec3::zeros(); spheres.len()];
-    for a in 0..m {
-        if let Some(o) = out.get_mut(touched[a].sphere) {
-            *o += nrm[a] * p[a];
+        let mut df = DMatrix::<f64>::zeros(3 * m, 3 * m);
+        for j in 0..3 * m {
+            let mut up = u.clone();
+            up[j] += h;
+            let mut dn = u.clone();
+            dn[j] -= h;
+            let col = (forces(&up).0 - forces(&dn).0) / (2.0 * h);
+            df.set_column(j, &col);
         }
+        let jac = DMatrix::<f64>::identity(3 * m, 3 * m) - w * df;
+        let Some(step) = jac.lu().solve(&r) else {
+            return vec![Vec3::repeat(f64::NAN); spheres.len()];
+        };
+        // Damped: never move a node by more than a tenth of the radius at once.
+        let big = step.amax();
+        let damp = if big > 0.1 * cp.tool_radius_m {
+            0.1 * cp.tool_radius_m / big
+        } else {
+            1.0
+        };
+        u -= step * damp;
     }
-    out
+    let (f, reactions) = forces(&u);
+    let r = &u - w * &f;
+    if !(r.norm() <= 1e-9 * cp.tool_radius_m) {
+        return vec![Vec3::repeat(f64::NAN); spheres.len()];
+    }
+    reactions
+}
+
+/// A probe sliding over the wall ([`slide`]).
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct SlideResult {
+    /// Arch nodes.
+    pub nodes: usize,
+    /// Sliding speed (m/s).
+    pub speed_m_s: f64,
+    /// Ticks run while sliding.
+    pub ticks: usize,
+    /// Rendered force magnitude per tick (N).
+    pub force_n: Vec<f64>,
+    /// Largest tick-to-tick change of the force vector relative to the
+    /// larger of the two magnitudes, over the slide.
+    pub max_jump: f64,
+    /// Tick of `max_jump`.
+    pub max_jump_tick: usize,
+    /// Ticks with a non-finite force.
+    pub nonfinite: usize,
+    /// Smallest and largest force magnitude while sliding (N).
+    pub force_range_n: [f64; 2],
+}
+
+/// Slides the probe along the outer wall from the arch top down to the
+/// descending end at `speed_m_s`, held `push_m` into the undeformed wall
+/// along the interpolated surface normal, after `settle_s` pressed at the
+/// start; the basis of vibration modes with its residual compliance table.
+pub fn slide(s: &Setup, speed_m_s: f64, push_m: f64, settle_s: f64) -> Result<SlideResult, String> {
+    let arch = &s.arch;
+    let g = arch.grid;
+    let mesh = &arch.mesh;
+    let normals = mesh.surface_vertex_normals();
+    let c = g.circumferential / 4;
+    let l = g.layers - 1;
+    // Outer-wall points of the path: ring a at angle index c, outer layer;
+    // from the top ring towards ring 1 (ring 0 is fixed).
+    let ring_point = |a: usize| -> (Vec3, Vec3) {
+        let i = arch.node(a, c, l);
+        (mesh.rest()[i], normals[i])
+    };
+    let rings: Vec<usize> = (1..=arch.top_ring).rev().collect();
+    let mut arc = vec![0.0];
+    for w in rings.windows(2) {
+        let d = (ring_point(w[1]).0 - ring_point(w[0]).0).norm();
+        arc.push(arc.last().copied().unwrap_or(0.0) + d);
+    }
+    let total = arc.last().copied().unwrap_or(0.0);
+    let at = |dist: f64| -> Vec3 {
+        let k = arc.partition_point(|&x| x <= dist).clamp(1, arc.len() - 1);
+        let w = ((dist - arc[k - 1]) / (arc[k] - arc[k - 1]).max(1e-12)).clamp(0.0, 1.0);
+        let (x0, n0) = ring_point(rings[k - 1]);
+        let (x1, n1) = ring_point(rings[k]);
+        let x = x0 * (1.0 - w) + x1 * w;
+        let n = (n0 * (1.0 - w) + n1 * w).normalize();
+        x + n * (s.cp.tool_radius_m - push_m)
+    };
+    let dt = s.dynp.dt;
+    let mut servo = s.servo(true)?;
+    let settle = (settle_s / dt).round() as usize;
+    let ticks = (total / (speed_m_s * dt)).floor() as usize;
+    let mut force_n = Vec::with_capacity(ticks);
+    let (mut max_jump, mut max_jump_tick, mut nonfinite) = (0.0f64, 0, 0);
+    let mut prev: Option<Vec3> = None;
+    for t in 1..=settle + ticks {
+        let dist = (t.saturating_sub(settle) as f64 * speed_m_s * dt).min(total);
+        let tool = at(dist);
+        let sample = DeviceSample {
+            seq: t as u64,
+            time_s: t as f64 * dt,
+            position: tool,
+            velocity: Vec3::zeros(),
+            ..DeviceSample::REST
+        };
+        let f = servo.tick(Some(&sample), t as f64 * dt, 0).desired;
+        if t <= settle {
+            prev = Some(f);
+            continue;
+        }
+        if !f.iter().all(|v| v.is_finite()) {
+            nonfinite += 1;
+            continue;
+        }
+        if let Some(p) = prev {
+            let jump = (f - p).norm() / f.norm().max(p.norm()).max(1e-12);
+            if jump > max_jump {
+                max_jump = jump;
+                max_jump_tick = t - settle;
+            }
+        }
+        prev = Some(f);
+        force_n.push(f.norm());
+    }
+    let lo = force_n.iter().copied().fold(f64::INFINITY, f64::min);
+    let hi = force_n.iter().copied().fold(0.0, f64::max);
+    Ok(SlideResult {
+        nodes: mesh.num_nodes(),
+        speed_m_s,
+        ticks,
+        force_n,
+        max_jump,
+        max_jump_tick,
+        nonfinite,
+        force_range_n: [lo, hi],
+    })
 }

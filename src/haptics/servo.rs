@@ -132,7 +132,7 @@ pub struct ServoCounters {
     /// Most contact spheres (tool plus instrument points) touching at once.
     pub contact_patches_max: u64,
     /// Ticks where some touched nodes went without the residual compliance
-    /// (more than `contact::MAX_COMPLIANT_NODES` touched at once).
+    /// (more than `contact::MAX_COMPLIANT_PATCHES` patches at once).
     pub uncorrected_ticks: u64,
     /// Ticks the residual compliance was applied (contact anywhere).
     pub compliance_ticks: u64,
@@ -220,9 +220,6 @@ pub struct Servo<const R: usize> {
     centers: heapless::Vec<Vec3, { contact::MAX_SPHERES }>,
 }
 
-/// Most loaded touched nodes whose displacement a model swap keeps exactly.
-pub const SWAP_MATCH_NODES: usize = 8;
-
 /// How long a fault keeps the force down after its last tick, beyond the
 /// ramp-down time (s): a single bad sample still takes the force to zero
 /// before it ramps back in.
@@ -231,12 +228,14 @@ pub const FAULT_HOLD_S: f64 = 0.1;
 impl<const R: usize> Servo<R> {
     /// A loop on `model` with the surface `index`. Allocates here only.
     pub fn new(model: Box<LoopModel<R>>, index: Arc<SurfaceIndex>, params: ServoParams, now_s: f64) -> Servo<R> {
+        let contact = ContactOutput::for_index(&index);
+        let fade_contact = ContactOutput::for_index(&index);
         Servo {
             model,
             index,
             params,
             scratch: Candidates::new(),
-            contact: ContactOutput::default(),
+            contact,
             gain: 0.0,
             last_seq: 0,
             last_fresh_s: now_s,
@@ -247,7 +246,7 @@ impl<const R: usize> Servo<R> {
             fault_until_s: f64::NEG_INFINITY,
             fading: None,
             fade_scratch: Candidates::new(),
-            fade_contact: ContactOutput::default(),
+            fade_contact,
             blend: 1.0,
             retired: None,
             extra: heapless::Vec::new(),
@@ -257,10 +256,10 @@ impl<const R: usize> Servo<R> {
 
     /// Swaps in a new model, carrying the state over by its transfer
     /// (δq ← T δq + s, δq̇ ← T δq̇: the M-orthogonal projection of the
-    /// displacement), then corrects δq by the smallest change that makes the
-    /// displacement of the (up to [`SWAP_MATCH_NODES`], at most r/3) most
-    /// loaded touched nodes exactly what it was, so the contact force does not jump where
-    /// ū has a part outside the basis. Returns the old model (to be sent
+    /// displacement), then corrects δq so that the touched nodes keep their
+    /// displacement as well as the basis can (least squares weighted by each
+    /// node's load), so the contact force does not jump where ū has a part
+    /// outside the basis. Returns the old model (to be sent
     /// back for freeing off this thread). A transferred state that is not
     /// finite resets the reduced state. Allocates nothing.
     ///
@@ -301,7 +300,30 @@ impl<const R: usize> Servo<R> {
         let qd = new.transfer * self.model.dynamics.qd();
         if q.iter().chain(qd.iter()).all(|v| v.is_finite()) {
             let dq = self.contact_match(&new, &q);
-            new.dynamics.set_state(&(q + dq), &qd);
+            let mut q = q + dq;
+            if self.params.swap_blend_s > 0.0 && !self.contact.nodes.is_empty() {
+                // The cross-fade hides a step: start the new model at its
+                // equilibrium under the contact (one static Newton step),
+                // so it does not ring after the fade.
+                new.dynamics.set_state(&q, &qd);
+                eval_contact(
+                    &new,
+                    &self.index,
+                    &self.params.contact,
+                    &self.centers,
+                    &mut self.fade_scratch,
+                    &mut self.fade_contact,
+                );
+                let c = &self.fade_contact;
+                let k = new.dynamics.stiffness() + c.reduced_stiffness;
+                let r = c.reduced_force - new.f_bar - new.dynamics.stiffness() * q;
+                if let Some(step) = k.cholesky().map(|ch| ch.solve(&r)) {
+                    if step.iter().all(|v| v.is_finite()) {
+                        q += step;
+                    }
+                }
+            }
+            new.dynamics.set_state(&q, &qd);
         } else {
             new.dynamics.reset();
             self.counters.nonfinite += 1;
@@ -310,64 +332,41 @@ impl<const R: usize> Servo<R> {
         std::mem::replace(&mut self.model, new)
     }
 
-    /// The minimum-norm Δ with Φᵢ(q + Δ) + ū_new,i = u_old,i at the most
-    /// loaded touched nodes (regularized, so nodes the basis cannot move
-    /// are matched as well as it can).
+    /// The Δ with Φᵢ(q + Δ) + ū_new,i closest to u_old,i over the touched
+    /// nodes, weighted by their load (slightly regularized, so modes the
+    /// touched nodes do not see stay put).
     fn contact_match(&self, new: &LoopModel<R>, q: &SVector<f64, R>) -> SVector<f64, R> {
-        const M: usize = SWAP_MATCH_NODES;
-        // The most loaded touched nodes, no more than the basis can match.
-        let slots = M.min(R / 3);
-        let mut pick: [(f64, u32); M] = [(f64::NEG_INFINITY, 0); M];
-        for c in self.contact.nodes.iter() {
-            let node = c.node;
-            let f = c.force.norm();
-            let (k, min) = pick[..slots]
-                .iter()
-                .enumerate()
-                .min_by(|a, b| a.1 .0.total_cmp(&b.1 .0))
-                .map(|(k, v)| (k, v.0))
-                .unwrap_or((0, 0.0));
-            if f > min {
-                pick[k] = (f, node);
-            }
+        // Least squares over every touched node, weighted by its load:
+        // min Σ w_a |Φ_a (q + Δ) + ū_new,a − u_old,a|² + ε |Δ|².
+        let fmax = self.contact.nodes.iter().map(|c| c.force.norm()).fold(0.0, f64::max);
+        if !(fmax > 0.0 && fmax.is_finite()) {
+            return SVector::zeros();
         }
-        let mut a = SMatrix::<f64, { 3 * SWAP_MATCH_NODES }, R>::zeros();
-        let mut e = SVector::<f64, { 3 * SWAP_MATCH_NODES }>::zeros();
-        let mut any = false;
-        for (k, &(f, node)) in pick.iter().enumerate() {
-            if f == f64::NEG_INFINITY {
-                continue;
-            }
-            let i = node as usize;
-            let (Some(rows_new), Some(rows_old)) = (new.dynamics.rows_at(node), self.model.dynamics.rows_at(node))
+        let mut g = SMatrix::<f64, R, R>::zeros();
+        let mut b = SVector::<f64, R>::zeros();
+        for c in self.contact.nodes.iter() {
+            let i = c.node as usize;
+            let (Some(rows_new), Some(rows_old)) = (new.dynamics.rows_at(c.node), self.model.dynamics.rows_at(c.node))
             else {
                 continue;
             };
+            let w = c.force.norm() / fmax;
             let old =
                 self.model.offset.get(i).copied().unwrap_or_else(Vec3::zeros) + rows_old * self.model.dynamics.q();
             let now = new.offset.get(i).copied().unwrap_or_else(Vec3::zeros) + rows_new * q;
-            let d = old - now;
-            for c in 0..3 {
-                e[3 * k + c] = d[c];
-                for j in 0..R {
-                    a[(3 * k + c, j)] = rows_new[(c, j)];
-                }
-            }
-            any = true;
+            g += rows_new.tr_mul(rows_new) * w;
+            b += rows_new.tr_mul(&(old - now)) * w;
         }
-        if !any {
+        let scale = g.trace() / R as f64;
+        if !(scale > 0.0 && scale.is_finite()) {
             return SVector::zeros();
         }
-        let mut g = a * a.transpose();
-        let scale = g.trace() / (3 * M) as f64;
-        let eps = 1e-8 * scale.max(f64::MIN_POSITIVE);
-        for k in 0..3 * M {
-            g[(k, k)] += eps;
+        for k in 0..R {
+            g[(k, k)] += 1e-8 * scale;
         }
         match g.cholesky() {
             Some(ch) => {
-                let y = ch.solve(&e);
-                let dq = a.transpose() * y;
+                let dq = ch.solve(&b);
                 if dq.iter().all(|v| v.is_finite()) {
                     dq
                 } else {

@@ -15,8 +15,9 @@
 //! mode-acceleration method. It is local: the low modes carry the far
 //! field, so ΔW_ij dies out within a few wall thicknesses of node i. We keep
 //! the 3×3 blocks ΔW_ij for every surface node i and every surface node j
-//! within `couple_radius_m`, which covers one contact patch and the coupling
-//! between nearby patches.
+//! within `couple_radius_m` or in i's surface 2-ring (the nodes of the
+//! triangles around its neighbours), which covers one contact patch, however
+//! coarse the mesh, and the coupling between nearby patches.
 //!
 //! **Computation by probing.** The nodes are coloured so that two nodes of a
 //! colour are at least `separation_m` apart (greedy, on a spatial grid). For
@@ -225,16 +226,43 @@ impl LocalCompliance {
         let near_grid = Grid::new(rest, &surface, params.couple_radius_m);
         let mut nbrs: Vec<Vec<u32>> = vec![Vec::new(); n];
         let mut tmp = Vec::new();
+        // The surface 1-ring of every node (triangle mates).
+        let mut ring: Vec<Vec<u32>> = vec![Vec::new(); n];
+        for t in mesh.surface() {
+            for &a in t {
+                for &b in t {
+                    if !fixed[b as usize] {
+                        ring[a as usize].push(b);
+                    }
+                }
+            }
+        }
+        for r in ring.iter_mut() {
+            r.sort_unstable();
+            r.dedup();
+        }
+        let mut reach = 0.0f64;
         for &i in &surface {
             near_grid.near(rest, &rest[i as usize], params.couple_radius_m, &mut tmp);
+            // A contact patch spans the triangles around its point: keep
+            // the surface 2-ring too, however coarse the mesh.
+            for &v in &ring[i as usize] {
+                tmp.extend_from_slice(&ring[v as usize]);
+            }
             tmp.sort_unstable();
+            tmp.dedup();
+            for &j in &tmp {
+                reach = reach.max((rest[j as usize] - rest[i as usize]).norm());
+            }
             nbrs[i as usize] = tmp.clone();
         }
-        let colour_grid = Grid::new(rest, &surface, params.separation_m);
+        // Probes of one colour far enough apart for the farthest block kept.
+        let separation = params.separation_m.max(2.0 * reach);
+        let colour_grid = Grid::new(rest, &surface, separation);
         let mut colour_of = vec![u32::MAX; n];
         let mut colours: Vec<Vec<u32>> = Vec::new();
         for &i in &surface {
-            colour_grid.near(rest, &rest[i as usize], params.separation_m, &mut tmp);
+            colour_grid.near(rest, &rest[i as usize], separation, &mut tmp);
             let mut used: Vec<u32> = tmp
                 .iter()
                 .map(|&j| colour_of[j as usize])
@@ -324,7 +352,8 @@ impl LocalCompliance {
         Ok((LocalCompliance { offsets, cols, blocks }, stats))
     }
 
-    /// ΔW_ij (m/N) if j is within the coupling radius of i, else None.
+    /// ΔW_ij (m/N) if j is within the coupling radius of i or in its surface
+    /// 2-ring, else None.
     /// Allocates nothing.
     pub fn block(&self, i: u32, j: u32) -> Option<&Mat3> {
         let i = i as usize;

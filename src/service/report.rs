@@ -319,13 +319,13 @@ impl Report {
         }
         s += &format!(
             "  contact anywhere: {} of {} contact ticks with the residual compliance (from the first touch: it is precomputed for every surface node), \
-             up to {} touched nodes and {} patches at once, {} ticks with nodes beyond the corrected {}\n",
+             up to {} touched nodes and {} patches at once, {} ticks with patches beyond the corrected {}\n",
             w.compliance_ticks,
             w.contact_ticks,
             w.contact_nodes_max,
             w.contact_patches_max,
             w.uncorrected_ticks,
-            crate::haptics::contact::MAX_COMPLIANT_NODES
+            crate::haptics::contact::MAX_COMPLIANT_PATCHES
         );
         if w.model_stale_ticks > 0 {
             s += &format!(
