@@ -537,7 +537,7 @@ pub fn full_forces(
     }
     let (f, reactions) = forces(&u);
     let r = &u - w * &f;
-    if !(r.norm() <= 1e-9 * cp.tool_radius_m) {
+    if r.norm().is_nan() || r.norm() > 1e-9 * cp.tool_radius_m {
         return vec![Vec3::repeat(f64::NAN); spheres.len()];
     }
     reactions

@@ -343,6 +343,8 @@ pub struct ContactOutput<const R: usize> {
     pub uncorrected: usize,
     /// Patches the compliance correction released (pulled into the tool).
     pub released: usize,
+    /// Newton iterations of the series solve.
+    pub iterations: usize,
     /// Reaction on each tool sphere (N), in the order given.
     pub sphere_forces: heapless::Vec<Vec3, MAX_SPHERES>,
     active: heapless::Vec<ActiveNode, MAX_CONTACT_NODES>,
@@ -355,6 +357,10 @@ pub struct ContactOutput<const R: usize> {
     /// The pressed samples' (depth, k_p dA) of every patch; fixed capacity
     /// [`MAX_SAMPLES`], never grown in [`evaluate_spheres`].
     samples_buf: Vec<Sample>,
+    /// Per mesh node, (tick stamp, deformed position) of this evaluation
+    /// ([`ContactOutput::for_index`]; empty: no cache).
+    cache: Vec<(u32, Vec3)>,
+    tick: u32,
 }
 
 impl<const R: usize> ContactOutput<R> {
@@ -364,7 +370,21 @@ impl<const R: usize> ContactOutput<R> {
     pub fn for_index(index: &SurfaceIndex) -> ContactOutput<R> {
         ContactOutput {
             stamps: vec![0; index.tris.len()],
+            cache: vec![(0, Vec3::zeros()); index.rest.len()],
             ..Default::default()
+        }
+    }
+
+    /// The deformed position of node `i`, evaluated once per evaluation.
+    fn position_of(&mut self, i: u32, position: &impl Fn(u32) -> Vec3) -> Vec3 {
+        match self.cache.get_mut(i as usize) {
+            Some((t, x)) if *t == self.tick => *x,
+            Some((t, x)) => {
+                *t = self.tick;
+                *x = position(i);
+                *x
+            }
+            None => position(i),
         }
     }
 
@@ -442,6 +462,7 @@ impl<const R: usize> Default for ContactOutput<R> {
             truncated: false,
             uncorrected: 0,
             released: 0,
+            iterations: 0,
             sphere_forces: heapless::Vec::new(),
             active: heapless::Vec::new(),
             patches: heapless::Vec::new(),
@@ -449,6 +470,8 @@ impl<const R: usize> Default for ContactOutput<R> {
             stamps: Vec::new(),
             stamp: 0,
             samples_buf: Vec::with_capacity(MAX_SAMPLES),
+            cache: Vec::new(),
+            tick: 0,
         }
     }
 }
@@ -521,10 +544,16 @@ pub fn evaluate_spheres<const R: usize>(
     out.active.clear();
     out.patches.clear();
     out.samples_buf.clear();
+    out.tick = out.tick.wrapping_add(1);
+    if out.tick == 0 {
+        out.cache.iter_mut().for_each(|c| c.0 = 0);
+        out.tick = 1;
+    }
     out.sphere_forces.clear();
     out.max_depth = 0.0;
     out.uncorrected = 0;
     out.released = 0;
+    out.iterations = 0;
     out.truncated = centers.len() > MAX_SPHERES;
     out.candidates = 0;
     out.triangles = 0;
@@ -575,12 +604,12 @@ fn press_sphere<const R: usize>(
     }
     for &i in scratch.iter() {
         let far = rho + index.margin + index.reach_of[i as usize];
-        if !((index.rest[i as usize] - center).norm_squared() <= far * far) {
+        if !at_most((index.rest[i as usize] - center).norm_squared(), far * far) {
             continue;
         }
-        let x = position(i);
+        let x = out.position_of(i, position);
         let near = rho + index.reach_of[i as usize];
-        if !((x - center).norm_squared() <= near * near) {
+        if !at_most((x - center).norm_squared(), near * near) {
             continue;
         }
         for &t in index.triangles_of(i) {
@@ -593,10 +622,10 @@ fn press_sphere<const R: usize>(
     for ti in 0..out.tris.len() {
         let t = out.tris[ti] as usize;
         let tri = index.tris[t];
-        let x = tri.map(position);
+        let x = tri.map(|v| out.position_of(v, position));
         let centroid = (x[0] + x[1] + x[2]) / 3.0;
         let spread = x.iter().map(|v| (v - centroid).norm()).fold(0.0, f64::max);
-        if !((centroid - center).norm() <= rho + spread) {
+        if !at_most((centroid - center).norm(), rho + spread) {
             continue;
         }
         out.triangles += 1;
@@ -638,7 +667,7 @@ fn press_sphere<const R: usize>(
         let twice_area = face.norm();
         let unit = face / twice_area.max(f64::MIN_POSITIVE);
         let off = (center - x[0]).dot(&unit);
-        if !(off.abs() < rho) || !(twice_area > 0.0) {
+        if off.is_nan() || off.abs() >= rho || twice_area.is_nan() || twice_area <= 0.0 {
             continue;
         }
         let disk = (rho * rho - off * off).sqrt();
@@ -717,6 +746,11 @@ fn press_sphere<const R: usize>(
         k,
         depth: depth_max,
     });
+}
+
+/// a ≤ b, false if either is NaN.
+fn at_most(a: f64, b: f64) -> bool {
+    a <= b
 }
 
 /// Records the force `f` on the tissue at `node`: tool reaction, the
@@ -867,6 +901,7 @@ fn patch_coupling<const R: usize>(w: &LocalCompliance, p: usize, q: usize, out: 
 /// tool is released). Node forces P e_a, K_c = G (K⁻¹ + S)⁻¹ Gᵀ.
 /// (One unknown per touched node instead, with the nodes' shares of the
 /// pressure as separate laws, was measured less accurate: docs/REDUCED.md.)
+#[allow(clippy::needless_range_loop)] // index arithmetic reads as the formula
 fn series_patches<const R: usize>(
     w: &LocalCompliance,
     rows: &impl Fn(u32) -> Option<SMatrix<f64, 3, R>>,
@@ -891,6 +926,7 @@ fn series_patches<const R: usize>(
     let mut ok = false;
     let scale = out.patches.iter().map(|q| q.depth).fold(0.0, f64::max);
     for _ in 0..SERIES_ITERATIONS + m {
+        out.iterations += 1;
         let mut rhs = [0.0f64; C];
         for a in 0..m {
             let (f, k) = patch_law(a, out, delta[a]);
