@@ -1,14 +1,19 @@
-//! Contact between the tool (a sphere at the stylus tip) and the deformed
-//! vessel surface, as an area-weighted penalty on the surface nodes:
+//! Contact between the tool (spheres: the stylus tip, or points of an
+//! instrument) and the deformed vessel surface, as a pressure integrated over
+//! the surface triangles:
 //!
 //! ```text
-//! dᵢ = ρ − ‖xᵢ − c‖ > 0,   nᵢ = (xᵢ − c)/‖xᵢ − c‖,   fᵢ = k_p Aᵢ dᵢ nᵢ,   F_tool = −Σ fᵢ
+//! p(x) = k_p (ρ − ‖x − c‖)₊,   f = ∫ p(x) n(x) dA,   n(x) = (x − c)/‖x − c‖,   F_tool = −f
 //! ```
 //!
-//! with c, ρ the tool centre and radius, xᵢ = Xᵢ + ūᵢ + Φᵢ δq the deformed
-//! node, Aᵢ its share of the surface area (a third of its triangles' areas)
-//! and k_p a pressure stiffness (Pa/m), so the force does not depend on the
-//! mesh resolution. fᵢ pushes the tissue, F_tool is the reaction on the tool.
+//! with c, ρ the sphere's centre and radius, x on the deformed surface
+//! (nodes at Xᵢ + ūᵢ + Φᵢ δq, triangles linear between them) and k_p a
+//! pressure stiffness (Pa/m), so the force does not depend on the mesh
+//! resolution. The integral is a fixed sub-triangle quadrature per triangle
+//! (points about ρ / [`SAMPLES_PER_RADIUS`] apart), lumped to the triangle's
+//! nodes with the barycentric weights; the force is therefore continuous as
+//! the tool slides (a penalty at the nodes alone loses the contact between
+//! nodes). f pushes the tissue, F_tool is the reaction on the tool.
 //!
 //! A uniform grid over the surface nodes' rest positions (built at start)
 //! gives the candidates near the tool; only those nodes are reconstructed
@@ -17,26 +22,29 @@
 //! under the search margin, which is therefore part of the configuration.
 //!
 //! For the implicit reduced step the contact also gives its reduced stiffness
-//! K_c = Σ k_p Aᵢ (Φᵢᵀnᵢ)(Φᵢᵀnᵢ)ᵀ (the normal part of −∂f/∂q, positive
-//! semi-definite); see [`crate::reduced::ReducedDynamics::step_with_contact`].
+//! K_c = Σ_a k_a (Φ_aᵀn_a)(Φ_aᵀn_a)ᵀ (k_a the node's share of the pressure
+//! stiffness, n_a the direction of its force; positive semi-definite); see
+//! [`crate::reduced::ReducedDynamics::step_with_contact`].
 //!
-//! **Contact anywhere** ([`evaluate_with`] with a
-//! [`LocalCompliance`]): the reduced model alone is too stiff where its basis
-//! has no static mode. The residual compliance ΔW (what the basis misses of
-//! K⁻¹, see [`crate::reduced::compliance`]) acts in series with the penalty:
-//! the normal forces p of the touched nodes solve the small system
+//! **Contact anywhere** ([`evaluate_with`] with a [`LocalCompliance`]): the
+//! reduced model alone is too stiff where its basis has no static mode. The
+//! residual compliance ΔW (what the basis misses of K⁻¹, see
+//! [`crate::reduced::compliance`]) acts in series with the pressure. Each
+//! sphere's pressed distribution is a patch with one unknown, its force
+//! magnitude P, and its distribution e_a = f_a / F as the load shape:
 //!
 //! ```text
-//! (K_p⁻¹ + S) p = d,   S_ab = n_aᵀ ΔW_ab n_b,   p ≥ 0 (nodes with p < 0 leave)
+//! δ = S P,   S_pq = Σ_ab e_aᵀ ΔW_ab e_b,   P_p = F_p(δ_p) = c Σ_i k_i (d_i − δ_p)₊,   P ≥ 0
 //! ```
 //!
-//! (d the penetrations of the reduced surface, K_p = diag(k_p A_a)), which
-//! couples the nodes of a patch and of nearby patches; the reduced stiffness
-//! becomes K_c = G (K_p⁻¹ + S)⁻¹ Gᵀ with G = [Φ_aᵀ n_a]. At static
-//! equilibrium the patch then sees exactly (K_p⁻¹ + (K⁻¹)_SS)⁻¹: the full
-//! model's local stiffness, at any surface point, several patches at once,
-//! for a cost that follows the number of touched nodes (at most
-//! [`MAX_COMPLIANT_NODES`] are corrected; more are counted).
+//! (d_i the depths of the quadrature points into the sphere, k_i = k_p dA),
+//! solved by Newton's method on the piecewise-linear laws, which couples the
+//! patches; the reduced stiffness becomes K_c = G (K⁻¹ + S)⁻¹ Gᵀ with
+//! G = [Σ_a Φ_aᵀ e_a] and K = dF/dδ. At static equilibrium a patch then sees
+//! the full model's local compliance in series with the pressure, at any
+//! surface point, several patches at once, for a cost that follows the
+//! patches, not the mesh (at most [`MAX_COMPLIANT_PATCHES`] are corrected;
+//! more are counted).
 
 use crate::math::Vec3;
 use crate::mesh::TetMesh;
