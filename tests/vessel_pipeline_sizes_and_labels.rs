@@ -3,9 +3,12 @@
 //! grown, and segment labels from the openings' tree on any surface (a
 //! Y-bifurcation splits at its junction).
 
+mod common;
+
+use common::open_tube as tube;
 use nvtmm::math::Vec3;
 use nvtmm::mesh::io::read_mesh;
-use nvtmm::mesh::surface::{check_surface, CheckOptions, SurfaceMesh};
+use nvtmm::mesh::surface::{check_surface, CheckOptions};
 use nvtmm::mesh::vessel::implicit::{lumen_surface, LumenTree, Segment};
 use nvtmm::mesh::vessel::pipeline::{mesh_vessel, SurfaceSize, VesselOptions};
 use nvtmm::mesh::vessel::wall::{Thickness, WallOptions};
@@ -13,26 +16,6 @@ use nvtmm::mesh::vessel::VesselError;
 use std::f64::consts::TAU;
 use std::path::Path;
 use std::process::Command;
-
-/// An open tube along z (m), `around` vertices per ring.
-fn tube(r: f64, len: f64, around: usize, rings: usize) -> SurfaceMesh {
-    let mut s = SurfaceMesh::default();
-    for j in 0..rings {
-        for k in 0..around {
-            let a = TAU * k as f64 / around as f64;
-            s.vertices
-                .push(Vec3::new(r * a.cos(), r * a.sin(), len * j as f64 / (rings - 1) as f64));
-        }
-    }
-    let id = |j: usize, k: usize| (j * around + k % around) as u32;
-    for j in 0..rings - 1 {
-        for k in 0..around {
-            s.triangles.push([id(j, k), id(j, k + 1), id(j + 1, k + 1)]);
-            s.triangles.push([id(j, k), id(j + 1, k + 1), id(j + 1, k)]);
-        }
-    }
-    s
-}
 
 fn opts(size: SurfaceSize, layers: usize) -> VesselOptions {
     VesselOptions {
