@@ -2,6 +2,8 @@
 //! (generated here, or the checked-in fixtures written by
 //! tools/make_surface_fixtures.py) turned into a tetrahedral wall.
 
+mod common;
+
 use nvtmm::math::Vec3;
 use nvtmm::mesh::io::read_mesh;
 use nvtmm::mesh::surface::{check_surface, read_and_check, CheckOptions, CheckedSurface, SurfaceMesh};
@@ -17,21 +19,8 @@ use std::process::Command;
 /// with `capped`, each end is closed by a fan around a centre vertex
 /// (appended last).
 fn tube(r: f64, len: f64, around: usize, rings: usize, capped: bool) -> SurfaceMesh {
-    let mut s = SurfaceMesh::default();
-    for j in 0..rings {
-        for k in 0..around {
-            let a = TAU * k as f64 / around as f64;
-            s.vertices
-                .push(Vec3::new(r * a.cos(), r * a.sin(), len * j as f64 / (rings - 1) as f64));
-        }
-    }
+    let mut s = common::open_tube(r, len, around, rings);
     let id = |j: usize, k: usize| (j * around + k % around) as u32;
-    for j in 0..rings - 1 {
-        for k in 0..around {
-            s.triangles.push([id(j, k), id(j, k + 1), id(j + 1, k + 1)]);
-            s.triangles.push([id(j, k), id(j + 1, k + 1), id(j + 1, k)]);
-        }
-    }
     if capped {
         let c0 = s.vertices.len() as u32;
         s.vertices.push(Vec3::zeros());
