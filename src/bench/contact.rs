@@ -27,6 +27,21 @@ pub struct ContactBench {
     pub patches: usize,
     /// Touched nodes on the last tick.
     pub touched_nodes: usize,
+    /// On the last tick: surface nodes found by the grid query, deformed
+    /// positions computed, triangles integrated and pressure samples
+    /// evaluated (all patches together).
+    pub candidates: usize,
+    /// See `candidates`.
+    pub positions: usize,
+    /// See `candidates`.
+    pub triangles: usize,
+    /// See `candidates`.
+    pub samples: usize,
+    /// Newton iterations of the series solve on the last tick.
+    pub iterations: usize,
+    /// Ticks (of `ticks`) on which some sphere searched the grid for its
+    /// triangles rather than reusing the ones it kept.
+    pub search_ticks: usize,
     /// Tick time (µs): p50, p99, p99.9, max.
     pub tick_us: Percentiles,
     /// Building the residual compliance table (s).
@@ -65,6 +80,7 @@ pub fn bench_contact(nodes: usize, patches: usize, ticks: usize) -> Result<Conta
     servo.set_extra_spheres(&centres[1..]);
     let warm = 500;
     let mut us = Vec::with_capacity(ticks);
+    let mut search_ticks = 0;
     for t in 1..=warm + ticks {
         let sample = DeviceSample {
             seq: t as u64,
@@ -77,6 +93,7 @@ pub fn bench_contact(nodes: usize, patches: usize, ticks: usize) -> Result<Conta
         servo.tick(Some(&sample), t as f64 * 1e-3, 0);
         if t > warm {
             us.push(t0.elapsed().as_secs_f64() * 1e6);
+            search_ticks += (servo.contact().searches > 0) as usize;
         }
     }
     Ok(ContactBench {
@@ -84,6 +101,12 @@ pub fn bench_contact(nodes: usize, patches: usize, ticks: usize) -> Result<Conta
         r: 32,
         patches,
         touched_nodes: servo.contact().nodes.len(),
+        candidates: servo.contact().candidates,
+        positions: servo.contact().positions,
+        triangles: servo.contact().triangles,
+        samples: servo.contact().samples,
+        search_ticks,
+        iterations: servo.contact().iterations,
         tick_us: Percentiles::of(&us),
         table_s: setup.stats.seconds,
     })

@@ -162,6 +162,10 @@ pub fn bench_contact_cmd(nodes: usize, patches: usize, ticks: usize, json: bool)
             "contact anywhere, {} nodes, r = {}, {} patches ({} touched nodes): tick p50 {:.1} µs, p99 {:.1} µs, p99.9 {:.1} µs, max {:.1} µs (table {:.2} s)",
             b.nodes, b.r, b.patches, b.touched_nodes, p.p50, p.p99, p.p999, p.max, b.table_s
         );
+        println!(
+            "last tick: {} candidates, {} deformed positions, {} triangles, {} pressure samples, {} series iterations; {} of {} ticks searched the grid",
+            b.candidates, b.positions, b.triangles, b.samples, b.iterations, b.search_ticks, ticks
+        );
     }
     Ok(())
 }

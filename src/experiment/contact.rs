@@ -449,6 +449,7 @@ pub fn pressed_at_rest(
         |i| mesh.rest()[i as usize],
         |_| None,
         None,
+        None,
         &mut scratch,
         &mut out,
     );
@@ -491,6 +492,7 @@ pub fn full_forces(
                 }
             },
             |_| None,
+            None,
             None,
             &mut scratch,
             &mut out,

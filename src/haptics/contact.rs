@@ -20,6 +20,10 @@
 //! from the reduced coordinates each tick, so the cost follows the contact
 //! patch, not the mesh. A node can be found only while its displacement stays
 //! under the search margin, which is therefore part of the configuration.
+//! Between ticks each sphere keeps the triangles it found (all within the
+//! tool radius plus [`COHERENCE_SLACK_M`]) and searches again only once it,
+//! or the surface under it by the bound of [`Motion`], has moved the slack:
+//! a held or slowly sliding patch costs its triangles, not a grid search.
 //!
 //! For the implicit reduced step the contact also gives its reduced stiffness
 //! K_c = Σ_a k_a (Φ_aᵀn_a)(Φ_aᵀn_a)ᵀ (k_a the node's share of the pressure
@@ -50,6 +54,42 @@ use crate::math::Vec3;
 use crate::mesh::TetMesh;
 use crate::reduced::compliance::LocalCompliance;
 use nalgebra::{SMatrix, SVector};
+
+/// How far a sphere plus the surface under it may move before the
+/// sphere's triangles are searched again (m): a search keeps every triangle
+/// that comes within the tool radius plus this slack, and while the sphere
+/// has moved less than the slack minus the bound on the surface's motion
+/// ([`Motion`]) the kept list holds every triangle a full search would find.
+pub const COHERENCE_SLACK_M: f64 = 1e-3;
+
+/// Triangles kept per sphere between searches (a sphere over more is
+/// searched every tick).
+pub const KEPT_TRIANGLES: usize = 192;
+
+/// How far the surface can have moved since a sphere's triangles were
+/// searched: the reduced state q of the positions' model and a bound B on
+/// ‖Φᵢ‖ over its nodes (no node moves more than B ‖q − q₀‖ when q changes
+/// from q₀), e.g. [`crate::reduced::ReducedDynamics::row_bound`]. Given to
+/// [`evaluate_spheres`], it lets a sphere reuse the triangles it found on an
+/// earlier tick; the caller must call [`ContactOutput::forget`] whenever
+/// the positions stop following `rest + offset + Φ q` of one model (a new
+/// model, a new offset).
+#[derive(Debug, Clone, Copy)]
+pub struct Motion<'a, const R: usize> {
+    /// The current reduced state.
+    pub q: &'a SVector<f64, R>,
+    /// max ‖Φᵢ‖ (m per unit of q).
+    pub row_bound: f64,
+}
+
+/// One sphere's triangles from its last search.
+#[derive(Debug, Clone, Copy)]
+struct Kept<const R: usize> {
+    valid: bool,
+    center: Vec3,
+    q: SVector<f64, R>,
+    len: u16,
+}
 
 /// Candidate capacity of one query (a larger patch is truncated and counted).
 pub const MAX_CANDIDATES: usize = 4096;
@@ -144,7 +184,7 @@ impl SurfaceIndex {
                 (b - a).norm().max((c - b).norm()).max((a - c).norm())
             })
             .fold(0.0, f64::max);
-        let reach = params.tool_radius_m + params.search_margin_m + longest;
+        let reach = params.tool_radius_m + params.search_margin_m + longest + COHERENCE_SLACK_M;
         let (mut lo, mut hi) = (Vec3::repeat(f64::INFINITY), Vec3::repeat(f64::NEG_INFINITY));
         for &i in &surface {
             lo = lo.inf(&rest[i as usize]);
@@ -154,8 +194,10 @@ impl SurfaceIndex {
             lo = Vec3::zeros();
             hi = Vec3::zeros();
         }
-        // Cells about the query size; coarser if the grid would be huge.
-        let mut cell = reach.max(1e-6);
+        // Cells of half the query size (a query scans 4-5 per axis, about
+        // half the volume whole-size cells would); coarser if the grid
+        // would be huge.
+        let mut cell = (0.5 * reach).max(1e-6);
         let ext = hi - lo;
         let dims = loop {
             let d = [0, 1, 2].map(|k| ((ext[k] / cell).floor() as usize + 1).max(1));
@@ -276,8 +318,9 @@ impl SurfaceIndex {
         self.normal[i as usize]
     }
 
-    /// The surface nodes whose rest position is within tool radius + margin
-    /// of `center`, into `out` (cleared first). Returns false if `out`
+    /// The surface nodes whose rest position is within the reach (tool
+    /// radius, margin, longest surface edge and [`COHERENCE_SLACK_M`]) of
+    /// `center`, into `out` (cleared first). Returns false if `out`
     /// overflowed (the list is then truncated). Allocates nothing.
     pub fn query<const N: usize>(&self, center: &Vec3, out: &mut heapless::Vec<u32, N>) -> bool {
         out.clear();
@@ -344,6 +387,8 @@ pub struct ContactOutput<const R: usize> {
     pub triangles: usize,
     /// See `triangles`.
     pub samples: usize,
+    /// Deformed node positions computed (each at most once per evaluation).
+    pub positions: usize,
     /// The candidate, triangle or touched-node list overflowed (contact truncated).
     pub truncated: bool,
     /// Touching patches left without the compliance correction (beyond
@@ -353,6 +398,9 @@ pub struct ContactOutput<const R: usize> {
     pub released: usize,
     /// Newton iterations of the series solve.
     pub iterations: usize,
+    /// Spheres whose triangles were searched for on the grid this
+    /// evaluation (the others reused their kept triangles, [`Motion`]).
+    pub searches: usize,
     /// Reaction on each tool sphere (N), in the order given.
     pub sphere_forces: heapless::Vec<Vec3, MAX_SPHERES>,
     active: heapless::Vec<ActiveNode, MAX_CONTACT_NODES>,
@@ -369,6 +417,10 @@ pub struct ContactOutput<const R: usize> {
     /// ([`ContactOutput::for_index`]; empty: no cache).
     cache: Vec<(u32, Vec3)>,
     tick: u32,
+    /// Per sphere, its kept triangles (`kept_tris[s * KEPT_TRIANGLES..]`);
+    /// empty: nothing is kept ([`Default`] output).
+    kept: Vec<Kept<R>>,
+    kept_tris: Vec<u32>,
 }
 
 impl<const R: usize> ContactOutput<R> {
@@ -379,7 +431,35 @@ impl<const R: usize> ContactOutput<R> {
         ContactOutput {
             stamps: vec![0; index.tris.len()],
             cache: vec![(0, Vec3::zeros()); index.rest.len()],
+            kept: vec![
+                Kept {
+                    valid: false,
+                    center: Vec3::zeros(),
+                    q: SVector::zeros(),
+                    len: 0,
+                };
+                MAX_SPHERES
+            ],
+            kept_tris: vec![0; MAX_SPHERES * KEPT_TRIANGLES],
             ..Default::default()
+        }
+    }
+
+    /// Drops every sphere's kept triangles: call it when the positions
+    /// given to [`evaluate_spheres`] stop following one model (see
+    /// [`Motion`]). Allocates nothing.
+    pub fn forget(&mut self) {
+        self.kept.iter_mut().for_each(|k| k.valid = false);
+    }
+
+    /// Whether sphere `s` at `center` may reuse its kept triangles.
+    fn may_reuse(&self, s: usize, center: &Vec3, motion: &Motion<R>) -> bool {
+        match self.kept.get(s) {
+            Some(k) if k.valid => {
+                let moved = (center - k.center).norm() + motion.row_bound * (motion.q - k.q).norm();
+                at_most(moved, COHERENCE_SLACK_M)
+            }
+            _ => false,
         }
     }
 
@@ -390,9 +470,13 @@ impl<const R: usize> ContactOutput<R> {
             Some((t, x)) => {
                 *t = self.tick;
                 *x = position(i);
+                self.positions += 1;
                 *x
             }
-            None => position(i),
+            None => {
+                self.positions += 1;
+                position(i)
+            }
         }
     }
 
@@ -454,6 +538,14 @@ struct Patch {
     k: f64,
     /// Deepest sample (m).
     depth: f64,
+    /// c = |Σ f_a| / Σ k_i d_i: the scalar law's factor (its samples press
+    /// along different normals, so their magnitudes sum to more than F).
+    law_scale: f64,
+    /// Rest centre of its nodes and their largest rest distance from it
+    /// (m): two patches farther apart than the compliance table's reach do
+    /// not couple.
+    rest_centre: Vec3,
+    rest_radius: f64,
 }
 
 impl<const R: usize> Default for ContactOutput<R> {
@@ -467,10 +559,12 @@ impl<const R: usize> Default for ContactOutput<R> {
             candidates: 0,
             triangles: 0,
             samples: 0,
+            positions: 0,
             truncated: false,
             uncorrected: 0,
             released: 0,
             iterations: 0,
+            searches: 0,
             sphere_forces: heapless::Vec::new(),
             active: heapless::Vec::new(),
             patches: heapless::Vec::new(),
@@ -480,6 +574,8 @@ impl<const R: usize> Default for ContactOutput<R> {
             samples_buf: Vec::with_capacity(MAX_SAMPLES),
             cache: Vec::new(),
             tick: 0,
+            kept: Vec::new(),
+            kept_tris: Vec::new(),
         }
     }
 }
@@ -490,12 +586,12 @@ pub type Candidates = heapless::Vec<u32, MAX_CANDIDATES>;
 /// Evaluates the penalty contact of the tool at `center` against the surface
 /// whose node `i` sits at `position(i)` (deformed) with Φ rows `rows(i)`.
 /// Fills `out`; allocates nothing.
-pub fn evaluate<const R: usize>(
+pub fn evaluate<'r, const R: usize>(
     index: &SurfaceIndex,
     params: &ContactParams,
     center: &Vec3,
     position: impl Fn(u32) -> Vec3,
-    rows: impl Fn(u32) -> Option<SMatrix<f64, 3, R>>,
+    rows: impl Fn(u32) -> Option<&'r SMatrix<f64, 3, R>>,
     scratch: &mut Candidates,
     out: &mut ContactOutput<R>,
 ) {
@@ -505,12 +601,12 @@ pub fn evaluate<const R: usize>(
 /// As [`evaluate`], with the residual `compliance` of the model in series
 /// with the penalty (module doc, "Contact anywhere"). Allocates nothing.
 #[allow(clippy::too_many_arguments)]
-pub fn evaluate_with<const R: usize>(
+pub fn evaluate_with<'r, const R: usize>(
     index: &SurfaceIndex,
     params: &ContactParams,
     center: &Vec3,
     position: impl Fn(u32) -> Vec3,
-    rows: impl Fn(u32) -> Option<SMatrix<f64, 3, R>>,
+    rows: impl Fn(u32) -> Option<&'r SMatrix<f64, 3, R>>,
     compliance: Option<&LocalCompliance>,
     scratch: &mut Candidates,
     out: &mut ContactOutput<R>,
@@ -522,6 +618,7 @@ pub fn evaluate_with<const R: usize>(
         position,
         rows,
         compliance,
+        None,
         scratch,
         out,
     )
@@ -533,15 +630,19 @@ pub fn evaluate_with<const R: usize>(
 /// on the deformed surface triangles is one patch, and the patches form one
 /// coupled problem, so nearby patches load each other through the residual
 /// compliance. `out.sphere_forces[s]` is the reaction on sphere s.
-/// Allocates nothing.
+/// With `motion` (positions that follow one reduced model), a sphere
+/// reuses the triangles it found on an earlier evaluation while it and the
+/// surface have moved less than [`COHERENCE_SLACK_M`]: the same result as
+/// a search, for less work. Allocates nothing.
 #[allow(clippy::too_many_arguments)]
-pub fn evaluate_spheres<const R: usize>(
+pub fn evaluate_spheres<'r, const R: usize>(
     index: &SurfaceIndex,
     params: &ContactParams,
     centers: &[Vec3],
     position: impl Fn(u32) -> Vec3,
-    rows: impl Fn(u32) -> Option<SMatrix<f64, 3, R>>,
+    rows: impl Fn(u32) -> Option<&'r SMatrix<f64, 3, R>>,
     compliance: Option<&LocalCompliance>,
+    motion: Option<Motion<R>>,
     scratch: &mut Candidates,
     out: &mut ContactOutput<R>,
 ) {
@@ -566,9 +667,20 @@ pub fn evaluate_spheres<const R: usize>(
     out.candidates = 0;
     out.triangles = 0;
     out.samples = 0;
+    out.positions = 0;
+    out.searches = 0;
     for (s, center) in centers.iter().take(MAX_SPHERES).enumerate() {
         let _ = out.sphere_forces.push(Vec3::zeros());
-        press_sphere(index, params, s as u16, center, &position, scratch, out);
+        press_sphere(
+            index,
+            params,
+            s as u16,
+            center,
+            &position,
+            motion.as_ref(),
+            scratch,
+            out,
+        );
     }
     if out.patches.is_empty() {
         return;
@@ -591,38 +703,29 @@ pub fn evaluate_spheres<const R: usize>(
 /// quadrature per triangle, so the force is continuous in the tool's
 /// position), lumped to the triangles' nodes with the barycentric weights.
 /// Appends the patch (if it presses) to `out`.
+#[allow(clippy::too_many_arguments)]
 fn press_sphere<const R: usize>(
     index: &SurfaceIndex,
     params: &ContactParams,
     s: u16,
     center: &Vec3,
     position: &impl Fn(u32) -> Vec3,
+    motion: Option<&Motion<R>>,
     scratch: &mut Candidates,
     out: &mut ContactOutput<R>,
 ) {
     let rho = params.tool_radius_m;
-    out.truncated |= !index.query(center, scratch);
-    out.candidates += scratch.len();
-    // Triangles with a vertex near enough to reach the sphere.
+    let rho2 = rho * rho;
     out.tris.clear();
-    out.stamp = out.stamp.wrapping_add(1);
-    if out.stamp == 0 {
-        out.stamps.iter_mut().for_each(|s| *s = 0);
-        out.stamp = 1;
-    }
-    for &i in scratch.iter() {
-        let far = rho + index.margin + index.reach_of[i as usize];
-        if !at_most((index.rest[i as usize] - center).norm_squared(), far * far) {
-            continue;
+    match motion {
+        Some(m) if out.may_reuse(s as usize, center, m) => {
+            let (base, len) = (s as usize * KEPT_TRIANGLES, out.kept[s as usize].len as usize);
+            for k in 0..len {
+                let t = out.kept_tris[base + k];
+                let _ = out.tris.push(t);
+            }
         }
-        let x = out.position_of(i, position);
-        let near = rho + index.reach_of[i as usize];
-        if !at_most((x - center).norm_squared(), near * near) {
-            continue;
-        }
-        for &t in index.triangles_of(i) {
-            out.visit(t);
-        }
+        _ => search_triangles(index, rho, s, center, position, motion, scratch, out),
     }
     let first = out.active.len();
     let sample_first = out.samples_buf.len();
@@ -647,12 +750,19 @@ fn press_sphere<const R: usize>(
         let mut overflowed = false;
         let overflow = &mut overflowed;
         let mut count = 0usize;
+        let (e1, e2) = (x[1] - x[0], x[2] - x[0]);
+        let w0 = x[0] - center;
         let mut sample = |b1: f64, b2: f64| {
             count += 1;
+            let v = w0 + e1 * b1 + e2 * b2;
+            // Most points of the disk's bounding range are outside the
+            // sphere: rejected before the square root.
+            let d2 = v.norm_squared();
+            if !at_most(d2, rho2) || d2 == rho2 {
+                return;
+            }
             let b = [1.0 - b1 - b2, b1, b2];
-            let p = x[0] * b[0] + x[1] * b[1] + x[2] * b[2];
-            let v = p - center;
-            let dist = v.norm();
+            let dist = d2.sqrt();
             let depth = rho - dist;
             if depth.is_nan() || depth <= 0.0 {
                 return;
@@ -679,7 +789,6 @@ fn press_sphere<const R: usize>(
             continue;
         }
         let disk = (rho * rho - off * off).sqrt();
-        let (e1, e2) = (x[1] - x[0], x[2] - x[0]);
         let q = center - unit * off - x[0];
         // Barycentric (b1, b2) of the disk centre: q = b1 e1 + b2 e2.
         let b1 = q.cross(&e2).dot(&unit) / twice_area;
@@ -744,6 +853,16 @@ fn press_sphere<const R: usize>(
         return;
     }
     out.max_depth = out.max_depth.max(depth_max);
+    let f0: f64 = out.samples_buf[sample_first..]
+        .iter()
+        .map(|smp| smp.k * smp.depth)
+        .sum();
+    let nodes = &out.active[first..];
+    let rest_centre = nodes.iter().map(|a| index.rest(a.node)).sum::<Vec3>() / len as f64;
+    let rest_radius = nodes
+        .iter()
+        .map(|a| (index.rest(a.node) - rest_centre).norm())
+        .fold(0.0, f64::max);
     let _ = out.patches.push(Patch {
         sphere: s,
         first: first as u16,
@@ -753,7 +872,91 @@ fn press_sphere<const R: usize>(
         force: magnitude,
         k,
         depth: depth_max,
+        law_scale: if f0 > 0.0 { magnitude / f0 } else { 0.0 },
+        rest_centre,
+        rest_radius,
     });
+}
+
+/// Finds the triangles that can reach sphere `s` at `center` (into
+/// `out.tris`) on the grid; with `motion`, also within the slack, and keeps
+/// them for the next evaluations.
+#[allow(clippy::too_many_arguments)]
+fn search_triangles<const R: usize>(
+    index: &SurfaceIndex,
+    rho: f64,
+    s: u16,
+    center: &Vec3,
+    position: &impl Fn(u32) -> Vec3,
+    motion: Option<&Motion<R>>,
+    scratch: &mut Candidates,
+    out: &mut ContactOutput<R>,
+) {
+    out.searches += 1;
+    // With the triangles kept, every triangle that can come within the
+    // tool radius while the motion stays under the slack.
+    let slack = if motion.is_some() { COHERENCE_SLACK_M } else { 0.0 };
+    let reach = rho + slack;
+    let complete = index.query(center, scratch);
+    out.truncated |= !complete;
+    out.candidates += scratch.len();
+    // Triangles with a vertex near enough to reach the sphere.
+    out.stamp = out.stamp.wrapping_add(1);
+    if out.stamp == 0 {
+        out.stamps.iter_mut().for_each(|s| *s = 0);
+        out.stamp = 1;
+    }
+    for &i in scratch.iter() {
+        let far = reach + index.margin + index.reach_of[i as usize];
+        if !at_most((index.rest[i as usize] - center).norm_squared(), far * far) {
+            continue;
+        }
+        let x = out.position_of(i, position);
+        let near = reach + index.reach_of[i as usize];
+        if !at_most((x - center).norm_squared(), near * near) {
+            continue;
+        }
+        for &t in index.triangles_of(i) {
+            out.visit(t);
+        }
+    }
+    let Some(m) = motion else { return };
+    let s = s as usize;
+    if s >= out.kept.len() {
+        return;
+    }
+    out.kept[s].valid = false;
+    if !complete || out.tris.is_full() {
+        return;
+    }
+    // Keep the triangles whose bounding sphere comes within the slack.
+    let base = s * KEPT_TRIANGLES;
+    let mut len = 0usize;
+    for ti in 0..out.tris.len() {
+        let t = out.tris[ti];
+        let x = index.tris[t as usize].map(|v| out.position_of(v, position));
+        let centroid = (x[0] + x[1] + x[2]) / 3.0;
+        let spread = x.iter().map(|v| (v - centroid).norm()).fold(0.0, f64::max);
+        if !at_most((centroid - center).norm(), reach + spread) {
+            continue;
+        }
+        if len == KEPT_TRIANGLES {
+            return;
+        }
+        out.kept_tris[base + len] = t;
+        len += 1;
+    }
+    // The tick integrates the kept ones (the others cannot press).
+    out.tris.clear();
+    for k in 0..len {
+        let _ = out.tris.push(out.kept_tris[base + k]);
+    }
+    out.kept[s] = Kept {
+        valid: true,
+        center: *center,
+        q: *m.q,
+        len: len as u16,
+    };
 }
 
 /// a ≤ b, false if either is NaN.
@@ -774,10 +977,10 @@ fn push_force<const R: usize>(out: &mut ContactOutput<R>, node: u32, sphere: u16
 }
 
 /// Patch `p`'s unit-load shape G_p = Σ_a Φ_aᵀ e_a (e_a = f_a / |Σ f|).
-fn patch_rows<const R: usize>(
+fn patch_rows<'r, const R: usize>(
     p: &Patch,
     active: &[ActiveNode],
-    rows: &impl Fn(u32) -> Option<SMatrix<f64, 3, R>>,
+    rows: &impl Fn(u32) -> Option<&'r SMatrix<f64, 3, R>>,
 ) -> SVector<f64, R> {
     let mut g = SVector::<f64, R>::zeros();
     for a in &active[p.first as usize..(p.first + p.len) as usize] {
@@ -790,7 +993,10 @@ fn patch_rows<const R: usize>(
 
 /// The penalty alone: node forces as pressed, K_c = Σ_a k_a g_a g_aᵀ
 /// (g_a = Φ_aᵀ n_a, n_a the direction of the node's force).
-fn plain_patches<const R: usize>(rows: &impl Fn(u32) -> Option<SMatrix<f64, 3, R>>, out: &mut ContactOutput<R>) {
+fn plain_patches<'r, const R: usize>(
+    rows: &impl Fn(u32) -> Option<&'r SMatrix<f64, 3, R>>,
+    out: &mut ContactOutput<R>,
+) {
     for pi in 0..out.patches.len() {
         let p = out.patches[pi];
         plain_patch(&p, rows, out);
@@ -798,9 +1004,9 @@ fn plain_patches<const R: usize>(rows: &impl Fn(u32) -> Option<SMatrix<f64, 3, R
 }
 
 /// One patch with the penalty alone (see [`plain_patches`]).
-fn plain_patch<const R: usize>(
+fn plain_patch<'r, const R: usize>(
     p: &Patch,
-    rows: &impl Fn(u32) -> Option<SMatrix<f64, 3, R>>,
+    rows: &impl Fn(u32) -> Option<&'r SMatrix<f64, 3, R>>,
     out: &mut ContactOutput<R>,
 ) {
     for ai in p.first as usize..(p.first + p.len) as usize {
@@ -809,7 +1015,7 @@ fn plain_patch<const R: usize>(
         let fa = a.f.norm();
         if let (Some(phi), true) = (rows(a.node), fa > 0.0) {
             let g = phi.tr_mul(&(a.f / fa));
-            out.reduced_stiffness += g * g.transpose() * a.k;
+            out.reduced_stiffness.ger(a.k, &g, &g, 1.0);
         }
     }
 }
@@ -868,26 +1074,28 @@ const SERIES_ITERATIONS: usize = 16;
 
 /// Patch `q`'s pressure law at a deflection `delta` of the tissue under it
 /// (along its force): (F, dF/dδ) with F(δ) = c Σ k_i (d_i − δ)₊ over its
-/// samples, c = F(0) / Σ k_i d_i (the pressed magnitude at no deflection).
+/// samples, c = F(0) / Σ k_i d_i (the pressed magnitude at no deflection,
+/// [`Patch::law_scale`]).
 fn patch_law<const R: usize>(q: usize, out: &ContactOutput<R>, delta: f64) -> (f64, f64) {
     let p = &out.patches[q];
     let samples = &out.samples_buf[p.sample_first as usize..(p.sample_first + p.sample_len) as usize];
-    let (mut f, mut k, mut f0) = (0.0, 0.0, 0.0);
+    let (mut f, mut k) = (0.0, 0.0);
     for smp in samples {
-        f0 += smp.k * smp.depth;
-        if smp.depth > delta {
-            f += smp.k * (smp.depth - delta);
-            k += smp.k;
-        }
+        let pressed = smp.depth > delta;
+        f += if pressed { smp.k * (smp.depth - delta) } else { 0.0 };
+        k += if pressed { smp.k } else { 0.0 };
     }
-    let c = if f0 > 0.0 { p.force / f0 } else { 0.0 };
-    (c * f, c * k)
+    (p.law_scale * f, p.law_scale * k)
 }
 
 /// S_pq = Σ_ab e_aᵀ ΔW_ab e_b over the nodes of patches `p` and `q`, with
 /// e_a = f_a / F the patch's load shape.
 fn patch_coupling<const R: usize>(w: &LocalCompliance, p: usize, q: usize, out: &ContactOutput<R>) -> f64 {
     let (p, q) = (&out.patches[p], &out.patches[q]);
+    let apart = (p.rest_centre - q.rest_centre).norm() - p.rest_radius - q.rest_radius;
+    if apart > w.reach() {
+        return 0.0;
+    }
     let mut s = 0.0;
     for a in &out.active[p.first as usize..(p.first + p.len) as usize] {
         let ea = a.f / p.force;
@@ -910,9 +1118,9 @@ fn patch_coupling<const R: usize>(w: &LocalCompliance, p: usize, q: usize, out: 
 /// (One unknown per touched node instead, with the nodes' shares of the
 /// pressure as separate laws, was measured less accurate: docs/REDUCED.md.)
 #[allow(clippy::needless_range_loop)] // index arithmetic reads as the formula
-fn series_patches<const R: usize>(
+fn series_patches<'r, const R: usize>(
     w: &LocalCompliance,
-    rows: &impl Fn(u32) -> Option<SMatrix<f64, 3, R>>,
+    rows: &impl Fn(u32) -> Option<&'r SMatrix<f64, 3, R>>,
     out: &mut ContactOutput<R>,
 ) {
     const C: usize = MAX_COMPLIANT_PATCHES;
@@ -1017,7 +1225,7 @@ fn series_patches<const R: usize>(
                 h += g[a] * col[a];
             }
         }
-        out.reduced_stiffness += h * g[b].transpose();
+        out.reduced_stiffness.ger(1.0, &h, &g[b], 1.0);
     }
     // Patches beyond the corrected ones: the plain penalty.
     for pi in m..out.patches.len() {
@@ -1047,7 +1255,7 @@ mod tests {
             Vec3::new(0.5, 0.0, 0.0),
         ] {
             assert!(idx.query(&c, &mut out));
-            let reach = p.tool_radius_m + p.search_margin_m + idx.max_edge();
+            let reach = p.tool_radius_m + p.search_margin_m + idx.max_edge() + COHERENCE_SLACK_M;
             let mut want: Vec<u32> = mesh
                 .surface_nodes()
                 .into_iter()
@@ -1129,7 +1337,8 @@ mod tests {
         let mut scratch = Candidates::new();
         let mut out = ContactOutput::<2>::default();
         // One mode moving every node along z by 1, one along x by 1.
-        let rows = |_| Some(SMatrix::<f64, 3, 2>::new(0.0, 1.0, 0.0, 0.0, 1.0, 0.0));
+        let row = SMatrix::<f64, 3, 2>::new(0.0, 1.0, 0.0, 0.0, 1.0, 0.0);
+        let rows = |_| Some(&row);
         evaluate(&idx, &p, &c, |i| mesh.rest()[i as usize], rows, &mut scratch, &mut out);
         let fz: f64 = out.nodes.iter().map(|n| n.force.z).sum();
         let fx: f64 = out.nodes.iter().map(|n| n.force.x).sum();

@@ -170,8 +170,12 @@ fn eval_contact<const R: usize>(
             let base = index.rest(i) + offset.get(i as usize).copied().unwrap_or_else(Vec3::zeros);
             base + dynamics.displacement_at(i).unwrap_or_else(Vec3::zeros)
         },
-        |i| dynamics.rows_at(i).copied(),
+        |i| dynamics.rows_at(i),
         m.compliance.as_deref(),
+        Some(contact::Motion {
+            q: dynamics.q(),
+            row_bound: dynamics.row_bound(),
+        }),
         scratch,
         out,
     );
@@ -306,6 +310,7 @@ impl<const R: usize> Servo<R> {
                 // equilibrium under the contact (one static Newton step),
                 // so it does not ring after the fade.
                 new.dynamics.set_state(&q, &qd);
+                self.fade_contact.forget();
                 eval_contact(
                     &new,
                     &self.index,
@@ -329,6 +334,10 @@ impl<const R: usize> Servo<R> {
             self.counters.nonfinite += 1;
         }
         self.counters.model_swaps += 1;
+        // Both contact outputs now follow other models than the triangles
+        // they kept were found for.
+        self.contact.forget();
+        self.fade_contact.forget();
         std::mem::replace(&mut self.model, new)
     }
 

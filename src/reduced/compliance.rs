@@ -84,6 +84,8 @@ pub struct LocalCompliance {
     offsets: Vec<u32>,
     cols: Vec<u32>,
     blocks: Vec<Mat3>,
+    /// The largest rest distance between i and j over the stored blocks.
+    reach: f64,
 }
 
 /// A uniform grid over points for radius queries (build-time only).
@@ -349,7 +351,21 @@ impl LocalCompliance {
             blocks: blocks.len(),
             seconds: t0.elapsed().as_secs_f64(),
         };
-        Ok((LocalCompliance { offsets, cols, blocks }, stats))
+        Ok((
+            LocalCompliance {
+                offsets,
+                cols,
+                blocks,
+                reach,
+            },
+            stats,
+        ))
+    }
+
+    /// The largest rest distance between two nodes with a stored block
+    /// (m): nodes farther apart than this have none (ΔW_ij taken as 0).
+    pub fn reach(&self) -> f64 {
+        self.reach
     }
 
     /// ΔW_ij (m/N) if j is within the coupling radius of i or in its surface

@@ -79,7 +79,33 @@ pub(crate) fn project_on_rows<const R: usize>(
 
 /// Φ v at one node from its rows (None if the node is not in the mesh).
 pub(crate) fn rows_times<const R: usize>(rows: &[SMatrix<f64, 3, R>], node: u32, v: &SVector<f64, R>) -> Option<Vec3> {
-    rows.get(node as usize).map(|row| row * v)
+    rows.get(node as usize).map(|row| row_times(row, v))
+}
+
+/// Φᵢ v for one node's 3 × R rows, with four independent partial sums per
+/// component. The contact evaluates it for every node under a patch each
+/// tick; nalgebra's product runs one dependent chain of R multiply-adds
+/// per component. At R = 32, on rows in cache: 20 ns against 35 ns
+/// (2-core VM, 2026-11-25).
+pub fn row_times<const R: usize>(row: &SMatrix<f64, 3, R>, v: &SVector<f64, R>) -> Vec3 {
+    // Column-major: column j is (a[3j], a[3j + 1], a[3j + 2]).
+    let (a, v) = (row.as_slice(), v.as_slice());
+    let mut acc = [[0.0f64; 3]; 4];
+    let body = a.chunks_exact(12);
+    let (tail_a, tail_v) = (body.remainder(), &v[R - R % 4..]);
+    for (cols, vs) in body.zip(v.chunks_exact(4)) {
+        for k in 0..4 {
+            for c in 0..3 {
+                acc[k][c] += cols[3 * k + c] * vs[k];
+            }
+        }
+    }
+    for (col, &vj) in tail_a.chunks_exact(3).zip(tail_v) {
+        for c in 0..3 {
+            acc[0][c] += col[c] * vj;
+        }
+    }
+    Vec3::from_fn(|c, _| (acc[0][c] + acc[1][c]) + (acc[2][c] + acc[3][c]))
 }
 
 /// Time step and Rayleigh damping of the reduced model.
@@ -124,6 +150,8 @@ pub struct ReducedDynamics<const R: usize> {
     gamma: [SVector<f64, R>; MAX_PRONY_TERMS],
     /// s = 1 − Σ A_i.
     prony_scale: f64,
+    /// max over nodes of ‖Φᵢ‖_F ([`ReducedDynamics::row_bound`]).
+    row_bound: f64,
 }
 
 impl<const R: usize> ReducedDynamics<R> {
@@ -189,6 +217,7 @@ impl<const R: usize> ReducedDynamics<R> {
         // (1 + hα) on their diagonal; step() also zeroes their forcing.
         let a = SMatrix::<f64, R, R>::identity() * (1.0 + h * params.alpha) + k * (h * params.beta + h * h);
         let system = Cholesky::new(a).ok_or(ReducedError::NotPositiveDefinite)?;
+        let row_bound = rows.iter().map(|row| row.norm()).fold(0.0, f64::max);
         Ok(ReducedDynamics {
             r,
             dt: h,
@@ -206,6 +235,7 @@ impl<const R: usize> ReducedDynamics<R> {
             prony_b: [0.0; MAX_PRONY_TERMS],
             gamma: [SVector::zeros(); MAX_PRONY_TERMS],
             prony_scale: 1.0,
+            row_bound,
         })
     }
 
@@ -365,6 +395,14 @@ impl<const R: usize> ReducedDynamics<R> {
         self.rows.get(node as usize)
     }
 
+    /// An upper bound on how far any node moves per unit change of q: the
+    /// largest Frobenius norm of a node's rows (≥ its spectral norm), so
+    /// ‖Φᵢ (q₁ − q₀)‖ ≤ `row_bound()` ‖q₁ − q₀‖ at every node. The contact
+    /// uses it to keep a patch's triangles from one tick to the next.
+    pub fn row_bound(&self) -> f64 {
+        self.row_bound
+    }
+
     /// The shared basis rows.
     pub fn rows(&self) -> &BasisRows<R> {
         &self.rows
@@ -445,6 +483,26 @@ impl<const R: usize> ReducedDynamics<R> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    fn row_times_matches_the_product_at<const R: usize>() {
+        let row = SMatrix::<f64, 3, R>::from_fn(|i, j| (1.0 + i as f64) * (j as f64 * 0.7).sin() - 0.1 * j as f64);
+        let v = SVector::<f64, R>::from_fn(|j, _| (j as f64 * 1.3).cos() + 0.01 * j as f64);
+        let (fast, plain) = (row_times(&row, &v), row * v);
+        assert!(
+            (fast - plain).norm() <= 1e-13 * (1.0 + plain.norm()),
+            "R = {R}: {fast} vs {plain}"
+        );
+    }
+
+    #[test]
+    fn row_times_is_the_matrix_vector_product_for_every_size() {
+        row_times_matches_the_product_at::<1>();
+        row_times_matches_the_product_at::<3>();
+        row_times_matches_the_product_at::<4>();
+        row_times_matches_the_product_at::<5>();
+        row_times_matches_the_product_at::<32>();
+        row_times_matches_the_product_at::<47>();
+    }
 
     /// One node, one mode along x with ω² = 4 (unit mass).
     fn one_mode() -> ModalBasis {
