@@ -734,9 +734,7 @@ fn press_sphere<const R: usize>(
         let t = out.tris[ti] as usize;
         let tri = index.tris[t];
         let x = tri.map(|v| out.position_of(v, position));
-        let centroid = (x[0] + x[1] + x[2]) / 3.0;
-        let spread = x.iter().map(|v| (v - centroid).norm()).fold(0.0, f64::max);
-        if !at_most((centroid - center).norm(), rho + spread) {
+        if !within_bounding_sphere(&x, center, rho) {
             continue;
         }
         out.triangles += 1;
@@ -935,9 +933,7 @@ fn search_triangles<const R: usize>(
     for ti in 0..out.tris.len() {
         let t = out.tris[ti];
         let x = index.tris[t as usize].map(|v| out.position_of(v, position));
-        let centroid = (x[0] + x[1] + x[2]) / 3.0;
-        let spread = x.iter().map(|v| (v - centroid).norm()).fold(0.0, f64::max);
-        if !at_most((centroid - center).norm(), reach + spread) {
+        if !within_bounding_sphere(&x, center, reach) {
             continue;
         }
         if len == KEPT_TRIANGLES {
@@ -957,6 +953,16 @@ fn search_triangles<const R: usize>(
         q: *m.q,
         len: len as u16,
     };
+}
+
+/// Whether the sphere about the triangle `x`'s centroid through its
+/// farthest vertex comes within `r` of `center` (false if NaN): one square
+/// root, so it is cheap enough to run on every kept triangle every tick.
+fn within_bounding_sphere(x: &[Vec3; 3], center: &Vec3, r: f64) -> bool {
+    let centroid = (x[0] + x[1] + x[2]) / 3.0;
+    let spread2 = x.iter().map(|v| (v - centroid).norm_squared()).fold(0.0, f64::max);
+    let reach = r + spread2.sqrt();
+    at_most((centroid - center).norm_squared(), reach * reach)
 }
 
 /// a ≤ b, false if either is NaN.
