@@ -99,6 +99,18 @@ basis_refresh_m = 1e-5
         sane(name, p);
     }
     assert!(report.watchdog.contact_ticks > 0, "the probe touched the wall");
+    // Contact anywhere: the probe's touches are new patches, each
+    // corrected by the residual compliance from its first tick (the table
+    // is built with the basis, before the loop starts).
+    let c = &report.contact;
+    assert!(c.new_patches >= 1, "{c:?}");
+    assert!(
+        c.corrected_patches >= 1 && c.corrected_patches + c.never_corrected <= c.new_patches,
+        "{c:?}"
+    );
+    assert_eq!(c.corrected_after_ms.max, 0.0, "{c:?}");
+    assert!(c.patches_max >= 1 && c.contact_ticks == report.watchdog.contact_ticks);
+    assert_eq!(c.immediate_only_ticks, report.watchdog.compliance_ticks);
     assert!(report.max_force_n > 0.0 && report.max_force_n <= 7.9);
     assert!(report.model_swaps > 0, "refreshed models reached the loop");
     assert!(report.background.steps > 0);

@@ -396,6 +396,11 @@ pub struct ContactOutput<const R: usize> {
     pub uncorrected: usize,
     /// Patches the compliance correction released (pulled into the tool).
     pub released: usize,
+    /// The residual compliance corrected every touching patch this
+    /// evaluation (false without a table, with more than
+    /// [`MAX_COMPLIANT_PATCHES`] patches, or when the series solve fell
+    /// back to the plain penalty).
+    pub corrected: bool,
     /// Newton iterations of the series solve.
     pub iterations: usize,
     /// Spheres whose triangles were searched for on the grid this
@@ -563,6 +568,7 @@ impl<const R: usize> Default for ContactOutput<R> {
             truncated: false,
             uncorrected: 0,
             released: 0,
+            corrected: false,
             iterations: 0,
             searches: 0,
             sphere_forces: heapless::Vec::new(),
@@ -662,6 +668,7 @@ pub fn evaluate_spheres<'r, const R: usize>(
     out.max_depth = 0.0;
     out.uncorrected = 0;
     out.released = 0;
+    out.corrected = false;
     out.iterations = 0;
     out.truncated = centers.len() > MAX_SPHERES;
     out.candidates = 0;
@@ -1200,6 +1207,7 @@ fn series_patches<'r, const R: usize>(
         plain_patches(rows, out);
         return;
     }
+    out.corrected = m == out.patches.len();
     let on: [bool; C] = std::array::from_fn(|a| a < m && on[a] && kk[a] > 0.0);
     // The penetration into the surface as the residual compliance moves it.
     out.max_depth = (0..m)

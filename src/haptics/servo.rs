@@ -138,6 +138,97 @@ pub struct ServoCounters {
     pub compliance_ticks: u64,
 }
 
+/// Longest delay from a patch's first touch to its first corrected tick
+/// that [`ContactEvents`] bins to the tick; longer ones share the last bin.
+pub const CORRECTION_DELAY_BINS: usize = 1024;
+
+/// New contact patches and how long each waited for the residual
+/// compliance correction (contact anywhere), kept by the loop in fixed
+/// memory. A patch is a tool sphere that starts touching; it is corrected
+/// on the first tick the correction applies to every patch
+/// ([`ContactOutput::corrected`]).
+#[derive(Debug, Clone)]
+pub struct ContactEvents {
+    /// Per sphere, the tick its current touch began (0: not touching).
+    touch_tick: [u64; contact::MAX_SPHERES],
+    /// Per sphere, touching and not corrected yet.
+    waiting: [bool; contact::MAX_SPHERES],
+    /// Delays in ticks, one bin per tick.
+    delays: Box<[u32; CORRECTION_DELAY_BINS]>,
+    /// Patches that began touching.
+    pub new_patches: u64,
+    /// Patches whose touch ended before any corrected tick.
+    pub never_corrected: u64,
+}
+
+impl Default for ContactEvents {
+    fn default() -> Self {
+        ContactEvents {
+            touch_tick: [0; contact::MAX_SPHERES],
+            waiting: [false; contact::MAX_SPHERES],
+            delays: Box::new([0; CORRECTION_DELAY_BINS]),
+            new_patches: 0,
+            never_corrected: 0,
+        }
+    }
+}
+
+impl ContactEvents {
+    /// Records tick `tick` (counted from 1): which spheres touch, and
+    /// whether the correction applied. Allocates nothing.
+    pub fn record(&mut self, tick: u64, sphere_forces: &[Vec3], corrected: bool) {
+        for s in 0..contact::MAX_SPHERES {
+            let touching = sphere_forces.get(s).is_some_and(|f| f.norm_squared() > 0.0);
+            if touching {
+                if self.touch_tick[s] == 0 {
+                    self.new_patches += 1;
+                    self.touch_tick[s] = tick.max(1);
+                    self.waiting[s] = true;
+                }
+                if self.waiting[s] && corrected {
+                    let ticks = tick.saturating_sub(self.touch_tick[s]) as usize;
+                    self.delays[ticks.min(CORRECTION_DELAY_BINS - 1)] += 1;
+                    self.waiting[s] = false;
+                }
+            } else {
+                if self.waiting[s] {
+                    self.never_corrected += 1;
+                }
+                self.touch_tick[s] = 0;
+                self.waiting[s] = false;
+            }
+        }
+    }
+
+    /// Patches corrected so far.
+    pub fn corrected(&self) -> u64 {
+        self.delays.iter().map(|&n| n as u64).sum()
+    }
+
+    /// The delay (ticks) below which a fraction `q` of the corrected
+    /// patches were corrected (nearest rank; 0 with none).
+    pub fn delay_quantile(&self, q: f64) -> usize {
+        let n = self.corrected();
+        if n == 0 {
+            return 0;
+        }
+        let rank = ((n as f64 - 1.0) * q.clamp(0.0, 1.0)).round() as u64;
+        let mut seen = 0u64;
+        for (ticks, &count) in self.delays.iter().enumerate() {
+            seen += count as u64;
+            if seen > rank {
+                return ticks;
+            }
+        }
+        CORRECTION_DELAY_BINS - 1
+    }
+
+    /// The longest delay (ticks; the last bin means at least that).
+    pub fn delay_max(&self) -> usize {
+        self.delays.iter().rposition(|&n| n > 0).unwrap_or(0)
+    }
+}
+
 /// What one tick produced.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct TickOutput {
@@ -222,6 +313,7 @@ pub struct Servo<const R: usize> {
     retired: Option<Box<LoopModel<R>>>,
     extra: heapless::Vec<Vec3, { contact::MAX_SPHERES - 1 }>,
     centers: heapless::Vec<Vec3, { contact::MAX_SPHERES }>,
+    events: ContactEvents,
 }
 
 /// How long a fault keeps the force down after its last tick, beyond the
@@ -255,6 +347,7 @@ impl<const R: usize> Servo<R> {
             retired: None,
             extra: heapless::Vec::new(),
             centers: heapless::Vec::new(),
+            events: ContactEvents::default(),
         }
     }
 
@@ -403,6 +496,11 @@ impl<const R: usize> Servo<R> {
         &self.model
     }
 
+    /// New contact patches and their correction delays so far.
+    pub fn contact_events(&self) -> &ContactEvents {
+        &self.events
+    }
+
     /// The contact of the last tick.
     pub fn contact(&self) -> &ContactOutput<R> {
         &self.contact
@@ -496,6 +594,7 @@ impl<const R: usize> Servo<R> {
             self.counters.truncated_ticks += 1;
         }
         let c = &self.contact;
+        self.events.record(self.counters.ticks, &c.sphere_forces, c.corrected);
         let touching = c.sphere_forces.iter().filter(|f| f.norm_squared() > 0.0).count() as u64;
         self.counters.contact_patches_max = self.counters.contact_patches_max.max(touching);
         self.counters.contact_nodes_max = self.counters.contact_nodes_max.max(c.nodes.len() as u64);
@@ -590,5 +689,38 @@ impl<const R: usize> Servo<R> {
         } else {
             Vec3::zeros()
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn contact_events_count_new_patches_and_their_correction_delays() {
+        let mut e = ContactEvents::default();
+        let on = Vec3::new(0.0, 0.0, 1.0);
+        let off = Vec3::zeros();
+        // Tick 3: sphere 0 touches, no correction; tick 4: sphere 1 too;
+        // tick 5: corrected (delays 2 and 1); tick 10: sphere 2 touches
+        // uncorrected and leaves on tick 11.
+        e.record(1, &[off], true);
+        e.record(3, &[on, off], false);
+        e.record(4, &[on, on], false);
+        e.record(5, &[on, on], true);
+        e.record(6, &[on, on], true);
+        e.record(10, &[on, on, on], false);
+        e.record(11, &[on, on, off], true);
+        assert_eq!(e.new_patches, 3);
+        assert_eq!(e.corrected(), 2);
+        assert_eq!(e.never_corrected, 1);
+        assert_eq!(e.delay_quantile(0.0), 1);
+        assert_eq!(e.delay_quantile(1.0), 2);
+        assert_eq!(e.delay_max(), 2);
+        // Leaving and touching again is a new patch, corrected at once.
+        e.record(12, &[off, on], true);
+        e.record(13, &[on, on], true);
+        assert_eq!(e.new_patches, 4);
+        assert_eq!(e.delay_quantile(0.0), 0);
     }
 }

@@ -152,6 +152,11 @@ impl<const R: usize> HapticTick<R> {
         self.servo.counters()
     }
 
+    /// New contact patches and their correction delays so far.
+    pub fn contact_events(&self) -> &crate::haptics::servo::ContactEvents {
+        self.servo.contact_events()
+    }
+
     /// QP counters so far, including the port energy the observer counted
     /// (`delivered_j`, `absorbed_j`).
     pub fn qp_stats(&self) -> &PassivityStats {

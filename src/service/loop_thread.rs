@@ -30,6 +30,7 @@ pub(super) struct LoopResult {
     pub qp_us: Histogram,
     pub grant: RtGrant,
     pub counters: ServoCounters,
+    pub contact: crate::service::report::ContactReport,
     pub qp: PassivityStats,
     pub misses: u64,
     pub misses_compute: u64,
@@ -84,6 +85,7 @@ pub(super) fn loop_thread<const R: usize>(mut tick: HapticTick<R>, mut io: LoopI
         qp_us: Histogram::new(),
         grant,
         counters: ServoCounters::default(),
+        contact: Default::default(),
         qp: *tick.qp_stats(),
         misses: 0,
         misses_compute: 0,
@@ -233,6 +235,8 @@ pub(super) fn loop_thread<const R: usize>(mut tick: HapticTick<R>, mut io: LoopI
     drop(pending_return);
     res.seconds = (clock::now_ns() - t_begin) as f64 * 1e-9;
     res.counters = *tick.counters();
+    res.contact =
+        crate::service::report::ContactReport::from_loop(tick.contact_events(), tick.counters(), period as f64 * 1e-9);
     res.qp = *tick.qp_stats();
     crate::rt::alloc::leave_rt();
     res

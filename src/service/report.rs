@@ -150,6 +150,8 @@ pub struct Report {
     pub background: BackgroundReport,
     /// Watchdog and loop counters.
     pub watchdog: crate::haptics::servo::ServoCounters,
+    /// Contact anywhere: new patches, correction delays.
+    pub contact: ContactReport,
     /// Device ticks, stale reads and errors.
     pub device_ticks: u64,
     /// Device reads that returned an error.
@@ -173,6 +175,66 @@ pub struct Report {
     /// Device periods in which the device thread zeroed the force itself
     /// because the loop had sent no command for 20 ms.
     pub device_loop_silent_periods: u64,
+}
+
+/// Contact anywhere in the run (the `contact` keys of the report).
+#[derive(Debug, Clone, Default, PartialEq, serde::Serialize)]
+pub struct ContactReport {
+    /// Tool spheres that began touching (new contact patches).
+    pub new_patches: u64,
+    /// From a patch's first touch to its first tick with the residual
+    /// compliance correction (ms): p50, p99, max. The table is computed
+    /// for every surface node with the basis, so it is 0 whenever a table
+    /// is installed.
+    pub corrected_after_ms: CorrectionDelay,
+    /// Patches corrected, and patches whose touch ended uncorrected.
+    pub corrected_patches: u64,
+    /// See `corrected_patches`.
+    pub never_corrected: u64,
+    /// Most spheres touching at once.
+    pub patches_max: u64,
+    /// Contact ticks, and of them the ticks the loop ran on the immediate
+    /// correction only (the residual compliance in series with the
+    /// reduced model; nvtmm swaps in no per-patch static modes, the
+    /// correction is what makes the patch right once settled).
+    pub contact_ticks: u64,
+    /// See `contact_ticks`.
+    pub immediate_only_ticks: u64,
+}
+
+/// Percentiles of the correction delay (ms).
+#[derive(Debug, Clone, Copy, Default, PartialEq, serde::Serialize)]
+pub struct CorrectionDelay {
+    /// Median.
+    pub p50: f64,
+    /// 99th percentile.
+    pub p99: f64,
+    /// Longest.
+    pub max: f64,
+}
+
+impl ContactReport {
+    /// The figures from the loop's events and counters, at `dt_s` per tick.
+    pub fn from_loop(
+        events: &crate::haptics::servo::ContactEvents,
+        counters: &crate::haptics::servo::ServoCounters,
+        dt_s: f64,
+    ) -> ContactReport {
+        let ms = |ticks: usize| ticks as f64 * dt_s * 1e3;
+        ContactReport {
+            new_patches: events.new_patches,
+            corrected_after_ms: CorrectionDelay {
+                p50: ms(events.delay_quantile(0.5)),
+                p99: ms(events.delay_quantile(0.99)),
+                max: ms(events.delay_max()),
+            },
+            corrected_patches: events.corrected(),
+            never_corrected: events.never_corrected,
+            patches_max: counters.contact_patches_max,
+            contact_ticks: counters.contact_ticks,
+            immediate_only_ticks: counters.compliance_ticks,
+        }
+    }
 }
 
 /// A helper thread that ended before the stop.
@@ -326,6 +388,15 @@ impl Report {
             w.contact_patches_max,
             w.uncorrected_ticks,
             crate::haptics::contact::MAX_COMPLIANT_PATCHES
+        );
+        let c = &self.contact;
+        s += &format!(
+            "    {} new patches, corrected after p50 {:.0} ms, p99 {:.0} ms, max {:.0} ms ({} never corrected)\n",
+            c.new_patches,
+            c.corrected_after_ms.p50,
+            c.corrected_after_ms.p99,
+            c.corrected_after_ms.max,
+            c.never_corrected
         );
         if w.model_stale_ticks > 0 {
             s += &format!(

@@ -217,6 +217,7 @@ impl<const R: usize> RunningService for Running<R> {
             basis_cache: self.basis_cache.clone(),
             background,
             watchdog: lr.counters,
+            contact: lr.contact.clone(),
             device_ticks: dr.ticks,
             device_errors: dr.errors,
             max_depth_m: lr.max_depth,
