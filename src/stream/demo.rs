@@ -88,6 +88,7 @@ impl Dent {
             flags: fl,
             loop_rate_hz: 1000.0,
             tick_p99_us: 40.0 + 5.0 * (t * 0.7).sin() as f32,
+            wire: &[],
         }
     }
 }

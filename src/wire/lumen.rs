@@ -505,8 +505,11 @@ fn check_finite(v: &[Vec3]) -> Result<(), LumenError> {
     }
 }
 
-impl Lumen for TriangleLumen {
-    fn probe(&self, p: Vec3, range: f64) -> Option<WallHit> {
+impl TriangleLumen {
+    /// [`Lumen::probe`] with the index of the nearest triangle (into
+    /// [`TriangleLumen::triangles`]): where a contact's force goes on the
+    /// wall. Allocates nothing.
+    pub fn probe_triangle(&self, p: Vec3, range: f64) -> Option<(WallHit, usize)> {
         let r = range.max(0.0) + self.reach;
         let a = self.cell_of(p - Vec3::repeat(r));
         let b = self.cell_of(p + Vec3::repeat(r));
@@ -558,11 +561,43 @@ impl Lumen for TriangleLumen {
         } else {
             (0.0, face)
         };
-        Some(WallHit {
-            distance,
-            normal,
-            point: q,
-        })
+        Some((
+            WallHit {
+                distance,
+                normal,
+                point: q,
+            },
+            t,
+        ))
+    }
+
+    /// Barycentric weights of `q` (a point on or near triangle `t`) on the
+    /// triangle's three vertices: non-negative, summing to 1 (clamped to
+    /// the triangle).
+    pub fn barycentric(&self, t: usize, q: Vec3) -> [f64; 3] {
+        let [a, b, c] = self.tris[t].map(|i| self.verts[i as usize]);
+        let (v0, v1, v2) = (b - a, c - a, q - a);
+        let (d00, d01, d11) = (v0.dot(&v0), v0.dot(&v1), v1.dot(&v1));
+        let (d20, d21) = (v2.dot(&v0), v2.dot(&v1));
+        let den = d00 * d11 - d01 * d01;
+        if !(den.abs() > 1e-300) {
+            return [1.0 / 3.0; 3];
+        }
+        let v = ((d11 * d20 - d01 * d21) / den).max(0.0);
+        let w = ((d00 * d21 - d01 * d20) / den).max(0.0);
+        let u = (1.0 - v - w).max(0.0);
+        let s = u + v + w;
+        if s > 0.0 {
+            [u / s, v / s, w / s]
+        } else {
+            [1.0 / 3.0; 3]
+        }
+    }
+}
+
+impl Lumen for TriangleLumen {
+    fn probe(&self, p: Vec3, range: f64) -> Option<WallHit> {
+        self.probe_triangle(p, range).map(|(h, _)| h)
     }
 }
 
