@@ -369,6 +369,10 @@ pub struct TriangleLumen {
     cell_start: Vec<u32>,
     items: Vec<u32>,
     tri_cell: Vec<u32>,
+    /// Per slot of `items`: the triangle's centroid and the distance to its
+    /// farthest vertex, in the order a query walks them (a cheap lower
+    /// bound on the distance that skips most triangles).
+    spheres: Vec<[f64; 4]>,
 }
 
 impl TriangleLumen {
@@ -411,6 +415,7 @@ impl TriangleLumen {
             cell_start: vec![0; cells + 1],
             items: vec![0; triangles.len()],
             tri_cell: vec![0; triangles.len()],
+            spheres: vec![[0.0; 4]; triangles.len()],
         };
         l.rebuild();
         Ok(l)
@@ -485,6 +490,12 @@ impl TriangleLumen {
             self.cell_start[i] = self.cell_start[i - 1];
         }
         self.cell_start[0] = 0;
+        for slot in 0..self.items.len() {
+            let [a, b, c] = self.tris[self.items[slot] as usize].map(|i| self.verts[i as usize]);
+            let g = (a + b + c) / 3.0;
+            let r = (a - g).norm().max((b - g).norm()).max((c - g).norm());
+            self.spheres[slot] = [g.x, g.y, g.z, r];
+        }
     }
 }
 
@@ -528,7 +539,18 @@ impl TriangleLumen {
                 for i in a[0]..=b[0] {
                     let id = i + nx * (j + ny * k);
                     let (s, e) = (self.cell_start[id] as usize, self.cell_start[id + 1] as usize);
-                    for &t in &self.items[s..e] {
+                    for slot in s..e {
+                        // Skip a triangle whose bounding sphere is farther
+                        // than the best so far (exact: only farther ones go).
+                        let [gx, gy, gz, gr] = self.spheres[slot];
+                        let dc = ((p.x - gx).powi(2) + (p.y - gy).powi(2) + (p.z - gz).powi(2)).sqrt();
+                        if let Some((bd, _, _)) = best {
+                            let lb = dc - gr;
+                            if lb > 0.0 && lb * lb >= bd {
+                                continue;
+                            }
+                        }
+                        let t = self.items[slot];
                         let [va, vb, vc] = self.tris[t as usize].map(|i| self.verts[i as usize]);
                         let q = closest_on_triangle(p, va, vb, vc);
                         let d2 = (p - q).norm_squared();
