@@ -12,7 +12,9 @@ use nvtmm::wire::Wire;
 use std::path::Path;
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
-    let arg = std::env::args().nth(1).unwrap_or_else(|| "rt-config/guidewire.toml".into());
+    let arg = std::env::args()
+        .nth(1)
+        .unwrap_or_else(|| "rt-config/guidewire.toml".into());
     let cfg = ServiceConfig::load(Path::new(&arg))?;
     let scene = nvtmm::scene::Scene::load(&cfg.resolve(&cfg.scene))?;
     let built = scene.build()?;

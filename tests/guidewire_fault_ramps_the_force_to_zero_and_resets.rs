@@ -11,7 +11,12 @@ use std::sync::atomic::Ordering;
 #[test]
 fn a_non_finite_wire_step_zeroes_the_force_and_resets_the_wire() {
     let dir = tempfile::tempdir().unwrap();
-    let cfg = common::guidewire::write(dir.path(), 60.0, "[[0.0, 0.02, 0.0], [0.3, 0.02, 0.0], [3.0, 0.06, 0.0]]");
+    let cfg = common::guidewire::write(
+        dir.path(),
+        60.0,
+        "[[0.0, 0.02, 0.0], [0.3, 0.02, 0.0], [3.0, 0.06, 0.0]]",
+        false,
+    );
     let h = Service::start(StartOptions::file(cfg)).expect("the guidewire service starts");
     assert!(
         common::service::wait_for(&h, 20.0, |s| s.gain > 0.999 && s.ticks > 1000),
@@ -32,5 +37,9 @@ fn a_non_finite_wire_step_zeroes_the_force_and_resets_the_wire() {
     assert_eq!(w.resets, 1, "one reset");
     assert!(r.watchdog.watchdog_ticks > 0);
     assert!(w.inserted_m.is_finite() && w.tip_m.iter().all(|c| c.is_finite()));
-    assert!(w.inserted_m > 0.021, "the wire went on after the reset: {}", w.inserted_m);
+    assert!(
+        w.inserted_m > 0.021,
+        "the wire went on after the reset: {}",
+        w.inserted_m
+    );
 }

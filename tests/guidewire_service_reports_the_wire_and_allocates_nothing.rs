@@ -19,12 +19,17 @@ fn a_short_guidewire_run_reports_finite_wire_keys_and_allocates_nothing() {
         dir.path(),
         4.0,
         "[[0.0, 0.02, 0.0], [0.3, 0.02, 0.0], [3.3, 0.08, 0.5]]",
+        std::env::var("GW_LOAD_WALL").map(|v| v != "0").unwrap_or(false),
     );
     let report = run_service(&StartOptions::file(cfg)).expect("the guidewire service runs");
     println!("{}", report.render());
     let w = report.wire.as_ref().expect("wire.* keys");
     assert!(w.steps > 2000, "{} wire steps", w.steps);
-    assert!(w.inserted_m > 0.06 && w.inserted_m <= 0.0801, "inserted {}", w.inserted_m);
+    assert!(
+        w.inserted_m > 0.06 && w.inserted_m <= 0.085,
+        "inserted {}",
+        w.inserted_m
+    );
     assert!(w.nodes > 20, "{} nodes", w.nodes);
     for (k, v) in [
         ("inserted_m", w.inserted_m),
@@ -47,7 +52,17 @@ fn a_short_guidewire_run_reports_finite_wire_keys_and_allocates_nothing() {
     assert_eq!(w.allocations_after_start, 0, "wire thread allocations");
     assert_eq!(report.allocations_after_start, 0, "loop + device + wire allocations");
     let json = serde_json::to_value(&report).unwrap();
-    for k in ["nodes", "inserted_m", "tip_segment", "contacts_max", "contacts_p50", "max_penetration_m", "axial_force_max_n", "step_us", "resets"] {
+    for k in [
+        "nodes",
+        "inserted_m",
+        "tip_segment",
+        "contacts_max",
+        "contacts_p50",
+        "max_penetration_m",
+        "axial_force_max_n",
+        "step_us",
+        "resets",
+    ] {
         assert!(json["wire"].get(k).is_some(), "wire.{k} missing");
     }
 }

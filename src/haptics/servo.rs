@@ -529,7 +529,8 @@ impl<const R: usize> Servo<R> {
         if !c.nodes.is_empty() && self.model.compliance.is_some() {
             self.counters.compliance_ticks += 1;
         }
-        let (mut desired, mut finite) = step_model(&mut self.model, &self.contact, &self.point_loads, &mut self.counters);
+        let (mut desired, mut finite) =
+            step_model(&mut self.model, &self.contact, &self.point_loads, &mut self.counters);
         // A cross-fade: the old model runs on and the force blends over.
         if let Some(old) = self.fading.as_mut() {
             eval_contact(

@@ -91,7 +91,11 @@ impl<const R: usize> HapticTick<R> {
     /// tick on, before the passivity filter: another instrument the hand
     /// holds (the guidewire's hub drive). Non-finite counts as zero.
     pub fn set_external_force(&mut self, f: Vec3) {
-        self.external = if f.iter().all(|v| v.is_finite()) { f } else { Vec3::zeros() };
+        self.external = if f.iter().all(|v| v.is_finite()) {
+            f
+        } else {
+            Vec3::zeros()
+        };
     }
 
     /// One tick. Allocates nothing.

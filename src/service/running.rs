@@ -650,7 +650,8 @@ pub(super) fn start_with<const R: usize>(p: Prepared) -> Result<Running<R>, Serv
         r: basis.len(),
         basis_s,
         basis_cache,
-        scripted_press_depth_m: (cfg.device.backend == Backend::TouchxSim).then_some(cfg.interaction.press_depth_m),
+        scripted_press_depth_m: (cfg.device.backend == Backend::TouchxSim && cfg.wire.is_none())
+            .then_some(cfg.interaction.press_depth_m),
         model_timeout_ms: cfg.watchdog.model_timeout_ms,
         faults,
         wire_handle,

@@ -105,7 +105,13 @@ impl GuidewireConfig {
         if Vec3::from(self.axis).norm() < 1e-9 {
             return Err(c.err("guidewire.axis", "must not be zero"));
         }
-        c.f64_in("guidewire.inserted_m", self.inserted_m, 0.0, wire.max_inserted_m(), "m (at most what the wire inserts)")?;
+        c.f64_in(
+            "guidewire.inserted_m",
+            self.inserted_m,
+            0.0,
+            wire.max_inserted_m(),
+            "m (at most what the wire inserts)",
+        )?;
         c.int_in("guidewire.cpu", self.cpu, -1, 1023)?;
         c.int_in("guidewire.priority", self.priority, 0, 99)?;
         c.f64_in("guidewire.stall_ms", self.stall_ms, 2.0, 10_000.0, "ms")?;
@@ -120,11 +126,20 @@ impl GuidewireConfig {
                 ));
             }
             last = row[0];
-            c.f64_in(&format!("guidewire.script[{k}][1]"), row[1], 0.0, wire.max_inserted_m(), "m")?;
+            c.f64_in(
+                &format!("guidewire.script[{k}][1]"),
+                row[1],
+                0.0,
+                wire.max_inserted_m(),
+                "m",
+            )?;
             c.f64_in(&format!("guidewire.script[{k}][2]"), row[2], -1000.0, 1000.0, "rad")?;
         }
         if wire.max_nodes > 1024 {
-            return Err(c.err("wire.max_nodes", format!("{}: the service runs at most 1024", wire.max_nodes)));
+            return Err(c.err(
+                "wire.max_nodes",
+                format!("{}: the service runs at most 1024", wire.max_nodes),
+            ));
         }
         Ok(())
     }
@@ -400,18 +415,13 @@ pub(super) fn build(
     start: Nanos,
     stream_every: u64,
 ) -> Result<WireParts, super::ServiceError> {
-    let wall = InnerWall::from_mesh(mesh, &g.wall_set)
-        .map_err(|e| super::ServiceError::Solver(format!("guidewire: {e}")))?;
+    let wall =
+        InnerWall::from_mesh(mesh, &g.wall_set).map_err(|e| super::ServiceError::Solver(format!("guidewire: {e}")))?;
     let lumen = wall
         .lumen()
         .map_err(|e| super::ServiceError::Solver(format!("guidewire: {e}")))?;
-    let wire = Wire::new(
-        params,
-        Vec3::from(g.access_point_m),
-        Vec3::from(g.axis),
-        g.inserted_m,
-    )
-    .map_err(|e| super::ServiceError::Solver(format!("guidewire: {e}")))?;
+    let wire = Wire::new(params, Vec3::from(g.access_point_m), Vec3::from(g.axis), g.inserted_m)
+        .map_err(|e| super::ServiceError::Solver(format!("guidewire: {e}")))?;
     let drive = HubDrive::new(params, wire.inserted(), wire.roll())?;
     let shared = Arc::new(WireShared::default());
     WireShared::set(&shared.inserted_bits, wire.inserted());

@@ -212,11 +212,7 @@ impl Publisher {
             self.stats.rejected_frames += 1;
             return Err(StreamError::Invalid {
                 what: "state frame",
-                msg: format!(
-                    "{} wire points, at most {}",
-                    frame.wire.len(),
-                    super::MAX_WIRE_POINTS
-                ),
+                msg: format!("{} wire points, at most {}", frame.wire.len(), super::MAX_WIRE_POINTS),
             });
         }
         let finite = frame.time_s.is_finite()

@@ -20,7 +20,9 @@ pub const MAX_WALL_LOADS: usize = 128;
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum CouplingError {
     /// The mesh has no node set of that name.
-    #[error("the mesh has no node set {0:?} (the inner wall; the built-in and generated arches name it \"inner_wall\")")]
+    #[error(
+        "the mesh has no node set {0:?} (the inner wall; the built-in and generated arches name it \"inner_wall\")"
+    )]
     NoSet(String),
     /// No boundary triangle has all three nodes in the set.
     #[error("no boundary triangle lies on node set {0:?}")]
@@ -47,7 +49,9 @@ pub struct InnerWall {
 impl InnerWall {
     /// The inner wall of `mesh`: its boundary triangles on node set `set`.
     pub fn from_mesh(mesh: &TetMesh, set: &str) -> Result<InnerWall, CouplingError> {
-        let ids = mesh.node_set(set).ok_or_else(|| CouplingError::NoSet(set.to_string()))?;
+        let ids = mesh
+            .node_set(set)
+            .ok_or_else(|| CouplingError::NoSet(set.to_string()))?;
         let mut local = vec![u32::MAX; mesh.num_nodes()];
         for &i in ids {
             if let Some(l) = local.get_mut(i as usize) {

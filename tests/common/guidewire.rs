@@ -6,8 +6,9 @@ use std::path::{Path, PathBuf};
 
 /// Writes the mesh, the scene and the service configuration into `dir`;
 /// returns the configuration's path. `script` rows are
-/// `[time s, inserted m, roll rad]`.
-pub fn write(dir: &Path, seconds: f64, script: &str) -> PathBuf {
+/// `[time s, inserted m, roll rad]`; `load_wall`: the wire's contact
+/// forces load the vessel.
+pub fn write(dir: &Path, seconds: f64, script: &str, load_wall: bool) -> PathBuf {
     use nvtmm::mesh::vessel::branched::{branched_arch, default_wall_ratio};
     use nvtmm::mesh::vessel::implicit::BranchedArchParams;
     let root = Path::new(env!("CARGO_MANIFEST_DIR"));
@@ -63,6 +64,7 @@ contact = 4096
 access_point_m = [0.0011, 0.0, 0.0049]
 axis = [0.216, 0.0, 0.976]
 inserted_m = 0.02
+load_wall = {load_wall}
 script = {script}
 "#,
         touchx = root.join("rt-config/touchx.toml").display()
