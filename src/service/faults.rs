@@ -34,7 +34,7 @@ pub struct FaultSwitches {
     pub panic_basis: AtomicBool,
     /// The stream publisher panics at its next frame.
     pub panic_publisher: AtomicBool,
-    /// The guidewire's next step goes non-finite (a NaN load on its tip).
+    /// The guidewire's next step goes non-finite (its tip made NaN).
     pub poison_wire: AtomicBool,
     /// The wire thread sleeps this long (ms) before its next step, once.
     pub stall_wire_ms: AtomicU64,

@@ -551,14 +551,11 @@ pub(super) fn wire_thread(mut p: WirePlan) -> WireResult {
         }
         let poison = FaultSwitches::take(&p.faults.poison_wire);
         if poison {
-            p.wire.set_tip_load(Vec3::repeat(f64::NAN));
+            p.wire.poison_for_tests();
         }
         let t0 = clock::now_ns();
         let step = p.wire.step(&p.lumen);
         res.step_us.record((clock::now_ns() - t0) as f64 * 1e-3);
-        if poison {
-            p.wire.set_tip_load(Vec3::zeros());
-        }
         res.steps += 1;
         let reset_asked = p.shared.reset_request.swap(false, Ordering::AcqRel);
         let good = match step {
