@@ -602,7 +602,7 @@ impl TriangleLumen {
         let (d00, d01, d11) = (v0.dot(&v0), v0.dot(&v1), v1.dot(&v1));
         let (d20, d21) = (v2.dot(&v0), v2.dot(&v1));
         let den = d00 * d11 - d01 * d01;
-        if !(den.abs() > 1e-300) {
+        if den.is_nan() || den.abs() <= 1e-300 {
             return [1.0 / 3.0; 3];
         }
         let v = ((d11 * d20 - d01 * d21) / den).max(0.0);
