@@ -747,7 +747,7 @@ mod tests {
         d[0] = b'X';
         expect(d, RejectReason::BadMagic, &mut dec);
         let mut d = good.clone();
-        d[4] = 2;
+        d[4] = (VERSION + 1) as u8;
         expect(d, RejectReason::BadVersion, &mut dec);
         let mut d = good.clone();
         d[6] = 9;
