@@ -91,6 +91,7 @@ fn frame(positions: &[[f32; 3]], t: f64) -> StateFrame<'_> {
         flags: 2,
         loop_rate_hz: 1000.0,
         tick_p99_us: 20.0,
+        wire: &[],
     }
 }
 

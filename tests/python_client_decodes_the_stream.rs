@@ -1,5 +1,6 @@
 //! `tools/stream_client.py`, written from docs/STREAM.md alone, decodes a
-//! recording to the same frames as the Rust decoder.
+//! recording to the same frames as the Rust decoder, the guidewire
+//! polyline included.
 
 use nvtmm::mesh::arch::{generate, ArchParams};
 use nvtmm::stream::record::RecordReader;
@@ -30,7 +31,8 @@ fn python_client_matches_the_rust_decoder() {
     for r in RecordReader::open(&rec).unwrap() {
         if let Ok(Some(Decoded::State(s))) = dec.push(&r.unwrap().1) {
             let sum: f64 = s.positions.iter().flatten().map(|&v| v as f64).sum();
-            rust.push((s.seq, s.time_s, s.force, s.flags, sum));
+            let wsum: f64 = s.wire.iter().flatten().map(|&v| v as f64).sum();
+            rust.push((s.seq, s.time_s, s.force, s.flags, sum, s.wire.len(), wsum));
         }
     }
     assert_eq!(rust.len(), 40);
@@ -53,7 +55,11 @@ fn python_client_matches_the_rust_decoder() {
     assert_eq!(lines[0]["triangles"], topo.triangles.len());
     let py: Vec<&serde_json::Value> = lines.iter().filter(|l| l["kind"] == "state").collect();
     assert_eq!(py.len(), rust.len());
-    for (p, (seq, t, f, flags, sum)) in py.iter().zip(&rust) {
+    for (p, (seq, t, f, flags, sum, nw, wsum)) in py.iter().zip(&rust) {
+        assert!(*nw > 0, "the demo frames carry a wire");
+        assert_eq!(p["wire_points"], *nw);
+        let pw = p["wire_sum"].as_f64().unwrap();
+        assert!((pw - wsum).abs() <= 1e-9 * wsum.abs().max(1.0), "{pw} vs {wsum}");
         assert_eq!(p["seq"], *seq);
         assert_eq!(p["time_s"].as_f64().unwrap(), *t);
         assert_eq!(p["flags"], *flags);

@@ -17,7 +17,8 @@ import struct
 import sys
 
 MAGIC = b"NVTS"
-VERSION = 1
+VERSION = 2  # 2: state frames end with the guidewire polyline
+MAX_WIRE_POINTS = 256
 HEADER = struct.Struct("<4sHBBIIIIHH")  # 28 bytes
 MAX_DATAGRAM = 1200
 KIND_TOPOLOGY, KIND_STATE = 1, 2
@@ -108,10 +109,15 @@ class Reassembler:
         if len(b) < STATE_FIXED.size:
             return self.reject("bad_payload")
         t, flags, nv, tx, ty, tz, radius, fx, fy, fz, rate, p99 = STATE_FIXED.unpack_from(b, 0)
-        if len(b) != STATE_FIXED.size + 12 * nv:
+        wo = STATE_FIXED.size + 12 * nv
+        if len(b) < wo + 4:
+            return self.reject("bad_payload")
+        (nw,) = struct.unpack_from("<I", b, wo)
+        if nw > MAX_WIRE_POINTS or len(b) != wo + 4 + 12 * nw:
             return self.reject("bad_payload")
         pos = [struct.unpack_from("<3f", b, STATE_FIXED.size + 12 * i) for i in range(nv)]
-        if not all(math.isfinite(v) for p in pos for v in p):
+        wire = [struct.unpack_from("<3f", b, wo + 4 + 12 * i) for i in range(nw)]
+        if not all(math.isfinite(v) for p in pos + wire for v in p):
             return self.reject("bad_payload")
         if self.topology is None or self.topology["epoch"] != epoch:
             return None  # wait for the topology of this epoch
@@ -119,7 +125,7 @@ class Reassembler:
             return self.reject("inconsistent")
         return {"kind": "state", "seq": seq, "epoch": epoch, "time_s": t, "flags": flags,
                 "tool": [tx, ty, tz], "tool_radius": radius, "force": [fx, fy, fz],
-                "loop_rate_hz": rate, "tick_p99_us": p99, "positions": pos}
+                "loop_rate_hz": rate, "tick_p99_us": p99, "positions": pos, "wire": wire}
 
 
 def recording(path):
@@ -163,6 +169,8 @@ def summary(m, topology):
     out["vertices"] = len(m["positions"])
     out["positions_sum"] = sum(v for p in m["positions"] for v in p)
     out["max_displacement"] = disp
+    out["wire_points"] = len(m["wire"])
+    out["wire_sum"] = sum(v for p in m["wire"] for v in p)
     return out
 
 

@@ -277,9 +277,16 @@ fn eval_contact<const R: usize>(
 fn step_model<const R: usize>(
     m: &mut LoopModel<R>,
     c: &ContactOutput<R>,
+    loads: &[(u32, Vec3)],
     counters: &mut ServoCounters,
 ) -> (Vec3, bool) {
-    let f = c.reduced_force - m.f_bar;
+    let mut f = c.reduced_force - m.f_bar;
+    // Point loads of other instruments (the guidewire inside): Σ Φᵢᵀ fᵢ.
+    for (i, fi) in loads {
+        if let Some(rows) = m.dynamics.rows_at(*i) {
+            f += rows.tr_mul(fi);
+        }
+    }
     // The hand feels the tool sphere only (extra spheres are other contact
     // points of the instrument).
     let desired = c.sphere_forces.first().copied().unwrap_or(c.tool_force);
@@ -314,7 +321,11 @@ pub struct Servo<const R: usize> {
     extra: heapless::Vec<Vec3, { contact::MAX_SPHERES - 1 }>,
     centers: heapless::Vec<Vec3, { contact::MAX_SPHERES }>,
     events: ContactEvents,
+    point_loads: heapless::Vec<(u32, Vec3), MAX_POINT_LOADS>,
 }
+
+/// Most point loads [`Servo::set_point_loads`] keeps.
+pub const MAX_POINT_LOADS: usize = 128;
 
 /// How long a fault keeps the force down after its last tick, beyond the
 /// ramp-down time (s): a single bad sample still takes the force to zero
@@ -348,6 +359,7 @@ impl<const R: usize> Servo<R> {
             extra: heapless::Vec::new(),
             centers: heapless::Vec::new(),
             events: ContactEvents::default(),
+            point_loads: heapless::Vec::new(),
         }
     }
 
@@ -491,6 +503,27 @@ impl<const R: usize> Servo<R> {
         }
     }
 
+    /// Point loads on mesh nodes (N, on the tissue) from another
+    /// instrument, e.g. the guidewire's contacts on the inner wall: they
+    /// load the reduced model (Φᵢᵀ fᵢ) from the next tick on, until replaced.
+    /// At most [`MAX_POINT_LOADS`], the rest ignored; non-finite ones are
+    /// skipped. Allocates nothing.
+    pub fn set_point_loads(&mut self, loads: &[(u32, Vec3)]) {
+        self.point_loads.clear();
+        for l in loads.iter().filter(|l| l.1.iter().all(|v| v.is_finite())) {
+            if self.point_loads.push(*l).is_err() {
+                break;
+            }
+        }
+    }
+
+    /// Another part of the loop (the guidewire) saw a fault: the force
+    /// ramps to zero and is held as for the loop's own faults
+    /// ([`Servo::apply_gain`]).
+    pub fn raise_fault(&mut self) {
+        self.fault_until_s = self.now_s + self.params.ramp_down_s + FAULT_HOLD_S;
+    }
+
     /// The model in use.
     pub fn model(&self) -> &LoopModel<R> {
         &self.model
@@ -604,7 +637,8 @@ impl<const R: usize> Servo<R> {
         if !c.nodes.is_empty() && self.model.compliance.is_some() {
             self.counters.compliance_ticks += 1;
         }
-        let (mut desired, mut finite) = step_model(&mut self.model, &self.contact, &mut self.counters);
+        let (mut desired, mut finite) =
+            step_model(&mut self.model, &self.contact, &self.point_loads, &mut self.counters);
         // A cross-fade: the old model runs on and the force blends over.
         if let Some(old) = self.fading.as_mut() {
             eval_contact(
@@ -615,7 +649,7 @@ impl<const R: usize> Servo<R> {
                 &mut self.fade_scratch,
                 &mut self.fade_contact,
             );
-            let (f_old, ok_old) = step_model(old, &self.fade_contact, &mut self.counters);
+            let (f_old, ok_old) = step_model(old, &self.fade_contact, &self.point_loads, &mut self.counters);
             self.blend = (self.blend + p.dt / p.swap_blend_s.max(p.dt)).min(1.0);
             desired = f_old * (1.0 - self.blend) + desired * self.blend;
             finite &= ok_old;

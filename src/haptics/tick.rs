@@ -60,6 +60,7 @@ pub struct HapticTick<const R: usize> {
     filter: PassivityFilter,
     v_prev: Vec3,
     rt_granted: bool,
+    external: Vec3,
 }
 
 impl<const R: usize> HapticTick<R> {
@@ -70,6 +71,7 @@ impl<const R: usize> HapticTick<R> {
             filter,
             v_prev: Vec3::zeros(),
             rt_granted: false,
+            external: Vec3::zeros(),
         }
     }
 
@@ -85,9 +87,23 @@ impl<const R: usize> HapticTick<R> {
         self.rt_granted = granted;
     }
 
+    /// A force (N, scene frame) added to the model's force from the next
+    /// tick on, before the passivity filter: another instrument the hand
+    /// holds (the guidewire's hub drive). Non-finite counts as zero.
+    pub fn set_external_force(&mut self, f: Vec3) {
+        self.external = if f.iter().all(|v| v.is_finite()) {
+            f
+        } else {
+            Vec3::zeros()
+        };
+    }
+
     /// One tick. Allocates nothing.
     pub fn run(&mut self, input: TickInput<'_>) -> TickResult {
-        let out = self.servo.tick(input.sample, input.now_s, input.overrun_streak);
+        let mut out = self.servo.tick(input.sample, input.now_s, input.overrun_streak);
+        if out.flags & flags::NONFINITE == 0 {
+            out.desired += self.external;
+        }
         let (x, v) = input
             .sample
             .map(|s| (s.position, s.velocity))

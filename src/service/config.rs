@@ -48,6 +48,14 @@ pub struct ServiceConfig {
     /// The coarse state stream (docs/STREAM.md).
     #[serde(default)]
     pub stream: crate::stream::StreamConfig,
+    /// The guidewire (`[wire]` with `[wire.drive]`, docs/WIRE.md); None: no
+    /// wire.
+    #[serde(default)]
+    pub wire: Option<crate::wire::WireParams>,
+    /// How the service runs the guidewire (`[guidewire]`, needed with
+    /// `[wire]`).
+    #[serde(default)]
+    pub guidewire: Option<super::wire::GuidewireConfig>,
     /// The file this was read from (for messages and relative paths).
     #[serde(skip)]
     pub path: PathBuf,
@@ -124,6 +132,10 @@ pub struct DeviceConfig {
     /// Scene position (m) of the device frame's origin: the device frame is
     /// the scene frame translated by this offset.
     pub origin_m: [f64; 3],
+    /// The full device-to-scene map (rotation, offset, scale;
+    /// `[device.frame]`, see `haptics::frame`); when given it replaces
+    /// `origin_m`.
+    pub frame: Option<crate::haptics::frame::DeviceFrameParams>,
 }
 
 impl Default for DeviceConfig {
@@ -136,6 +148,7 @@ impl Default for DeviceConfig {
             priority: 70,
             cpu: 1,
             origin_m: [0.0; 3],
+            frame: None,
         }
     }
 }
@@ -389,6 +402,26 @@ impl ServiceConfig {
         qp.dt_s = 1.0 / l.rate_hz;
         qp.validate(&c, "passivity")?;
         self.stream.validate(&c, "stream")?;
+        if let Some(f) = &d.frame {
+            f.validate(&self.path, "device.frame.")?;
+        }
+        match (&self.wire, &self.guidewire) {
+            (Some(w), Some(g)) => {
+                w.validate(&self.path).map_err(|mut e| {
+                    e.key = format!("wire.{}", e.key);
+                    e
+                })?;
+                g.validate(&c, w)?;
+            }
+            (Some(_), None) => {
+                return Err(c.err(
+                    "guidewire",
+                    "[wire] needs a [guidewire] table (access_point_m, axis, script; docs/SERVICE.md)",
+                ))
+            }
+            (None, Some(_)) => return Err(c.err("wire", "[guidewire] needs a [wire] table (docs/WIRE.md)")),
+            (None, None) => {}
+        }
         Ok(())
     }
 }

@@ -34,6 +34,10 @@ pub struct FaultSwitches {
     pub panic_basis: AtomicBool,
     /// The stream publisher panics at its next frame.
     pub panic_publisher: AtomicBool,
+    /// The guidewire's next step goes non-finite (its tip made NaN).
+    pub poison_wire: AtomicBool,
+    /// The wire thread sleeps this long (ms) before its next step, once.
+    pub stall_wire_ms: AtomicU64,
     /// Stalls the background thread served.
     pub stalls_served: AtomicU64,
     /// Injected full-step failures the solver reported as failed.

@@ -9,7 +9,9 @@ use super::background::{ContactMsg, CONTACT_MSG_NODES};
 use super::device_io::ForceCmd;
 use super::live::LiveStats;
 use super::publisher::StateSnapshot;
+use crate::haptics::contact::NodeContact;
 use crate::haptics::device::DeviceSample;
+use crate::haptics::frame::DeviceFrame;
 use crate::haptics::passivity::PassivityStats;
 use crate::haptics::servo::{LoopModel, ServoCounters};
 use crate::haptics::tick::{HapticTick, TickInput};
@@ -44,6 +46,8 @@ pub(super) struct LoopResult {
     pub contact_ring_full: u64,
     pub state_ring_full: u64,
     pub swaps_deferred: u64,
+    pub wire_stalls: u64,
+    pub wire_hub_ring_full: u64,
 }
 
 /// Loop-side rings.
@@ -57,6 +61,8 @@ pub(super) struct LoopIo<const R: usize> {
     pub stop: Arc<AtomicBool>,
     pub live: Arc<LiveStats>,
     pub faults: Arc<super::faults::FaultSwitches>,
+    /// The guidewire's hub drive and rings (None: no wire).
+    pub wire: Option<super::wire::WireLink>,
 }
 
 /// When and how the loop runs.
@@ -68,6 +74,9 @@ pub(super) struct LoopPlan {
     pub baseline_s: f64,
     pub pool_bytes: usize,
     pub state_every: u64,
+    /// Rotation and scale of `[device.frame]` (its offset is the servo's
+    /// device origin); None: device axes are scene axes.
+    pub frame: Option<DeviceFrame>,
 }
 
 /// The loop thread's body: the jitter baseline, then ticks until `stop`.
@@ -99,6 +108,8 @@ pub(super) fn loop_thread<const R: usize>(mut tick: HapticTick<R>, mut io: LoopI
         contact_ring_full: 0,
         state_ring_full: 0,
         swaps_deferred: 0,
+        wire_stalls: 0,
+        wire_hub_ring_full: 0,
     };
     let period = plan.period;
     // The jitter baseline: a bare absolute-deadline sleep loop, same thread,
@@ -152,11 +163,22 @@ pub(super) fn loop_thread<const R: usize>(mut tick: HapticTick<R>, mut io: LoopI
             }
         }
         let now_s = clock::to_s(wake);
+        if let Some(w) = io.wire.as_mut() {
+            w.before_tick(last.as_ref(), now_s, &mut tick);
+        }
+        let scene_sample = match (&plan.frame, &last) {
+            (Some(f), Some(s)) => Some(f.sample_to_scene(s)),
+            _ => last,
+        };
         let out = tick.run(TickInput {
-            sample: last.as_ref(),
+            sample: scene_sample.as_ref(),
             now_s,
             overrun_streak: streak,
         });
+        let device_force = match &plan.frame {
+            Some(f) => f.force_to_device(out.force),
+            None => out.force,
+        };
         if out.qp_solved {
             res.qp_us.record(out.qp_us);
         }
@@ -165,7 +187,7 @@ pub(super) fn loop_thread<const R: usize>(mut tick: HapticTick<R>, mut io: LoopI
         if io
             .force
             .push(ForceCmd {
-                force: out.force,
+                force: device_force,
                 pose_time: last_pose_time,
             })
             .is_err()
@@ -181,6 +203,24 @@ pub(super) fn loop_thread<const R: usize>(mut tick: HapticTick<R>, mut io: LoopI
             }
             if io.contact.push(contact_msg.clone()).is_err() {
                 res.contact_ring_full += 1;
+            }
+        }
+        // The wire's wall loads go to the full solve too, every tick (it
+        // averages per tick), in messages of at most CONTACT_MSG_NODES.
+        if let Some(w) = io.wire.as_ref() {
+            for chunk in w.loads().chunks(CONTACT_MSG_NODES) {
+                contact_msg.tick = n;
+                contact_msg.nodes.clear();
+                for &(node, force) in chunk {
+                    let _ = contact_msg.nodes.push(NodeContact {
+                        node,
+                        force,
+                        sphere: u16::MAX,
+                    });
+                }
+                if io.contact.push(contact_msg.clone()).is_err() {
+                    res.contact_ring_full += 1;
+                }
             }
         }
         if pending_return.is_none() {
@@ -237,6 +277,10 @@ pub(super) fn loop_thread<const R: usize>(mut tick: HapticTick<R>, mut io: LoopI
     res.counters = *tick.counters();
     res.contact =
         crate::service::report::ContactReport::from_loop(tick.contact_events(), tick.counters(), period as f64 * 1e-9);
+    if let Some(w) = io.wire.as_ref() {
+        res.wire_stalls = w.stalls;
+        res.wire_hub_ring_full = w.hub_ring_full;
+    }
     res.qp = *tick.qp_stats();
     crate::rt::alloc::leave_rt();
     res

@@ -55,6 +55,9 @@ pub(super) struct PublisherPlan<const R: usize> {
     pub stop: Arc<AtomicBool>,
     pub live: Arc<LiveStats>,
     pub faults: Arc<super::faults::FaultSwitches>,
+    /// The guidewire's part: the inner wall it is sent, the polyline it
+    /// sends (None: no wire).
+    pub wire: Option<super::wire::PublisherWire>,
 }
 
 /// The stream publisher (normal priority): turns loop snapshots into stream
@@ -116,6 +119,15 @@ pub(super) fn publisher_thread<const R: usize>(mut p: PublisherPlan<R>) -> Publi
             let x = rest + ubar + d;
             positions[k] = [x.x as f32, x.y as f32, x.z as f32];
         }
+        if let Some(w) = p.wire.as_mut() {
+            w.update(|i, rest| {
+                let ubar = offset
+                    .as_ref()
+                    .and_then(|o| o.get(i as usize).copied())
+                    .unwrap_or_else(Vec3::zeros);
+                rest + ubar + rows.get(i as usize).map(|row| row * s.q).unwrap_or_else(Vec3::zeros)
+            });
+        }
         if s.epoch != last_epoch {
             last_epoch = s.epoch;
             refreshed_at = s.time_s;
@@ -154,6 +166,7 @@ pub(super) fn publisher_thread<const R: usize>(mut p: PublisherPlan<R>) -> Publi
             flags: fl,
             loop_rate_hz: rate as f32,
             tick_p99_us: p99,
+            wire: p.wire.as_ref().map(|w| w.points.as_slice()).unwrap_or(&[]),
         };
         p.live.record_frame(FrameSnapshot {
             time_s: s.time_s,

@@ -79,6 +79,53 @@ pub struct BackgroundReport {
     pub basis_iterations: Vec<usize>,
 }
 
+/// The guidewire's part (`wire.*`; null without `[wire]`).
+#[derive(Debug, Clone, Default, Serialize)]
+pub struct WireReport {
+    /// Active nodes at the end (ghost and hub included).
+    pub nodes: usize,
+    /// Inserted length at the end (m).
+    pub inserted_m: f64,
+    /// Most inserted during the run (m).
+    pub inserted_max_m: f64,
+    /// The segment of the inner-wall node nearest the tip at the end
+    /// (`aorta`, `brachiocephalic`, `left_common_carotid`,
+    /// `left_subclavian`; "unlabelled" on a mesh without segment labels).
+    pub tip_segment: String,
+    /// Tip position at the end (m, scene frame).
+    pub tip_m: [f64; 3],
+    /// Most wall contacts in one step.
+    pub contacts_max: usize,
+    /// Median wall contacts per step.
+    pub contacts_p50: f64,
+    /// Deepest penetration of the wire's surface into the wall (m).
+    pub max_penetration_m: f64,
+    /// Largest axial hub force (N, the resistance the hand feels).
+    pub axial_force_max_n: f64,
+    /// Wire step time in its thread (µs).
+    pub step_us: Percentiles,
+    /// Wire steps taken.
+    pub steps: u64,
+    /// Most Newton iterations in one step.
+    pub iterations_max: usize,
+    /// Times the wire went back to its last good state (a non-finite step,
+    /// a node deeper than the diameter in the wall, or a stalled thread);
+    /// each ramps the hand's force to zero.
+    pub resets: u64,
+    /// Times the loop saw the wire thread stop stepping.
+    pub stalls: u64,
+    /// Inner-wall updates the wire took from the reduced model.
+    pub wall_updates: u64,
+    /// Whether the wire thread got SCHED_FIFO.
+    pub rt_policy_granted: bool,
+    /// Wire thread CPU, if pinned.
+    pub cpu: Option<usize>,
+    /// System-allocator calls the wire thread made after start.
+    pub allocations_after_start: u64,
+    /// Wall-load messages the loop had no room for.
+    pub loads_ring_full: u64,
+}
+
 /// The whole report. Keys are a scripting contract.
 #[derive(Debug, Clone, Default, Serialize)]
 pub struct Report {
@@ -175,6 +222,8 @@ pub struct Report {
     /// Device periods in which the device thread zeroed the force itself
     /// because the loop had sent no command for 20 ms.
     pub device_loop_silent_periods: u64,
+    /// The guidewire (None without `[wire]`).
+    pub wire: Option<WireReport>,
 }
 
 /// Contact anywhere in the run (the `contact` keys of the report).
@@ -413,6 +462,27 @@ impl Report {
             .map(|(k, v)| format!("{k} {}/{}", v.overflows, v.capacity))
             .collect();
         s += &format!("  ring overflows: {}\n", rings.join(", "));
+        if let Some(w) = &self.wire {
+            s += &format!(
+                "  wire: {} nodes, {:.1} mm inserted (most {:.1}), tip in {}; step (µs) {} over {} steps ({} Newton it. at most), \
+                 contacts p50 {:.0} max {}, deepest {:.3} mm, axial force max {:.3} N, {} resets, {} stalls, thread {} on CPU {}\n",
+                w.nodes,
+                w.inserted_m * 1e3,
+                w.inserted_max_m * 1e3,
+                w.tip_segment,
+                p(&w.step_us),
+                w.steps,
+                w.iterations_max,
+                w.contacts_p50,
+                w.contacts_max,
+                w.max_penetration_m * 1e3,
+                w.axial_force_max_n,
+                w.resets,
+                w.stalls,
+                if w.rt_policy_granted { "SCHED_FIFO" } else { "normal policy" },
+                w.cpu.map(|c| c.to_string()).unwrap_or_else(|| "not pinned".into())
+            );
+        }
         if let Some(g) = &self.igtl {
             let dropped: u64 = g.clients.iter().map(|c| c.frames_dropped).sum();
             let bad: u64 = g.clients.iter().map(|c| c.bad_messages).sum();

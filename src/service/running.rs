@@ -57,6 +57,8 @@ pub(super) struct Running<const R: usize> {
     scripted_press_depth_m: Option<f64>,
     model_timeout_ms: f64,
     faults: Arc<FaultSwitches>,
+    wire_handle: Option<JoinHandle<super::wire::WireResult>>,
+    wire_wall: Option<Arc<crate::wire::coupling::InnerWall>>,
 }
 
 /// What [`super::Handle`] needs of a running service, whatever its R.
@@ -103,6 +105,39 @@ impl<const R: usize> RunningService for Running<R> {
     fn stop(&mut self) -> Result<Report, ServiceError> {
         self.stop.store(true, Ordering::Relaxed);
         let lr = join(self.loop_handle.take(), "haptic loop")?;
+        let wr = match self.wire_handle.take() {
+            Some(h) => Some(join(Some(h), "wire")?),
+            None => None,
+        };
+        let wire = wr.map(|w| {
+            let tip_segment = self
+                .wire_wall
+                .as_ref()
+                .and_then(|wall| wall.segment_at(&w.wall, w.tip).map(str::to_string))
+                .unwrap_or_else(|| "unlabelled".into());
+            let steps = w.step_us.percentiles();
+            super::report::WireReport {
+                nodes: w.nodes,
+                inserted_m: w.inserted_m,
+                inserted_max_m: w.max_inserted_m,
+                tip_segment,
+                tip_m: [w.tip.x, w.tip.y, w.tip.z],
+                contacts_max: w.contacts_max,
+                contacts_p50: w.contacts.quantile(0.5),
+                max_penetration_m: w.max_penetration_m,
+                axial_force_max_n: w.axial_force_max_n,
+                step_us: steps,
+                steps: w.steps,
+                iterations_max: w.iterations_max,
+                resets: w.resets,
+                stalls: lr.wire_stalls,
+                wall_updates: w.wall_updates,
+                rt_policy_granted: w.grant.fifo,
+                cpu: w.grant.cpu,
+                allocations_after_start: w.allocations,
+                loads_ring_full: w.loads_ring_full,
+            }
+        });
         let (dr, mut dev) = join(self.dev_handle.take(), "device")?;
         dev.stop();
         // A lost helper thread does not lose the report: the loop ran on
@@ -183,7 +218,9 @@ impl<const R: usize> RunningService for Running<R> {
             tick_compute_us: lr.compute.percentiles(),
             pose_to_force_latency_us: dr.latency.percentiles(),
             baseline_jitter_us: lr.baseline.percentiles(),
-            allocations_after_start: lr.allocations + dr.allocations,
+            allocations_after_start: lr.allocations
+                + dr.allocations
+                + wire.as_ref().map(|w| w.allocations_after_start).unwrap_or(0),
             loop_page_faults_after_start: lr.page_faults.0 + lr.page_faults.1,
             allocator_installed: lr.allocator_installed,
             max_force_n: lr.max_force,
@@ -227,6 +264,7 @@ impl<const R: usize> RunningService for Running<R> {
             model_timeout_ms: self.model_timeout_ms,
             threads_lost,
             device_loop_silent_periods: dr.loop_silent,
+            wire,
         })
     }
 }
@@ -303,7 +341,10 @@ pub(super) fn start_with<const R: usize>(p: Prepared) -> Result<Running<R>, Serv
     let servo_params = ServoParams {
         dt: period as f64 * 1e-9,
         contact: cfg.contact,
-        device_origin: Vec3::from(cfg.device.origin_m),
+        device_origin: match &cfg.device.frame {
+            Some(f) => Vec3::from(f.offset_m),
+            None => Vec3::from(cfg.device.origin_m),
+        },
         device_timeout_s: w.device_timeout_ms * 1e-3,
         model_timeout_s: if cfg.background.enabled {
             w.model_timeout_ms * 1e-3
@@ -460,6 +501,44 @@ pub(super) fn start_with<const R: usize>(p: Prepared) -> Result<Running<R>, Serv
         None
     };
 
+    // The guidewire: its own RT thread, half a period after the loop.
+    let wire_parts = match (&cfg.wire, &cfg.guidewire) {
+        (Some(wp), Some(g)) => {
+            let frame = cfg
+                .device
+                .frame
+                .as_ref()
+                .map(crate::haptics::frame::DeviceFrame::new)
+                .unwrap_or_else(crate::haptics::frame::DeviceFrame::identity);
+            Some(super::wire::build(
+                wp,
+                g,
+                &mesh,
+                frame,
+                stop.clone(),
+                faults.clone(),
+                loop_start + super::wire::WIRE_PHASE,
+                state_every,
+            )?)
+        }
+        _ => None,
+    };
+    let (wire_link, wire_plan, wire_pub) = match wire_parts {
+        Some(w) => (Some(w.link), Some(w.plan), Some(w.publisher)),
+        None => (None, None, None),
+    };
+    let wire_wall = wire_plan.as_ref().map(|p| p.wall.clone());
+    let wire_handle = match wire_plan {
+        Some(plan) => Some(
+            std::thread::Builder::new()
+                .name("nvtmm-wire".into())
+                .stack_size(1 << 20)
+                .spawn(move || super::wire::wire_thread(plan))
+                .map_err(|e| ServiceError::Thread("wire", e.to_string()))?,
+        ),
+        None => None,
+    };
+
     // Stream publisher: always runs (it also keeps the latest frame for
     // `Handle::snapshot`); it sends only where `[stream]` or `--record` say.
     let pub_handle = {
@@ -478,6 +557,7 @@ pub(super) fn start_with<const R: usize>(p: Prepared) -> Result<Running<R>, Serv
             stop: stop.clone(),
             live: live.clone(),
             faults: faults.clone(),
+            wire: wire_pub,
         };
         std::thread::Builder::new()
             .name("nvtmm-stream".into())
@@ -525,6 +605,7 @@ pub(super) fn start_with<const R: usize>(p: Prepared) -> Result<Running<R>, Serv
         stop: stop.clone(),
         live: live.clone(),
         faults: faults.clone(),
+        wire: wire_link,
     };
     let plan = LoopPlan {
         request: RtRequest {
@@ -538,6 +619,12 @@ pub(super) fn start_with<const R: usize>(p: Prepared) -> Result<Running<R>, Serv
         baseline_s: cfg.servo.baseline_s,
         pool_bytes,
         state_every,
+        frame: cfg.device.frame.as_ref().map(|f| {
+            crate::haptics::frame::DeviceFrame::new(&crate::haptics::frame::DeviceFrameParams {
+                offset_m: [0.0; 3],
+                ..f.clone()
+            })
+        }),
     };
     let loop_handle = std::thread::Builder::new()
         .name("nvtmm-haptic".into())
@@ -564,8 +651,11 @@ pub(super) fn start_with<const R: usize>(p: Prepared) -> Result<Running<R>, Serv
         r: basis.len(),
         basis_s,
         basis_cache,
-        scripted_press_depth_m: (cfg.device.backend == Backend::TouchxSim).then_some(cfg.interaction.press_depth_m),
+        scripted_press_depth_m: (cfg.device.backend == Backend::TouchxSim && cfg.wire.is_none())
+            .then_some(cfg.interaction.press_depth_m),
         model_timeout_ms: cfg.watchdog.model_timeout_ms,
         faults,
+        wire_handle,
+        wire_wall,
     })
 }

@@ -177,6 +177,15 @@ pub fn make_device(
         Backend::TouchxSim => {
             use crate::haptics::touchx::{TouchXParams, TouchXSim, Waypoint};
             let params = TouchXParams::load(&cfg.resolve(&cfg.device.touchx))?;
+            if let (Some(wire), Some(g)) = (&cfg.wire, &cfg.guidewire) {
+                // The guidewire's scripted hand: stylus along the drive's
+                // axis, roll on its gimbal joint.
+                let (pts, gimbal) = super::wire::hand_script(g, wire);
+                let mut dev = TouchXSim::new(params, &pts).map_err(|e| ServiceError::Device(e.to_string()))?;
+                dev.set_gimbal_script(&gimbal)
+                    .map_err(|e| ServiceError::Device(e.to_string()))?;
+                return Ok(Box::new(dev));
+            }
             let (_, p, n, t) = press_target(mesh, scene);
             let pts: Vec<Waypoint> = scripted_press(p, n, t, &cfg.interaction, cfg.contact.tool_radius_m, seconds)
                 .into_iter()

@@ -24,6 +24,7 @@ pub struct Dent {
     pub tool_radius_m: f64,
     /// Spring constant for the force (N/m).
     pub stiffness_n_per_m: f64,
+    wire: Vec<[f32; 3]>,
 }
 
 impl Dent {
@@ -47,6 +48,7 @@ impl Dent {
             .filter(|n| n.norm() > 0.5)
             .unwrap_or(Vec3::z());
         Dent {
+            wire: Vec::with_capacity(super::MAX_WIRE_POINTS),
             centre: rest.get(top).copied().unwrap_or_default(),
             positions: topology.rest_positions.clone(),
             rest,
@@ -79,6 +81,15 @@ impl Dent {
         if d > 1e-5 {
             fl |= flags::IN_CONTACT;
         }
+        // A guidewire polyline growing from the tool along the wall normal
+        // (so a client sees the wire section of the frame change).
+        self.wire.clear();
+        let n = 4 + (t * 10.0) as usize % 16;
+        for k in 0..n {
+            let a = k as f64 * 0.3;
+            let x = tool + self.normal * (k as f64 * 2e-3) + Vec3::new(a.cos(), a.sin(), 0.0) * 1e-3;
+            self.wire.push([x.x as f32, x.y as f32, x.z as f32]);
+        }
         StateFrame {
             time_s: t,
             positions: &self.positions,
@@ -88,6 +99,7 @@ impl Dent {
             flags: fl,
             loop_rate_hz: 1000.0,
             tick_p99_us: 40.0 + 5.0 * (t * 0.7).sin() as f32,
+            wire: &self.wire,
         }
     }
 }

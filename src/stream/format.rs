@@ -8,13 +8,14 @@
 //! (sequence number, kind, epoch, total length) and the chunk (index, count,
 //! byte offset).
 
-use super::{StateFrame, Topology, MAX_VERTICES};
+use super::{StateFrame, Topology, MAX_VERTICES, MAX_WIRE_POINTS};
 use std::collections::VecDeque;
 
 /// First four bytes of every datagram.
 pub const MAGIC: [u8; 4] = *b"NVTS";
 /// Format version; a receiver rejects any other.
-pub const VERSION: u16 = 1;
+/// 2: state frames end with the guidewire polyline (a count and points).
+pub const VERSION: u16 = 2;
 /// Datagram header length (bytes).
 pub const HEADER_LEN: usize = 28;
 /// Largest datagram a sender emits and a receiver accepts (bytes): fits the
@@ -60,9 +61,9 @@ pub fn topology_len(v: usize, t: usize) -> usize {
     TOPOLOGY_FIXED_LEN + 16 * v + 12 * t
 }
 
-/// Length of a state payload with `v` vertices.
-pub fn state_len(v: usize) -> usize {
-    STATE_FIXED_LEN + 12 * v
+/// Length of a state payload with `v` vertices and `w` wire points.
+pub fn state_len(v: usize, w: usize) -> usize {
+    STATE_FIXED_LEN + 12 * v + 4 + 12 * w
 }
 
 /// Appends a topology payload to `out`.
@@ -81,7 +82,7 @@ pub fn encode_topology(t: &Topology, out: &mut Vec<u8>) {
 
 /// Appends a state payload to `out`.
 pub fn encode_state(f: &StateFrame, out: &mut Vec<u8>) {
-    out.reserve(state_len(f.positions.len()));
+    out.reserve(state_len(f.positions.len(), f.wire.len()));
     out.extend_from_slice(&f.time_s.to_le_bytes());
     put_u32(out, f.flags);
     put_u32(out, f.positions.len() as u32);
@@ -91,6 +92,10 @@ pub fn encode_state(f: &StateFrame, out: &mut Vec<u8>) {
     put_f32(out, f.loop_rate_hz);
     put_f32(out, f.tick_p99_us);
     for p in f.positions {
+        p.iter().for_each(|&x| put_f32(out, x));
+    }
+    put_u32(out, f.wire.len() as u32);
+    for p in f.wire {
         p.iter().for_each(|&x| put_f32(out, x));
     }
 }
@@ -270,6 +275,8 @@ pub struct OwnedState {
     pub loop_rate_hz: f32,
     /// Tick compute p99 (µs).
     pub tick_p99_us: f32,
+    /// The guidewire polyline, hub to tip (m; empty without a wire).
+    pub wire: Vec<[f32; 3]>,
 }
 
 impl OwnedState {
@@ -284,6 +291,7 @@ impl OwnedState {
             flags: self.flags,
             loop_rate_hz: self.loop_rate_hz,
             tick_p99_us: self.tick_p99_us,
+            wire: &self.wire,
         }
     }
 }
@@ -419,7 +427,12 @@ pub fn decode_state(seq: u32, epoch: u32, p: &[u8]) -> Result<OwnedState, Reject
         return Err(RejectReason::BadPayload);
     }
     let v = u32_at(p, 12) as usize;
-    if v > MAX_VERTICES || state_len(v) != p.len() {
+    if v > MAX_VERTICES || p.len() < state_len(v, 0) {
+        return Err(RejectReason::BadPayload);
+    }
+    let wo = STATE_FIXED_LEN + 12 * v;
+    let w = u32_at(p, wo) as usize;
+    if w > MAX_WIRE_POINTS || state_len(v, w) != p.len() {
         return Err(RejectReason::BadPayload);
     }
     let mut t = [0u8; 8];
@@ -435,6 +448,7 @@ pub fn decode_state(seq: u32, epoch: u32, p: &[u8]) -> Result<OwnedState, Reject
         loop_rate_hz: f32_at(p, 44),
         tick_p99_us: f32_at(p, 48),
         positions: (0..v).map(|i| vec3_at(p, STATE_FIXED_LEN + 12 * i)).collect(),
+        wire: (0..w).map(|i| vec3_at(p, wo + 4 + 12 * i)).collect(),
     };
     let ok = s.time_s.is_finite()
         && finite3(&s.tool_position)
@@ -442,7 +456,8 @@ pub fn decode_state(seq: u32, epoch: u32, p: &[u8]) -> Result<OwnedState, Reject
         && s.tool_radius.is_finite()
         && s.loop_rate_hz.is_finite()
         && s.tick_p99_us.is_finite()
-        && s.positions.iter().all(finite3);
+        && s.positions.iter().all(finite3)
+        && s.wire.iter().all(finite3);
     if ok {
         Ok(s)
     } else {
@@ -649,6 +664,7 @@ mod tests {
             flags: super::super::flags::IN_CONTACT,
             loop_rate_hz: 1000.0,
             tick_p99_us: 42.0,
+            wire: &[],
         }
     }
 
@@ -731,7 +747,7 @@ mod tests {
         d[0] = b'X';
         expect(d, RejectReason::BadMagic, &mut dec);
         let mut d = good.clone();
-        d[4] = 2;
+        d[4] = (VERSION + 1) as u8;
         expect(d, RejectReason::BadVersion, &mut dec);
         let mut d = good.clone();
         d[6] = 9;

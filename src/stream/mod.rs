@@ -143,6 +143,9 @@ pub struct StateFrame<'a> {
     pub loop_rate_hz: f32,
     /// 99th percentile of the loop's tick compute time (µs).
     pub tick_p99_us: f32,
+    /// The guidewire's centreline, hub to tip (m; empty without a wire;
+    /// at most [`MAX_WIRE_POINTS`]).
+    pub wire: &'a [[f32; 3]],
 }
 
 /// Errors of the stream: configuration, sockets, files, bad frames.
@@ -249,6 +252,9 @@ impl Default for StreamConfig {
 
 /// Upper bound on stream vertices (keeps a state message under 4 MiB).
 pub const MAX_VERTICES: usize = 300_000;
+
+/// Most points of the guidewire polyline in a state frame.
+pub const MAX_WIRE_POINTS: usize = 256;
 
 impl StreamConfig {
     /// Checks ranges; keys are reported as `<prefix>.<field>` (prefix e.g.

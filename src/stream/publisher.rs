@@ -128,7 +128,7 @@ impl Publisher {
             cfg,
             target,
             socket,
-            msg: Vec::with_capacity(format::state_len(topology.num_vertices())),
+            msg: Vec::with_capacity(format::state_len(topology.num_vertices(), super::MAX_WIRE_POINTS)),
             dgram: Vec::with_capacity(format::MAX_DATAGRAM),
             topology,
             topology_msg,
@@ -208,7 +208,15 @@ impl Publisher {
                 msg: format!("{} positions for a topology of {n} vertices", frame.positions.len()),
             });
         }
+        if frame.wire.len() > super::MAX_WIRE_POINTS {
+            self.stats.rejected_frames += 1;
+            return Err(StreamError::Invalid {
+                what: "state frame",
+                msg: format!("{} wire points, at most {}", frame.wire.len(), super::MAX_WIRE_POINTS),
+            });
+        }
         let finite = frame.time_s.is_finite()
+            && frame.wire.iter().flatten().all(|v| v.is_finite())
             && frame.positions.iter().flatten().all(|v| v.is_finite())
             && frame.tool_position.iter().chain(&frame.force).all(|v| v.is_finite())
             && [frame.tool_radius, frame.loop_rate_hz, frame.tick_p99_us]
@@ -346,6 +354,7 @@ mod tests {
             flags: 0,
             loop_rate_hz: 1000.0,
             tick_p99_us: 30.0,
+            wire: &[],
         };
         p.publish(&f).unwrap();
         f.time_s = 0.6;

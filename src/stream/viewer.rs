@@ -398,6 +398,7 @@ mod tests {
                 flags: 0,
                 loop_rate_hz: 1000.0,
                 tick_p99_us: 10.0,
+                wire: &[],
             };
             p.publish(&f).unwrap();
             match ws.read().unwrap() {

@@ -369,6 +369,10 @@ pub struct TriangleLumen {
     cell_start: Vec<u32>,
     items: Vec<u32>,
     tri_cell: Vec<u32>,
+    /// Per slot of `items`: the triangle's centroid and the distance to its
+    /// farthest vertex, in the order a query walks them (a cheap lower
+    /// bound on the distance that skips most triangles).
+    spheres: Vec<[f64; 4]>,
 }
 
 impl TriangleLumen {
@@ -411,6 +415,7 @@ impl TriangleLumen {
             cell_start: vec![0; cells + 1],
             items: vec![0; triangles.len()],
             tri_cell: vec![0; triangles.len()],
+            spheres: vec![[0.0; 4]; triangles.len()],
         };
         l.rebuild();
         Ok(l)
@@ -485,6 +490,12 @@ impl TriangleLumen {
             self.cell_start[i] = self.cell_start[i - 1];
         }
         self.cell_start[0] = 0;
+        for slot in 0..self.items.len() {
+            let [a, b, c] = self.tris[self.items[slot] as usize].map(|i| self.verts[i as usize]);
+            let g = (a + b + c) / 3.0;
+            let r = (a - g).norm().max((b - g).norm()).max((c - g).norm());
+            self.spheres[slot] = [g.x, g.y, g.z, r];
+        }
     }
 }
 
@@ -505,8 +516,11 @@ fn check_finite(v: &[Vec3]) -> Result<(), LumenError> {
     }
 }
 
-impl Lumen for TriangleLumen {
-    fn probe(&self, p: Vec3, range: f64) -> Option<WallHit> {
+impl TriangleLumen {
+    /// [`Lumen::probe`] with the index of the nearest triangle (into
+    /// [`TriangleLumen::triangles`]): where a contact's force goes on the
+    /// wall. Allocates nothing.
+    pub fn probe_triangle(&self, p: Vec3, range: f64) -> Option<(WallHit, usize)> {
         let r = range.max(0.0) + self.reach;
         let a = self.cell_of(p - Vec3::repeat(r));
         let b = self.cell_of(p + Vec3::repeat(r));
@@ -525,7 +539,18 @@ impl Lumen for TriangleLumen {
                 for i in a[0]..=b[0] {
                     let id = i + nx * (j + ny * k);
                     let (s, e) = (self.cell_start[id] as usize, self.cell_start[id + 1] as usize);
-                    for &t in &self.items[s..e] {
+                    for slot in s..e {
+                        // Skip a triangle whose bounding sphere is farther
+                        // than the best so far (exact: only farther ones go).
+                        let [gx, gy, gz, gr] = self.spheres[slot];
+                        let dc = ((p.x - gx).powi(2) + (p.y - gy).powi(2) + (p.z - gz).powi(2)).sqrt();
+                        if let Some((bd, _, _)) = best {
+                            let lb = dc - gr;
+                            if lb > 0.0 && lb * lb >= bd {
+                                continue;
+                            }
+                        }
+                        let t = self.items[slot];
                         let [va, vb, vc] = self.tris[t as usize].map(|i| self.verts[i as usize]);
                         let q = closest_on_triangle(p, va, vb, vc);
                         let d2 = (p - q).norm_squared();
@@ -558,11 +583,43 @@ impl Lumen for TriangleLumen {
         } else {
             (0.0, face)
         };
-        Some(WallHit {
-            distance,
-            normal,
-            point: q,
-        })
+        Some((
+            WallHit {
+                distance,
+                normal,
+                point: q,
+            },
+            t,
+        ))
+    }
+
+    /// Barycentric weights of `q` (a point on or near triangle `t`) on the
+    /// triangle's three vertices: non-negative, summing to 1 (clamped to
+    /// the triangle).
+    pub fn barycentric(&self, t: usize, q: Vec3) -> [f64; 3] {
+        let [a, b, c] = self.tris[t].map(|i| self.verts[i as usize]);
+        let (v0, v1, v2) = (b - a, c - a, q - a);
+        let (d00, d01, d11) = (v0.dot(&v0), v0.dot(&v1), v1.dot(&v1));
+        let (d20, d21) = (v2.dot(&v0), v2.dot(&v1));
+        let den = d00 * d11 - d01 * d01;
+        if den.is_nan() || den.abs() <= 1e-300 {
+            return [1.0 / 3.0; 3];
+        }
+        let v = ((d11 * d20 - d01 * d21) / den).max(0.0);
+        let w = ((d00 * d21 - d01 * d20) / den).max(0.0);
+        let u = (1.0 - v - w).max(0.0);
+        let s = u + v + w;
+        if s > 0.0 {
+            [u / s, v / s, w / s]
+        } else {
+            [1.0 / 3.0; 3]
+        }
+    }
+}
+
+impl Lumen for TriangleLumen {
+    fn probe(&self, p: Vec3, range: f64) -> Option<WallHit> {
+        self.probe_triangle(p, range).map(|(h, _)| h)
     }
 }
 

@@ -17,6 +17,7 @@
 //! (report keys, the stream's polyline) lives elsewhere.
 
 pub mod band;
+pub mod coupling;
 pub mod drive;
 pub mod lumen;
 pub mod rod;

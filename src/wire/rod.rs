@@ -1019,6 +1019,15 @@ impl Wire {
         self.begin_step();
     }
 
+    /// Makes the tip's position NaN, so the next step fails with
+    /// [`WireFault::NonFinite`] (fault injection for the service's
+    /// watchdog tests).
+    #[doc(hidden)]
+    pub fn poison_for_tests(&mut self) {
+        let tip = self.s.n - 1;
+        self.s.x[tip] = Vec3::repeat(f64::NAN);
+    }
+
     /// Current twist angles of the edges (rad).
     pub fn twists(&self) -> &[f64] {
         &self.s.theta[..self.s.n]

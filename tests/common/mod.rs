@@ -4,6 +4,7 @@
 #![allow(dead_code)]
 
 pub mod counting;
+pub mod guidewire;
 pub mod service;
 
 use nvtmm::material::{Law, Material};

@@ -1,0 +1,103 @@
+//! The guidewire scenario of `rt-config/guidewire.toml` without threads or
+//! a device: the wire driven by the script's hub commands against the rest
+//! inner wall of the scene's mesh, printing the tip's segment as it goes.
+//! For tuning the script; the service runs the same wire in its thread.
+//!
+//! `cargo run --release --example guidewire_offline [rt-config/guidewire.toml]`
+
+use nvtmm::math::Vec3;
+use nvtmm::service::ServiceConfig;
+use nvtmm::wire::coupling::InnerWall;
+use nvtmm::wire::Wire;
+use std::path::Path;
+
+fn main() -> Result<(), Box<dyn std::error::Error>> {
+    let arg = std::env::args()
+        .nth(1)
+        .unwrap_or_else(|| "rt-config/guidewire.toml".into());
+    let cfg = ServiceConfig::load(Path::new(&arg))?;
+    let scene = nvtmm::scene::Scene::load(&cfg.resolve(&cfg.scene))?;
+    let built = scene.build()?;
+    let (Some(wp), Some(g)) = (&cfg.wire, &cfg.guidewire) else {
+        return Err("the configuration has no [wire] and [guidewire]".into());
+    };
+    let wall = InnerWall::from_mesh(&built.mesh, &g.wall_set)?;
+    let lumen = wall.lumen()?;
+    if let Some((names, label)) = built.mesh.segment_labels() {
+        for (s, name) in names.iter().enumerate() {
+            let pts: Vec<Vec3> = wall
+                .mesh_nodes()
+                .iter()
+                .zip(wall.rest())
+                .filter(|(&i, _)| label[i as usize] as usize == s)
+                .map(|(_, p)| *p)
+                .collect();
+            let c = pts.iter().sum::<Vec3>() / pts.len().max(1) as f64;
+            let lo = pts.iter().fold(Vec3::repeat(f64::INFINITY), |a, p| a.inf(p));
+            let hi = pts.iter().fold(Vec3::repeat(f64::NEG_INFINITY), |a, p| a.sup(p));
+            println!(
+                "{name:>22}: {} wall vertices, centroid {:.1?} mm, box {:.1?} .. {:.1?} mm",
+                pts.len(),
+                (c * 1e3).as_slice(),
+                (lo * 1e3).as_slice(),
+                (hi * 1e3).as_slice()
+            );
+        }
+    }
+    let mut w = Wire::new(wp, Vec3::from(g.access_point_m), Vec3::from(g.axis), g.inserted_m)?;
+    let dt = wp.dt_s;
+    let end = g.script.last().map(|r| r[0]).unwrap_or(1.0) + 1.0;
+    let steps = (end / dt).round() as usize;
+    let mut last_seg = String::new();
+    let mut worst: f64 = 0.0;
+    let t0 = std::time::Instant::now();
+    for k in 0..steps {
+        let t = k as f64 * dt;
+        // Linear between script rows (the device eases; close enough here).
+        let (ins, roll) = interp(&g.script, t, g.inserted_m);
+        w.set_hub(ins, roll);
+        let rep = w.step(&lumen).map_err(|e| format!("t = {t:.3} s: {e}"))?;
+        worst = worst.max(rep.max_penetration_m);
+        if k % 100 == 0 {
+            let seg = wall.segment_at(wall.rest(), w.tip()).unwrap_or("?").to_string();
+            if seg != last_seg || k % 1000 == 0 {
+                println!(
+                    "t {:5.2} s  inserted {:6.1} mm  roll {:5.2}  tip {:.1?} mm  {}  contacts {}  axial {:.3} N",
+                    t,
+                    w.inserted() * 1e3,
+                    w.roll(),
+                    (w.tip() * 1e3).as_slice(),
+                    seg,
+                    rep.contacts,
+                    rep.hub_axial_force_n
+                );
+                last_seg = seg;
+            }
+        }
+    }
+    println!(
+        "end: tip in {}, {} nodes, deepest {:.3} mm, {:.1} µs a step",
+        wall.segment_at(wall.rest(), w.tip()).unwrap_or("?"),
+        w.num_nodes(),
+        worst * 1e3,
+        t0.elapsed().as_secs_f64() / steps as f64 * 1e6
+    );
+    Ok(())
+}
+
+fn interp(script: &[[f64; 3]], t: f64, start: f64) -> (f64, f64) {
+    let Some(first) = script.first() else {
+        return (start, 0.0);
+    };
+    if t <= first[0] {
+        return (first[1], first[2]);
+    }
+    for w in script.windows(2) {
+        if t <= w[1][0] {
+            let a = (t - w[0][0]) / (w[1][0] - w[0][0]);
+            return (w[0][1] + a * (w[1][1] - w[0][1]), w[0][2] + a * (w[1][2] - w[0][2]));
+        }
+    }
+    let l = script[script.len() - 1];
+    (l[1], l[2])
+}

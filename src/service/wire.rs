@@ -1,0 +1,621 @@
+//! The guidewire in the service: its own fixed-rate RT thread (SCHED_FIFO,
+//! pinned, prefaulted, fixed allocation, no locks), the link in the haptic
+//! loop that drives it from the stylus and feeds its resistance to the hand,
+//! and what goes between them and the other threads.
+//!
+//! ```text
+//!  haptic loop (1 kHz)                         wire thread (1/dt_s, +500 µs)
+//!  HubDrive::command(sample) ── hub ring ───▶  Wire::set_hub, Wire::step(inner wall)
+//!  hand force ◀── axial force (atomic) ──────  StepReport::hub_axial_force_n
+//!  Servo point loads, contact ring ◀─ loads ─  wall_loads (barycentric)
+//!  publisher: x = X + ū + Φ δq at the inner-wall vertices ── walls ──▶ TriangleLumen
+//!  publisher ◀── polyline ring ─────────────  positions (stream)
+//! ```
+//!
+//! The wire step (docs/WIRE.md: ~1 µs per node per Newton iteration) does
+//! not fit in the 1 kHz tick beside the vessel, so it runs beside the loop,
+//! half a period after it: the force the hand feels uses the axial force of
+//! the step that ended before the tick, at most one tick old. A step that
+//! goes non-finite (or deeper into the wall than the wire's diameter), or a
+//! wire thread that stops stepping, makes the loop's watchdog ramp the force
+//! to zero and the wire return to its last good state (counted in
+//! `wire.resets`).
+
+use super::faults::FaultSwitches;
+use crate::config::{Checker, ConfigError};
+use crate::haptics::device::DeviceSample;
+use crate::haptics::frame::DeviceFrame;
+use crate::haptics::tick::HapticTick;
+use crate::haptics::touchx::{GimbalWaypoint, Waypoint};
+use crate::math::Vec3;
+use crate::rt::clock::{self, Nanos};
+use crate::rt::stats::Histogram;
+use crate::rt::thread::{setup_current, RtGrant, RtRequest};
+use crate::wire::coupling::{wall_loads, InnerWall, WallLoad, MAX_WALL_LOADS};
+use crate::wire::{HubDrive, TriangleLumen, Wire, WireParams};
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::sync::Arc;
+
+/// Most points of the wire's polyline on the stream (a longer wire is
+/// sampled every k-th node, tip always kept).
+pub const MAX_POLYLINE: usize = 256;
+
+/// The wire thread runs this long after the loop's tick (ns): its step ends
+/// before the next tick reads the axial force.
+pub(super) const WIRE_PHASE: Nanos = 500_000;
+
+/// `[guidewire]`: how the service runs the wire of `[wire]`.
+#[derive(Debug, Clone, PartialEq, serde::Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct GuidewireConfig {
+    /// Scene position of the access point (m): the hub, where the wire
+    /// enters the vessel.
+    pub access_point_m: [f64; 3],
+    /// Insertion direction in the scene (into the vessel; normalised).
+    pub axis: [f64; 3],
+    /// Inserted length at start (m).
+    pub inserted_m: f64,
+    /// The mesh's node set of the inner wall (the lumen the wire touches).
+    pub wall_set: String,
+    /// Whether the wire's contact forces load the vessel (the reduced model
+    /// and the background solve); false: a rigid lumen that still follows
+    /// the vessel's deformation.
+    pub load_wall: bool,
+    /// CPU of the wire thread (-1: not pinned).
+    pub cpu: i32,
+    /// SCHED_FIFO priority of the wire thread (0: normal policy).
+    pub priority: u8,
+    /// The loop raises a fault when the wire has not stepped for this long
+    /// (ms): the force ramps to zero and the wire is reset when it returns.
+    pub stall_ms: f64,
+    /// Steps between saves of the last good state.
+    pub good_state_every: u32,
+    /// The simulated hand's script in the wire's terms: rows of
+    /// `[time_s, inserted_m, roll_rad]`, turned into stylus waypoints and
+    /// gimbal angles through the inverse of `[wire.drive]`.
+    pub script: Vec<[f64; 3]>,
+}
+
+impl Default for GuidewireConfig {
+    fn default() -> Self {
+        GuidewireConfig {
+            access_point_m: [0.0; 3],
+            axis: [0.0, 0.0, 1.0],
+            inserted_m: 0.02,
+            wall_set: "inner_wall".into(),
+            load_wall: true,
+            cpu: 0,
+            priority: 75,
+            stall_ms: 20.0,
+            good_state_every: 100,
+            script: Vec::new(),
+        }
+    }
+}
+
+impl GuidewireConfig {
+    /// Range checks; keys are named `guidewire.…`.
+    pub fn validate(&self, c: &Checker, wire: &WireParams) -> Result<(), ConfigError> {
+        for (k, v) in self.access_point_m.iter().enumerate() {
+            c.f64_in(&format!("guidewire.access_point_m[{k}]"), *v, -10.0, 10.0, "m")?;
+        }
+        for (k, v) in self.axis.iter().enumerate() {
+            c.f64_in(&format!("guidewire.axis[{k}]"), *v, -1000.0, 1000.0, "")?;
+        }
+        if Vec3::from(self.axis).norm() < 1e-9 {
+            return Err(c.err("guidewire.axis", "must not be zero"));
+        }
+        c.f64_in(
+            "guidewire.inserted_m",
+            self.inserted_m,
+            0.0,
+            wire.max_inserted_m(),
+            "m (at most what the wire inserts)",
+        )?;
+        c.int_in("guidewire.cpu", self.cpu, -1, 1023)?;
+        c.int_in("guidewire.priority", self.priority, 0, 99)?;
+        c.f64_in("guidewire.stall_ms", self.stall_ms, 2.0, 10_000.0, "ms")?;
+        c.int_in("guidewire.good_state_every", self.good_state_every, 1, 1_000_000)?;
+        let mut last = f64::NEG_INFINITY;
+        for (k, row) in self.script.iter().enumerate() {
+            c.f64_in(&format!("guidewire.script[{k}][0]"), row[0], 0.0, 86_400.0, "s")?;
+            if row[0] <= last {
+                return Err(c.err(
+                    &format!("guidewire.script[{k}][0]"),
+                    format!("{}: times must increase", row[0]),
+                ));
+            }
+            last = row[0];
+            c.f64_in(
+                &format!("guidewire.script[{k}][1]"),
+                row[1],
+                0.0,
+                wire.max_inserted_m(),
+                "m",
+            )?;
+            c.f64_in(&format!("guidewire.script[{k}][2]"), row[2], -1000.0, 1000.0, "rad")?;
+        }
+        if wire.max_nodes > 1024 {
+            return Err(c.err(
+                "wire.max_nodes",
+                format!("{}: the service runs at most 1024", wire.max_nodes),
+            ));
+        }
+        Ok(())
+    }
+}
+
+/// The simulated hand of the script: stylus waypoints (device frame) and
+/// gimbal angles, from `[time, inserted, roll]` rows through the inverse of
+/// the drive's map (position along `drive.axis` from `drive.origin_m`,
+/// roll on `drive.roll_index` divided by `drive.roll_scale`).
+pub fn hand_script(g: &GuidewireConfig, wire: &WireParams) -> (Vec<Waypoint>, Vec<GimbalWaypoint>) {
+    let d = &wire.drive;
+    let a = Vec3::from(d.axis).normalize();
+    let origin = Vec3::from(d.origin_m);
+    let rows: Vec<[f64; 3]> = if g.script.is_empty() {
+        vec![[0.0, g.inserted_m, 0.0]]
+    } else {
+        g.script.clone()
+    };
+    let mut pts = Vec::new();
+    let mut gim = Vec::new();
+    for r in rows {
+        let p = origin + a * ((r[1] - d.inserted_at_origin_m) / d.insertion_scale);
+        pts.push(Waypoint { t_s: r[0], position: p });
+        let mut angles = [0.0; 3];
+        if d.roll_scale != 0.0 {
+            angles[d.roll_index.min(2)] = r[2] / d.roll_scale;
+        }
+        gim.push(GimbalWaypoint {
+            t_s: r[0],
+            angles_rad: angles,
+        });
+    }
+    (pts, gim)
+}
+
+/// Wire ↔ loop shared figures (atomics, f64 as bits).
+#[derive(Debug, Default)]
+pub struct WireShared {
+    axial_bits: AtomicU64,
+    inserted_bits: AtomicU64,
+    roll_bits: AtomicU64,
+    steps: AtomicU64,
+    resets: AtomicU64,
+    reset_request: AtomicBool,
+}
+
+impl WireShared {
+    fn set(a: &AtomicU64, v: f64) {
+        a.store(v.to_bits(), Ordering::Release);
+    }
+    fn get(a: &AtomicU64) -> f64 {
+        f64::from_bits(a.load(Ordering::Acquire))
+    }
+    /// Steps the wire thread has taken.
+    pub fn steps(&self) -> u64 {
+        self.steps.load(Ordering::Acquire)
+    }
+    /// Resets so far.
+    pub fn resets(&self) -> u64 {
+        self.resets.load(Ordering::Acquire)
+    }
+    /// The inserted length after the last step (m).
+    pub fn inserted_m(&self) -> f64 {
+        Self::get(&self.inserted_bits)
+    }
+}
+
+/// A hub command (loop → wire).
+#[derive(Debug, Clone, Copy)]
+pub(super) struct HubMsg {
+    inserted_m: f64,
+    roll_rad: f64,
+}
+
+/// The wall loads of one wire step (wire → loop).
+#[derive(Debug, Clone)]
+pub(super) struct LoadMsg {
+    loads: heapless::Vec<WallLoad, MAX_WALL_LOADS>,
+}
+
+/// The wire's polyline, hub to tip (wire → publisher), scene frame (m).
+#[derive(Debug, Clone)]
+pub(super) struct PolylineMsg {
+    points: heapless::Vec<[f32; 3], MAX_POLYLINE>,
+}
+
+/// The loop's side: the hub drive, the rings to and from the wire thread.
+pub(super) struct WireLink {
+    drive: HubDrive,
+    frame: DeviceFrame,
+    hub: rtrb::Producer<HubMsg>,
+    loads_in: rtrb::Consumer<LoadMsg>,
+    shared: Arc<WireShared>,
+    current: heapless::Vec<(u32, Vec3), MAX_WALL_LOADS>,
+    last_steps: u64,
+    last_progress_s: f64,
+    stall_s: f64,
+    resets_seen: u64,
+    stalled: bool,
+    load_wall: bool,
+    /// Stalls the loop saw.
+    pub stalls: u64,
+    /// Hub commands the ring had no room for.
+    pub hub_ring_full: u64,
+}
+
+impl WireLink {
+    /// Before the tick: drive the hub from `sample` (device frame), read the
+    /// wire's latest axial force and loads, set the hand force and the
+    /// point loads on `tick`; a stalled or reset wire raises a fault.
+    pub(super) fn before_tick<const R: usize>(
+        &mut self,
+        sample: Option<&DeviceSample>,
+        now_s: f64,
+        tick: &mut HapticTick<R>,
+    ) {
+        let steps = self.shared.steps();
+        if steps != self.last_steps || !self.last_progress_s.is_finite() {
+            self.last_steps = steps;
+            self.last_progress_s = now_s;
+            self.stalled = false;
+        } else if now_s - self.last_progress_s > self.stall_s && !self.stalled {
+            self.stalled = true;
+            self.stalls += 1;
+            self.shared.reset_request.store(true, Ordering::Release);
+        }
+        let resets = self.shared.resets();
+        if resets != self.resets_seen {
+            self.resets_seen = resets;
+            self.drive.reseat(
+                WireShared::get(&self.shared.inserted_bits),
+                WireShared::get(&self.shared.roll_bits),
+            );
+            tick.servo_mut().raise_fault();
+        }
+        if self.stalled {
+            tick.servo_mut().raise_fault();
+        }
+        let mut latest = None;
+        while let Ok(m) = self.loads_in.pop() {
+            latest = Some(m);
+        }
+        if let Some(m) = latest {
+            self.current.clear();
+            if self.load_wall {
+                for l in &m.loads {
+                    let _ = self.current.push((l.node, l.force));
+                }
+            }
+            tick.servo_mut().set_point_loads(&self.current);
+        }
+        let Some(s) = sample else {
+            tick.set_external_force(Vec3::zeros());
+            return;
+        };
+        let cmd = self.drive.command(s, now_s);
+        if self
+            .hub
+            .push(HubMsg {
+                inserted_m: cmd.inserted_m,
+                roll_rad: cmd.roll_rad,
+            })
+            .is_err()
+        {
+            self.hub_ring_full += 1;
+        }
+        let axial = if self.stalled {
+            0.0
+        } else {
+            WireShared::get(&self.shared.axial_bits)
+        };
+        let f = self.drive.hand_force(s, axial);
+        tick.set_external_force(self.frame.force_to_scene(f));
+    }
+
+    /// The wall loads in use (mesh node, force on the tissue, N): what the
+    /// background solve is sent with the tool's contact.
+    pub(super) fn loads(&self) -> &[(u32, Vec3)] {
+        &self.current
+    }
+}
+
+/// What the wire thread needs.
+pub(super) struct WirePlan {
+    pub wire: Wire,
+    pub lumen: TriangleLumen,
+    pub wall: Arc<InnerWall>,
+    pub hub: rtrb::Consumer<HubMsg>,
+    pub loads_out: rtrb::Producer<LoadMsg>,
+    pub walls_in: rtrb::Consumer<Vec<Vec3>>,
+    pub walls_back: rtrb::Producer<Vec<Vec3>>,
+    pub polyline: rtrb::Producer<PolylineMsg>,
+    pub shared: Arc<WireShared>,
+    pub stop: Arc<AtomicBool>,
+    pub faults: Arc<FaultSwitches>,
+    pub request: RtRequest,
+    pub start: Nanos,
+    pub period: Nanos,
+    pub pool_bytes: usize,
+    pub good_every: u32,
+    pub polyline_every: u64,
+}
+
+/// What the wire thread returns.
+pub(super) struct WireResult {
+    pub grant: RtGrant,
+    pub step_us: Histogram,
+    pub contacts: Histogram,
+    pub steps: u64,
+    pub resets: u64,
+    pub nodes: usize,
+    pub inserted_m: f64,
+    pub max_inserted_m: f64,
+    pub tip: Vec3,
+    pub contacts_max: usize,
+    pub max_penetration_m: f64,
+    pub axial_force_max_n: f64,
+    pub iterations_max: usize,
+    pub allocations: u64,
+    pub wall_updates: u64,
+    pub loads_ring_full: u64,
+    pub loads_dropped: u64,
+    pub wall: Vec<Vec3>,
+}
+
+/// Builds the rings, the loop's link, the publisher's part and the wire
+/// thread's plan.
+pub(super) struct WireParts {
+    pub link: WireLink,
+    pub plan: WirePlan,
+    pub publisher: PublisherWire,
+}
+
+/// The publisher's part: the inner-wall vertices it computes for the wire
+/// at the stream rate, and the polyline it streams.
+pub(super) struct PublisherWire {
+    pub nodes: Vec<u32>,
+    pub rest: Vec<Vec3>,
+    pub walls_out: rtrb::Producer<Vec<Vec3>>,
+    pub walls_free: rtrb::Consumer<Vec<Vec3>>,
+    pub polyline: rtrb::Consumer<PolylineMsg>,
+    pub points: Vec<[f32; 3]>,
+}
+
+impl PublisherWire {
+    /// Sends the wall at the current state (`position(mesh node, rest)`)
+    /// to the wire thread if a buffer is free; takes the newest polyline.
+    pub(super) fn update(&mut self, position: impl Fn(u32, Vec3) -> Vec3) {
+        if let Ok(mut buf) = self.walls_free.pop() {
+            for (k, (&i, &x)) in self.nodes.iter().zip(&self.rest).enumerate() {
+                buf[k] = position(i, x);
+            }
+            // Capacity equals the buffers in circulation: never full.
+            let _ = self.walls_out.push(buf);
+        }
+        while let Ok(p) = self.polyline.pop() {
+            self.points.clear();
+            self.points.extend_from_slice(&p.points);
+        }
+    }
+}
+
+/// Everything the service needs to run the wire, built before the threads
+/// start.
+#[allow(clippy::too_many_arguments)]
+pub(super) fn build(
+    params: &WireParams,
+    g: &GuidewireConfig,
+    mesh: &crate::mesh::TetMesh,
+    frame: DeviceFrame,
+    stop: Arc<AtomicBool>,
+    faults: Arc<FaultSwitches>,
+    start: Nanos,
+    stream_every: u64,
+) -> Result<WireParts, super::ServiceError> {
+    let wall =
+        InnerWall::from_mesh(mesh, &g.wall_set).map_err(|e| super::ServiceError::Solver(format!("guidewire: {e}")))?;
+    let lumen = wall
+        .lumen()
+        .map_err(|e| super::ServiceError::Solver(format!("guidewire: {e}")))?;
+    let wire = Wire::new(params, Vec3::from(g.access_point_m), Vec3::from(g.axis), g.inserted_m)
+        .map_err(|e| super::ServiceError::Solver(format!("guidewire: {e}")))?;
+    let drive = HubDrive::new(params, wire.inserted(), wire.roll())?;
+    let shared = Arc::new(WireShared::default());
+    WireShared::set(&shared.inserted_bits, wire.inserted());
+    WireShared::set(&shared.roll_bits, wire.roll());
+    let (hub_tx, hub_rx) = rtrb::RingBuffer::<HubMsg>::new(64);
+    let (loads_tx, loads_rx) = rtrb::RingBuffer::<LoadMsg>::new(4);
+    let (walls_tx, walls_rx) = rtrb::RingBuffer::<Vec<Vec3>>::new(3);
+    let (free_tx, free_rx_fill) = rtrb::RingBuffer::<Vec<Vec3>>::new(3);
+    let (poly_tx, poly_rx) = rtrb::RingBuffer::<PolylineMsg>::new(4);
+    // Three wall buffers circulate publisher → wire → publisher.
+    let mut free_tx = free_tx;
+    for _ in 0..3 {
+        let _ = free_tx.push(wall.rest().to_vec());
+    }
+    let period = (params.dt_s * 1e9).round() as Nanos;
+    let wall = Arc::new(wall);
+    let publisher = PublisherWire {
+        nodes: wall.mesh_nodes().to_vec(),
+        rest: wall.rest().to_vec(),
+        walls_out: walls_tx,
+        walls_free: free_rx_fill,
+        polyline: poly_rx,
+        points: Vec::with_capacity(MAX_POLYLINE),
+    };
+    let link = WireLink {
+        drive,
+        frame,
+        hub: hub_tx,
+        loads_in: loads_rx,
+        shared: shared.clone(),
+        current: heapless::Vec::new(),
+        last_steps: 0,
+        last_progress_s: f64::NAN,
+        stall_s: g.stall_ms * 1e-3,
+        resets_seen: 0,
+        stalled: false,
+        load_wall: g.load_wall,
+        stalls: 0,
+        hub_ring_full: 0,
+    };
+    let plan = WirePlan {
+        wire,
+        lumen,
+        wall,
+        hub: hub_rx,
+        loads_out: loads_tx,
+        walls_in: walls_rx,
+        walls_back: free_tx,
+        polyline: poly_tx,
+        shared,
+        stop,
+        faults,
+        request: RtRequest {
+            fifo_priority: (g.priority > 0).then_some(g.priority),
+            cpu: (g.cpu >= 0).then_some(g.cpu as usize),
+            prefault_stack_bytes: 256 * 1024,
+        },
+        start,
+        period,
+        pool_bytes: 1 << 20,
+        good_every: g.good_state_every,
+        polyline_every: stream_every.max(1),
+    };
+    Ok(WireParts { link, plan, publisher })
+}
+
+/// The wire thread's body: one wire step per period until `stop`.
+pub(super) fn wire_thread(mut p: WirePlan) -> WireResult {
+    let grant = setup_current(&p.request);
+    let mut res = WireResult {
+        grant,
+        step_us: Histogram::new(),
+        contacts: Histogram::new(),
+        steps: 0,
+        resets: 0,
+        nodes: p.wire.num_nodes(),
+        inserted_m: p.wire.inserted(),
+        max_inserted_m: p.wire.inserted(),
+        tip: p.wire.tip(),
+        contacts_max: 0,
+        max_penetration_m: 0.0,
+        axial_force_max_n: 0.0,
+        iterations_max: 0,
+        allocations: 0,
+        wall_updates: 0,
+        loads_ring_full: 0,
+        loads_dropped: 0,
+        wall: Vec::new(),
+    };
+    let _pool = crate::rt::alloc::enter_rt(p.pool_bytes);
+    let mut msg = LoadMsg {
+        loads: heapless::Vec::new(),
+    };
+    let mut poly = PolylineMsg {
+        points: heapless::Vec::new(),
+    };
+    let radius = 0.5 * p.wire.params().diameter_m;
+    let diameter = 2.0 * radius;
+    let sys0 = crate::rt::alloc::thread_system_calls();
+    let mut next = p.start;
+    let mut since_good = 0u32;
+    while !p.stop.load(Ordering::Relaxed) {
+        clock::sleep_until(next);
+        next += p.period;
+        let stall = p.faults.stall_wire_ms.swap(0, Ordering::Relaxed);
+        if stall > 0 {
+            std::thread::sleep(std::time::Duration::from_millis(stall));
+        }
+        let mut cmd = None;
+        while let Ok(c) = p.hub.pop() {
+            cmd = Some(c);
+        }
+        if let Some(c) = cmd {
+            p.wire.set_hub(c.inserted_m, c.roll_rad);
+        }
+        let mut wall = None;
+        while let Ok(w) = p.walls_in.pop() {
+            if let Some(old) = wall.replace(w) {
+                let _ = p.walls_back.push(old);
+            }
+        }
+        if let Some(w) = wall {
+            if p.lumen.update_vertices(&w).is_ok() {
+                res.wall_updates += 1;
+            }
+            let _ = p.walls_back.push(w);
+        }
+        let poison = FaultSwitches::take(&p.faults.poison_wire);
+        if poison {
+            p.wire.poison_for_tests();
+        }
+        let t0 = clock::now_ns();
+        let step = p.wire.step(&p.lumen);
+        res.step_us.record((clock::now_ns() - t0) as f64 * 1e-3);
+        res.steps += 1;
+        let reset_asked = p.shared.reset_request.swap(false, Ordering::AcqRel);
+        let good = match step {
+            Ok(rep) if rep.max_penetration_m <= diameter && !reset_asked => {
+                res.contacts.record(rep.contacts as f64);
+                res.contacts_max = res.contacts_max.max(rep.contacts);
+                res.max_penetration_m = res.max_penetration_m.max(rep.max_penetration_m);
+                res.axial_force_max_n = res.axial_force_max_n.max(rep.hub_axial_force_n.abs());
+                res.iterations_max = res.iterations_max.max(rep.iterations);
+                WireShared::set(&p.shared.axial_bits, rep.hub_axial_force_n);
+                since_good += 1;
+                if since_good >= p.good_every && rep.max_penetration_m < 0.5 * radius {
+                    p.wire.save_good_state();
+                    since_good = 0;
+                }
+                res.loads_dropped += wall_loads(&p.wall, &p.lumen, p.wire.contacts(), &mut msg.loads) as u64;
+                if p.loads_out.push(msg.clone()).is_err() {
+                    res.loads_ring_full += 1;
+                }
+                true
+            }
+            _ => false,
+        };
+        if !good {
+            p.wire.restore_good_state();
+            since_good = 0;
+            WireShared::set(&p.shared.axial_bits, 0.0);
+            msg.loads.clear();
+            let _ = p.loads_out.push(msg.clone());
+        }
+        WireShared::set(&p.shared.inserted_bits, p.wire.inserted());
+        WireShared::set(&p.shared.roll_bits, p.wire.roll());
+        if !good {
+            p.shared.resets.fetch_add(1, Ordering::AcqRel);
+        }
+        p.shared.steps.fetch_add(1, Ordering::AcqRel);
+        res.inserted_m = p.wire.inserted();
+        res.max_inserted_m = res.max_inserted_m.max(res.inserted_m);
+        if res.steps % p.polyline_every == 0 {
+            let line = p.wire.inserted_polyline();
+            let stride = line.len().div_ceil(MAX_POLYLINE - 1).max(1);
+            poly.points.clear();
+            for (k, x) in line.iter().enumerate() {
+                if k % stride == 0 || k + 1 == line.len() {
+                    let _ = poly.points.push([x.x as f32, x.y as f32, x.z as f32]);
+                }
+            }
+            let _ = p.polyline.push(poly.clone());
+        }
+        // Re-phase after an overrun instead of bursting.
+        let now = clock::now_ns();
+        if now > next {
+            next += ((now - next) / p.period + 1) * p.period;
+        }
+    }
+    res.allocations = crate::rt::alloc::thread_system_calls() - sys0;
+    crate::rt::alloc::leave_rt();
+    res.nodes = p.wire.num_nodes();
+    res.tip = p.wire.tip();
+    res.resets = p.shared.resets();
+    res.wall = p.lumen.vertices().to_vec();
+    res
+}

@@ -1,0 +1,68 @@
+//! The guidewire scenario in the service, short: the wire runs in its own
+//! RT thread, the scripted hand inserts it up the descending aorta, the
+//! report's `wire.*` keys are filled and finite, and neither the loop, the
+//! device thread nor the wire thread calls the system allocator after
+//! start. Runs RT threads: run it alone (`cargo test --release --test
+//! guidewire_service_reports_the_wire_and_allocates_nothing`).
+
+mod common;
+
+use nvtmm::service::{run_service, StartOptions};
+
+#[global_allocator]
+static ALLOC: nvtmm::rt::alloc::RtAllocator = nvtmm::rt::alloc::RtAllocator;
+
+#[test]
+fn a_short_guidewire_run_reports_finite_wire_keys_and_allocates_nothing() {
+    let dir = tempfile::tempdir().unwrap();
+    let cfg = common::guidewire::write(
+        dir.path(),
+        4.0,
+        "[[0.0, 0.02, 0.0], [0.3, 0.02, 0.0], [3.3, 0.08, 0.5]]",
+        std::env::var("GW_LOAD_WALL").map(|v| v != "0").unwrap_or(false),
+    );
+    let report = run_service(&StartOptions::file(cfg)).expect("the guidewire service runs");
+    println!("{}", report.render());
+    let w = report.wire.as_ref().expect("wire.* keys");
+    assert!(w.steps > 2000, "{} wire steps", w.steps);
+    assert!(
+        w.inserted_m > 0.06 && w.inserted_m <= 0.085,
+        "inserted {}",
+        w.inserted_m
+    );
+    assert!(w.nodes > 20, "{} nodes", w.nodes);
+    for (k, v) in [
+        ("inserted_m", w.inserted_m),
+        ("max_penetration_m", w.max_penetration_m),
+        ("axial_force_max_n", w.axial_force_max_n),
+        ("contacts_p50", w.contacts_p50),
+        ("step_us.p50", w.step_us.p50),
+        ("step_us.p99", w.step_us.p99),
+        ("step_us.p999", w.step_us.p999),
+    ] {
+        assert!(v.is_finite() && v >= 0.0, "wire.{k} = {v}");
+    }
+    assert!(w.step_us.p50 > 0.0 && w.step_us.p50 <= w.step_us.p99 && w.step_us.p99 <= w.step_us.p999);
+    assert!(w.tip_m.iter().all(|c| c.is_finite()));
+    assert_eq!(w.tip_segment, "aorta", "the tip is still in the descending aorta");
+    assert!(w.max_penetration_m < 0.2e-3, "penetration {} m", w.max_penetration_m);
+    assert!(w.wall_updates > 0, "the wall followed the reduced model");
+    assert_eq!(w.resets, 0);
+    assert!(report.allocator_installed);
+    assert_eq!(w.allocations_after_start, 0, "wire thread allocations");
+    assert_eq!(report.allocations_after_start, 0, "loop + device + wire allocations");
+    let json = serde_json::to_value(&report).unwrap();
+    for k in [
+        "nodes",
+        "inserted_m",
+        "tip_segment",
+        "contacts_max",
+        "contacts_p50",
+        "max_penetration_m",
+        "axial_force_max_n",
+        "step_us",
+        "resets",
+    ] {
+        assert!(json["wire"].get(k).is_some(), "wire.{k} missing");
+    }
+}
