@@ -40,6 +40,14 @@ impl Scene {
     pub fn build_mesh(&self) -> Result<TetMesh, SceneError> {
         let m = &self.mesh;
         if let Some(n) = m.arch_nodes {
+            if m.arch_branches == Some(ArchBranches::Three) {
+                use crate::mesh::vessel::branched::{branched_arch, default_wall_ratio};
+                use crate::mesh::vessel::implicit::BranchedArchParams;
+                let params = BranchedArchParams::default();
+                return branched_arch(&params, n, 1, default_wall_ratio(&params))
+                    .map(|b| b.wall.mesh)
+                    .map_err(|e| self.err("mesh.arch_nodes", format!("the branched arch: {e}")));
+            }
             return generate(&ArchParams::default(), n)
                 .map(|a| a.mesh)
                 .map_err(|e| self.err("mesh.arch_nodes", e.to_string()));
@@ -71,7 +79,8 @@ impl Scene {
         let bytes =
             std::fs::read(&path).map_err(|e| self.err("mesh.vessel.surface", format!("{}: {e}", path.display())))?;
         let mut h = crate::reduced::cache::Fnv1a::default();
-        h.str("nvtmm vessel mesh v1");
+        // v2: the prism split is optimised (the same options give other tets).
+        h.str("nvtmm vessel mesh v2");
         h.u64(bytes.len() as u64);
         h.bytes(&bytes);
         let opt = |h: &mut crate::reduced::cache::Fnv1a, x: Option<f64>| match x {

@@ -40,6 +40,11 @@ pub type SceneError = crate::config::ConfigError;
 pub struct MeshConfig {
     /// The built-in aortic arch with about this many nodes.
     pub arch_nodes: Option<usize>,
+    /// Which built-in arch `arch_nodes` builds: `"none"` (the unbranched
+    /// tube, when the key is absent) or `"three"` (with the brachiocephalic
+    /// trunk, the left common carotid and the left subclavian, made by the
+    /// vessel pipeline; docs/VESSEL.md). Only with `arch_nodes`.
+    pub arch_branches: Option<ArchBranches>,
     /// A box of tets: `{ cells = [nx, ny, nz], size = [x, y, z] }` (m).
     pub block: Option<BlockConfig>,
     /// A mesh file (.msh .vtk .vtu .node/.ele), relative to the scene file.
@@ -51,6 +56,23 @@ pub struct MeshConfig {
     #[serde(default = "one")]
     pub scale: f64,
 }
+
+/// The branches of the built-in arch (`[mesh] arch_branches`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum ArchBranches {
+    /// The unbranched tube ([`crate::mesh::arch::generate`]).
+    None,
+    /// The three supra-aortic branches
+    /// ([`crate::mesh::vessel::branched::branched_arch`], one layer, the
+    /// default wall ratio, arch type I).
+    Three,
+}
+
+/// The node counts `arch_branches = "three"` accepts: at least 200 lumen
+/// vertices (the branched arch's own floor), and at most what meshes in
+/// about half a minute on a 2-core machine (23 328 nodes take 2-4 s).
+pub const BRANCHED_ARCH_NODES: std::ops::RangeInclusive<usize> = 400..=200_000;
 
 /// `[mesh] vessel = { surface = "…", … }`: the options of `nvtmm mesh
 /// vessel`. The wall is meshed when the scene is built and cached in the
@@ -496,6 +518,63 @@ profile = { kind = "ramp", t0 = 0.0, t1 = 0.005 }
         let e = parse(&GOOD.replace("x_min", "nope")).unwrap().build().err().unwrap();
         assert_eq!(e.key, "fixed.sets[0]");
         assert!(e.msg.contains("x_max"), "lists the available sets: {e}");
+    }
+
+    /// [`GOOD`] on the built-in arch with `branches`.
+    fn arch_scene(branches: &str) -> String {
+        GOOD.replace(
+            "block = { cells = [2, 1, 1], size = [0.02, 0.01, 0.01] }",
+            &format!("arch_nodes = 1458\narch_branches = {branches}"),
+        )
+        .replace("x_min", "inlet")
+        .replace("x_max", "outer_wall")
+    }
+
+    #[test]
+    fn arch_branches_picks_the_branched_arch() {
+        let b = parse(&arch_scene("\"three\"")).unwrap().build_mesh().unwrap();
+        assert!((b.num_nodes() as f64 / 1458.0 - 1.0).abs() <= 0.01, "{}", b.num_nodes());
+        let (names, _) = b.segment_labels().expect("the branched arch carries segment labels");
+        assert!(names.iter().any(|n| n == "left_subclavian"), "{names:?}");
+        assert!(b.node_set("outlet_brachiocephalic").is_some());
+        let u = parse(&arch_scene("\"none\"")).unwrap().build_mesh().unwrap();
+        assert!(u.segment_labels().is_none() && u.node_set("outlet_brachiocephalic").is_none());
+        // Without the key: the unbranched arch, as before the key existed.
+        let plain = parse(&arch_scene("\"none\"").replace("arch_branches = \"none\"", "")).unwrap();
+        assert_eq!(plain.build_mesh().unwrap().rest(), u.rest());
+    }
+
+    #[test]
+    fn arch_branches_errors_name_the_key() {
+        let cases = [
+            (arch_scene("\"four\""), "mesh.arch_branches", "four"),
+            (arch_scene("3"), "mesh.arch_branches", ""),
+            (
+                GOOD.replace("[mesh]", "[mesh]\narch_branches = \"three\""),
+                "mesh.arch_branches",
+                "only with mesh.arch_nodes",
+            ),
+            (
+                arch_scene("\"three\"").replace("arch_nodes = 1458", ""),
+                "mesh.arch_branches",
+                "only with mesh.arch_nodes",
+            ),
+            (
+                arch_scene("\"three\"").replace("arch_nodes = 1458", "arch_nodes = 300"),
+                "mesh.arch_nodes",
+                "400..=200000",
+            ),
+            (
+                format!("{}[roi]\narclength = [0.0, 0.1]\n", arch_scene("\"three\"")),
+                "roi.arclength",
+                "unbranched",
+            ),
+        ];
+        for (text, key, what) in cases {
+            let e = parse(&text).unwrap_err();
+            assert_eq!(e.key, key, "{e}");
+            assert!(e.to_string().contains(what), "{e}");
+        }
     }
 
     const REDUCED: &str = r#"

@@ -7,6 +7,12 @@ impl Scene {
     /// Checks every key against its allowed range.
     pub fn validate(&self) -> Result<(), SceneError> {
         let m = &self.mesh;
+        if m.arch_branches.is_some() && m.arch_nodes.is_none() {
+            return Err(self.err(
+                "mesh.arch_branches",
+                "only with mesh.arch_nodes (it picks which built-in arch that builds)",
+            ));
+        }
         let sources =
             m.arch_nodes.is_some() as u8 + m.block.is_some() as u8 + m.file.is_some() as u8 + m.vessel.is_some() as u8;
         if sources != 1 {
@@ -46,7 +52,18 @@ impl Scene {
                 return Err(self.err("mesh.vessel.scale", format!("{}: must be finite and > 0", v.scale)));
             }
         }
-        if let Some(n) = m.arch_nodes {
+        if let (Some(n), Some(ArchBranches::Three)) = (m.arch_nodes, m.arch_branches) {
+            if !BRANCHED_ARCH_NODES.contains(&n) {
+                return Err(self.err(
+                    "mesh.arch_nodes",
+                    format!(
+                        "{n} is out of range {}..={} for the branched arch (mesh.arch_branches = \"three\")",
+                        BRANCHED_ARCH_NODES.start(),
+                        BRANCHED_ARCH_NODES.end()
+                    ),
+                ));
+            }
+        } else if let Some(n) = m.arch_nodes {
             if !(crate::mesh::arch::MIN_NODES..=crate::mesh::arch::MAX_NODES).contains(&n) {
                 return Err(self.err(
                     "mesh.arch_nodes",
@@ -236,6 +253,12 @@ impl Scene {
         if let Some([s0, s1]) = roi.arclength {
             if self.mesh.arch_nodes.is_none() {
                 return Err(self.err("roi.arclength", "only for the built-in arch (mesh.arch_nodes)"));
+            }
+            if self.mesh.arch_branches == Some(ArchBranches::Three) {
+                return Err(self.err(
+                    "roi.arclength",
+                    "only for the unbranched built-in arch (mesh.arch_branches = \"three\" is set): use roi.box or roi.sphere",
+                ));
             }
             if !(s0.is_finite() && s1.is_finite() && s0 >= 0.0 && s0 < s1) {
                 return Err(self.err("roi.arclength", format!("[{s0}, {s1}]: need 0 <= s0 < s1 (m)")));
