@@ -32,7 +32,7 @@ fn main() -> Result<(), String> {
     let nodes: usize = args.get(1).and_then(|s| s.parse().ok()).unwrap_or(5832);
     let patches: usize = args.get(2).and_then(|s| s.parse().ok()).unwrap_or(1);
     let setup = Setup::new(nodes, 32, &ComplianceParams::default())?;
-    let mesh = &setup.arch.mesh;
+    let mesh = &setup.mesh;
     let normals = mesh.surface_vertex_normals();
     let outer = mesh.node_set("outer_wall").unwrap_or(&[]).to_vec();
     let mut s = 0x9E37_79B9_7F4A_7C15u64;

@@ -17,7 +17,7 @@ const R: usize = 32;
 #[test]
 fn kept_triangles_give_the_contact_a_fresh_search_gives() {
     let s = Setup::new(1458, 16, &ComplianceParams::default()).unwrap();
-    let mesh = &s.arch.mesh;
+    let mesh = &s.mesh;
     let normals = mesh.surface_vertex_normals();
     let rows = &s.rows;
     let row_bound = rows.iter().map(|r| r.norm()).fold(0.0, f64::max);

@@ -57,7 +57,7 @@ pub fn bench_contact(nodes: usize, patches: usize, ticks: usize) -> Result<Conta
         ));
     }
     let setup = Setup::new(nodes, 32, &ComplianceParams::default())?;
-    let mesh = &setup.arch.mesh;
+    let mesh = &setup.mesh;
     let normals = mesh.surface_vertex_normals();
     let outer: Vec<u32> = mesh
         .node_set("outer_wall")

@@ -194,8 +194,11 @@ pub fn touched_of(servo: &Servo<R>) -> Vec<Touched> {
 /// at rest, a vibration-only basis, its residual compliance table, the
 /// service's contact and a loop model ready to run.
 pub struct Setup {
-    /// The arch (mesh, grid, centreline).
-    pub arch: crate::mesh::arch::Arch,
+    /// The mesh the setup runs on.
+    pub mesh: crate::mesh::TetMesh,
+    /// The unbranched arch's grid and centreline (None on the branched
+    /// arch).
+    pub arch: Option<crate::mesh::arch::Arch>,
     /// Fixed nodes (sorted).
     pub fixed: Vec<u32>,
     /// K at rest.
@@ -218,25 +221,80 @@ pub struct Setup {
     pub sp: ServoParams,
 }
 
+/// What [`Setup::with`] builds on.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SetupSpec {
+    /// Arch nodes.
+    pub nodes: usize,
+    /// Vibration modes in the basis (≤ 32).
+    pub r: usize,
+    /// The residual compliance table's settings.
+    pub compliance: ComplianceParams,
+    /// Young's modulus of the wall (Pa); the rest is the aorta's.
+    pub youngs_pa: f64,
+    /// The built-in arch with its three supra-aortic branches (every vessel
+    /// end fixed) instead of the unbranched one (both ends fixed).
+    pub branched: bool,
+}
+
+impl Default for SetupSpec {
+    fn default() -> Self {
+        SetupSpec {
+            nodes: 5832,
+            r: 32,
+            compliance: ComplianceParams::default(),
+            youngs_pa: Material::aorta().youngs_pa,
+            branched: false,
+        }
+    }
+}
+
 impl Setup {
-    /// Builds it: arch of `nodes`, basis of `r` ≤ 32 vibration modes.
+    /// Builds it: the unbranched arch of `nodes`, basis of `r` ≤ 32
+    /// vibration modes.
     pub fn new(nodes: usize, r: usize, compliance: &ComplianceParams) -> Result<Setup, String> {
+        Setup::with(&SetupSpec {
+            nodes,
+            r,
+            compliance: compliance.clone(),
+            ..SetupSpec::default()
+        })
+    }
+
+    /// Builds it as `spec` says.
+    pub fn with(spec: &SetupSpec) -> Result<Setup, String> {
+        let (nodes, r, compliance) = (spec.nodes, spec.r, &spec.compliance);
         if r > R {
             return Err(format!("r = {r} is above the experiment's capacity {R}"));
         }
-        let arch = generate(&ArchParams::default(), nodes).map_err(|x| x.to_string())?;
-        let mesh = &arch.mesh;
-        let mat = Material::aorta();
-        let model = Nvtmm::new(mesh, &mat);
-        let mut fixed: Vec<u32> = ["inlet", "outlet_descending"]
+        let (mesh, arch) = if spec.branched {
+            use crate::mesh::vessel::branched::{branched_arch, default_wall_ratio};
+            use crate::mesh::vessel::implicit::BranchedArchParams;
+            let params = BranchedArchParams::default();
+            let b = branched_arch(&params, nodes, 1, default_wall_ratio(&params)).map_err(|x| x.to_string())?;
+            (b.wall.mesh, None)
+        } else {
+            let arch = generate(&ArchParams::default(), nodes).map_err(|x| x.to_string())?;
+            (arch.mesh.clone(), Some(arch))
+        };
+        let mat = Material {
+            youngs_pa: spec.youngs_pa,
+            ..Material::aorta()
+        };
+        let model = Nvtmm::new(&mesh, &mat);
+        // Every vessel end (the inlet and each outlet) fixed.
+        let mut fixed: Vec<u32> = mesh
+            .node_sets()
             .iter()
-            .flat_map(|s| mesh.node_set(s).unwrap_or(&[]).to_vec())
+            .filter(|(name, _)| name.starts_with("inlet") || name.starts_with("outlet"))
+            .flat_map(|(_, nodes)| nodes.iter().copied())
             .collect();
         fixed.sort_unstable();
         fixed.dedup();
         let n = mesh.num_nodes();
         let mass = mesh.lumped_mass(mat.density);
         let zeros = vec![Vec3::zeros(); n];
+        let mesh = &mesh;
         let basis = ModalBasis::compute(&crate::reduced::BasisSpec {
             stiffness: crate::reduced::Stiffness::Model {
                 mesh,
@@ -279,6 +337,7 @@ impl Setup {
             swap_blend_s: 0.0,
         };
         Ok(Setup {
+            mesh: mesh.clone(),
             arch,
             fixed,
             k,
@@ -295,7 +354,7 @@ impl Setup {
 
     /// A loop at rest, with or without the residual compliance.
     pub fn servo(&self, with_table: bool) -> Result<Servo<R>, String> {
-        let n = self.arch.mesh.num_nodes();
+        let n = self.mesh.num_nodes();
         let mut m = rest_model::<R>(self.rows.clone(), &self.k0, &self.dynp, n).map_err(|x| x.to_string())?;
         m.compliance = with_table.then(|| self.table.clone());
         Ok(Servo::new(m, self.index.clone(), self.sp, 0.0))
@@ -306,7 +365,7 @@ impl Setup {
     /// ones the loop `touched`.
     pub fn full_reactions(&self, spheres: &[Vec3], touched: &[Touched]) -> Result<Vec<Vec3>, String> {
         let mut exact = ExactCompliance::new(&self.k, &self.fixed)?;
-        let mesh = &self.arch.mesh;
+        let mesh = &self.mesh;
         let mut nodes = pressed_at_rest(mesh, &self.cp, &self.index, spheres);
         nodes.extend(touched.iter().map(|t| t.node));
         nodes.sort_unstable();
@@ -323,7 +382,7 @@ pub fn run(e: &ContactExperiment) -> Result<ContactResult, String> {
     }
     let s = Setup::new(e.nodes, e.r, &e.compliance)?;
     let Setup {
-        arch,
+        mesh,
         fixed,
         stats,
         dynp,
@@ -331,7 +390,7 @@ pub fn run(e: &ContactExperiment) -> Result<ContactResult, String> {
         index,
         ..
     } = &s;
-    let (mesh, stats, dynp, cp) = (&arch.mesh, *stats, *dynp, *cp);
+    let (stats, dynp, cp) = (*stats, *dynp, *cp);
     let n = mesh.num_nodes();
     let mut exact = ExactCompliance::new(&s.k, fixed)?;
     let normals = mesh.surface_vertex_normals();
@@ -572,7 +631,7 @@ pub struct SlideResult {
 /// along the interpolated surface normal, after `settle_s` pressed at the
 /// start; the basis of vibration modes with its residual compliance table.
 pub fn slide(s: &Setup, speed_m_s: f64, push_m: f64, settle_s: f64) -> Result<SlideResult, String> {
-    let arch = &s.arch;
+    let arch = s.arch.as_ref().ok_or("the slide follows the unbranched arch's grid")?;
     let g = arch.grid;
     let mesh = &arch.mesh;
     let normals = mesh.surface_vertex_normals();
