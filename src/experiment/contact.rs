@@ -256,7 +256,7 @@ impl Setup {
         Setup::with(&SetupSpec {
             nodes,
             r,
-            compliance: compliance.clone(),
+            compliance: *compliance,
             ..SetupSpec::default()
         })
     }
