@@ -124,6 +124,16 @@ enum ExperimentCmd {
         /// JSON on stdout (the ratio and settle-time keys), no table.
         #[arg(long)]
         json: bool,
+        /// Arch nodes (overrides the size --quick or the default picks).
+        #[arg(long)]
+        nodes: Option<usize>,
+        /// Surface points (half on the inner wall, half on the outer).
+        #[arg(long)]
+        points: Option<usize>,
+        /// The arch with its three supra-aortic branches (every vessel end
+        /// fixed) instead of the unbranched one.
+        #[arg(long)]
+        branched: bool,
     },
     /// Linear vs exact cubic reduced StVK: precompute, µs per step, accuracy against the full NVTMM under a large load (docs/RESULTS.md).
     Cubic {
@@ -470,7 +480,13 @@ fn main() -> ExitCode {
             } => cli::wire::bench_wire_cmd(nodes, steps, iterations, json),
         },
         Command::Experiment(e) => match e {
-            ExperimentCmd::Contact { quick, json } => cli::reduced::experiment_contact(quick, json),
+            ExperimentCmd::Contact {
+                quick,
+                json,
+                nodes,
+                points,
+                branched,
+            } => cli::reduced::experiment_contact(quick, json, nodes, points, branched),
             ExperimentCmd::Cubic { out, quick } => cli::cubic::experiment_cubic(&out, quick),
             ExperimentCmd::Reduced { out, quick } => cli::reduced::experiment_reduced(&out, quick),
             ExperimentCmd::Fig5 { out, quick } => cli::sim::experiment_fig5(&out, quick),

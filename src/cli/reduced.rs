@@ -94,17 +94,34 @@ pub fn experiment_reduced(out: &Path, quick: bool) -> Result<()> {
 }
 
 /// `nvtmm experiment contact`.
-pub fn experiment_contact(quick: bool, json: bool) -> Result<()> {
+pub fn experiment_contact(
+    quick: bool,
+    json: bool,
+    nodes: Option<usize>,
+    points: Option<usize>,
+    branched: bool,
+) -> Result<()> {
     use nvtmm::experiment::contact::{run, ContactExperiment};
-    let e = if quick {
+    let mut e = if quick {
         ContactExperiment::quick()
     } else {
         ContactExperiment::full()
     };
+    if let Some(n) = nodes {
+        e.nodes = n;
+    }
+    if let Some(p) = points {
+        if p < 2 {
+            return Err(format!("--points {p}: at least 2 (one per wall)").into());
+        }
+        e.points = p;
+    }
+    e.branched = branched;
     let r = run(&e)?;
     if json {
         let v = serde_json::json!({
             "nodes": r.nodes,
+            "branched": branched,
             "r": r.r,
             "points": r.points.len(),
             "ratio_settled_p05": r.ratio_settled.p05,
@@ -125,9 +142,10 @@ pub fn experiment_contact(quick: bool, json: bool) -> Result<()> {
         return Ok(());
     }
     println!(
-        "contact anywhere: {} points on the {}-node arch, r = {} (vibration modes only), residual compliance table {:.2} s ({} solves, {} blocks)",
+        "contact anywhere: {} points on the {}-node {}arch, r = {} (vibration modes only), residual compliance table {:.2} s ({} solves, {} blocks)",
         r.points.len(),
         r.nodes,
+        if branched { "branched " } else { "" },
         r.r,
         r.table.seconds,
         r.table.solves,

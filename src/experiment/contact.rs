@@ -50,6 +50,8 @@ pub struct ContactExperiment {
     pub seed: u64,
     /// The compliance table's settings.
     pub compliance: ComplianceParams,
+    /// On the arch with its three supra-aortic branches.
+    pub branched: bool,
 }
 
 impl ContactExperiment {
@@ -63,6 +65,7 @@ impl ContactExperiment {
             settle_s: 1.5,
             seed: 7,
             compliance: ComplianceParams::default(),
+            branched: false,
         }
     }
 
@@ -76,6 +79,7 @@ impl ContactExperiment {
             settle_s: 1.5,
             seed: 7,
             compliance: ComplianceParams::default(),
+            branched: false,
         }
     }
 }
@@ -380,7 +384,13 @@ pub fn run(e: &ContactExperiment) -> Result<ContactResult, String> {
     if e.r > R {
         return Err(format!("r = {} is above the experiment's capacity {R}", e.r));
     }
-    let s = Setup::new(e.nodes, e.r, &e.compliance)?;
+    let s = Setup::with(&SetupSpec {
+        nodes: e.nodes,
+        r: e.r,
+        compliance: e.compliance,
+        branched: e.branched,
+        ..SetupSpec::default()
+    })?;
     let Setup {
         mesh,
         fixed,

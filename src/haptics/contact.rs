@@ -1146,19 +1146,94 @@ fn series_patches<'r, const R: usize>(
             s[b][a] = s[a][b];
         }
     }
+    // Patches that do not load each other are separate problems: solve
+    // each group of coupled patches on its own (most patches of an
+    // instrument are far apart, so this is m scalar problems, not one
+    // m × m one).
+    let mut group = [0usize; C];
+    for a in 0..m {
+        group[a] = a;
+    }
+    for a in 0..m {
+        for b in 0..a {
+            if s[a][b] != 0.0 {
+                let (ga, gb) = (group[a], group[b]);
+                if ga != gb {
+                    let (keep, gone) = (ga.min(gb), ga.max(gb));
+                    group[..m].iter_mut().filter(|g| **g == gone).for_each(|g| *g = keep);
+                }
+            }
+        }
+    }
+    out.corrected = m == out.patches.len();
+    let mut depth = None::<f64>;
+    // Scratch of the groups' solves (zeroed once here, not per group).
+    let mut l = [[0.0f64; C]; C];
+    let mut g_rows = [SVector::<f64, R>::zeros(); C];
+    for g in 0..m {
+        let mut idx = [0usize; C];
+        let mut k = 0;
+        for a in 0..m {
+            if group[a] == g {
+                idx[k] = a;
+                k += 1;
+            }
+        }
+        if k == 0 {
+            continue;
+        }
+        match series_group(&s, &idx[..k], rows, &mut l, &mut g_rows, out) {
+            Some(d) => depth = Some(depth.map_or(d, |x: f64| x.max(d))),
+            None => {
+                // Not positive definite (a corrupt table): the plain penalty.
+                out.corrected = false;
+                for &a in &idx[..k] {
+                    let pa = out.patches[a];
+                    plain_patch(&pa, rows, out);
+                }
+            }
+        }
+    }
+    if let Some(d) = depth {
+        out.max_depth = d;
+    }
+    // Patches beyond the corrected ones: the plain penalty.
+    for pi in m..out.patches.len() {
+        let pa = out.patches[pi];
+        plain_patch(&pa, rows, out);
+    }
+}
+
+/// One group of coupled patches `idx` (indices into `out.patches`) of the
+/// series solve ([`series_patches`]): Newton on their laws with the
+/// couplings `s`, then their node forces and reduced stiffness into `out`.
+/// Returns the deepest penetration into the deflected surface, or None if
+/// the system is not positive definite (nothing written). `l` and `g` are
+/// scratch (overwritten where used).
+#[allow(clippy::needless_range_loop)] // index arithmetic reads as the formula
+fn series_group<'r, const R: usize>(
+    s_all: &[[f64; MAX_COMPLIANT_PATCHES]; MAX_COMPLIANT_PATCHES],
+    idx: &[usize],
+    rows: &impl Fn(u32) -> Option<&'r SMatrix<f64, 3, R>>,
+    l: &mut [[f64; MAX_COMPLIANT_PATCHES]; MAX_COMPLIANT_PATCHES],
+    g: &mut [SVector<f64, R>; MAX_COMPLIANT_PATCHES],
+    out: &mut ContactOutput<R>,
+) -> Option<f64> {
+    const C: usize = MAX_COMPLIANT_PATCHES;
+    let m = idx.len();
+    let s = |a: usize, b: usize| s_all[idx[a]][idx[b]];
     let mut on = [false; C];
     on[..m].iter_mut().for_each(|o| *o = true);
     let mut p = [0.0f64; C];
     let mut delta = [0.0f64; C];
     let mut kk = [0.0f64; C];
-    let mut l = [[0.0f64; C]; C];
     let mut ok = false;
-    let scale = out.patches.iter().map(|q| q.depth).fold(0.0, f64::max);
+    let scale = idx.iter().map(|&a| out.patches[a].depth).fold(0.0, f64::max);
     for _ in 0..SERIES_ITERATIONS + m {
         out.iterations += 1;
         let mut rhs = [0.0f64; C];
         for a in 0..m {
-            let (f, k) = patch_law(a, out, delta[a]);
+            let (f, k) = patch_law(idx[a], out, delta[a]);
             kk[a] = k;
             rhs[a] = if on[a] && k > 0.0 { f / k + delta[a] } else { 0.0 };
         }
@@ -1168,16 +1243,16 @@ fn series_patches<'r, const R: usize>(
                 l[a][b] = if !(live(a) && live(b)) {
                     (a == b) as u8 as f64
                 } else {
-                    s[a][b] + if a == b { 1.0 / kk[a] } else { 0.0 }
+                    s(a, b) + if a == b { 1.0 / kk[a] } else { 0.0 }
                 };
             }
         }
-        if !cholesky_in_place(&mut l, m) {
+        if !cholesky_in_place(l, m) {
             ok = false;
             break;
         }
         p = rhs;
-        cholesky_solve(&l, m, &mut p);
+        cholesky_solve(l, m, &mut p);
         let worst = (0..m)
             .filter(|&a| live(a) && p[a] < 0.0)
             .min_by(|&a, &b| p[a].total_cmp(&p[b]));
@@ -1193,7 +1268,7 @@ fn series_patches<'r, const R: usize>(
         }
         let mut change = 0.0f64;
         for a in 0..m {
-            let d: f64 = (0..m).map(|b| s[a][b] * p[b]).sum();
+            let d: f64 = (0..m).map(|b| s(a, b) * p[b]).sum();
             change = change.max((d - delta[a]).abs());
             delta[a] = d;
         }
@@ -1203,20 +1278,16 @@ fn series_patches<'r, const R: usize>(
         }
     }
     if !ok || !p[..m].iter().all(|v| v.is_finite()) {
-        // Not positive definite (a corrupt table): the plain penalty.
-        plain_patches(rows, out);
-        return;
+        return None;
     }
-    out.corrected = m == out.patches.len();
     let on: [bool; C] = std::array::from_fn(|a| a < m && on[a] && kk[a] > 0.0);
     // The penetration into the surface as the residual compliance moves it.
-    out.max_depth = (0..m)
+    let depth = (0..m)
         .filter(|&a| on[a])
-        .map(|a| patch_law(a, out, delta[a]).0 / kk[a].max(f64::MIN_POSITIVE))
+        .map(|a| patch_law(idx[a], out, delta[a]).0 / kk[a].max(f64::MIN_POSITIVE))
         .fold(0.0, f64::max);
-    let mut g = [SVector::<f64, R>::zeros(); C];
     for a in 0..m {
-        let pa = out.patches[a];
+        let pa = out.patches[idx[a]];
         g[a] = patch_rows(&pa, &out.active, rows);
         if on[a] {
             let scale = p[a] / pa.force;
@@ -1226,13 +1297,14 @@ fn series_patches<'r, const R: usize>(
             }
         }
     }
+    // K_c = G (K⁻¹ + S)⁻¹ Gᵀ on the live patches.
     for b in 0..m {
         if !on[b] {
             continue;
         }
         let mut col = [0.0f64; C];
         col[b] = 1.0;
-        cholesky_solve(&l, m, &mut col);
+        cholesky_solve(l, m, &mut col);
         let mut h = SVector::<f64, R>::zeros();
         for a in 0..m {
             if on[a] {
@@ -1241,11 +1313,7 @@ fn series_patches<'r, const R: usize>(
         }
         out.reduced_stiffness.ger(1.0, &h, &g[b], 1.0);
     }
-    // Patches beyond the corrected ones: the plain penalty.
-    for pi in m..out.patches.len() {
-        let pa = out.patches[pi];
-        plain_patch(&pa, rows, out);
-    }
+    Some(depth)
 }
 
 #[cfg(test)]
