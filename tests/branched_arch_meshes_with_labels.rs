@@ -134,3 +134,54 @@ fn branched_arch_at_5832_nodes() {
 fn branched_arch_at_23328_nodes() {
     check(23328);
 }
+
+/// The service's probe point (`[device] origin_m` of rt-config/nvtmm.toml,
+/// the outer wall at the arch top between the brachiocephalic and left
+/// common carotid origins), read from the shipped file so a moved probe is
+/// followed.
+fn service_probe_point() -> nalgebra::Vector3<f64> {
+    let path = concat!(env!("CARGO_MANIFEST_DIR"), "/rt-config/nvtmm.toml");
+    let text = std::fs::read_to_string(path).unwrap();
+    let doc: toml::Table = text.parse().unwrap();
+    let o = doc["device"]["origin_m"].as_array().unwrap();
+    let c: Vec<f64> = o.iter().map(|v| v.as_float().unwrap()).collect();
+    nalgebra::Vector3::new(c[0], c[1], c[2])
+}
+
+/// The wall thickness (m) at each outer-wall node within `radius` of `p`
+/// of a one-layer wall: the distance from outer node `n + v` to the lumen
+/// node `v` it was offset from.
+fn thickness_near(m: &nvtmm::mesh::TetMesh, p: &nalgebra::Vector3<f64>, radius: f64) -> Vec<f64> {
+    let n = m.node_set("inner_wall").unwrap().len();
+    let x = m.rest();
+    m.node_set("outer_wall")
+        .unwrap()
+        .iter()
+        .map(|&i| i as usize)
+        .filter(|&i| (x[i] - p).norm() <= radius)
+        .map(|i| (x[i] - x[i - n]).norm())
+        .collect()
+}
+
+/// The aorta keeps its own wall (2 mm at the arch top, the ratio times
+/// its radius) between the branch origins, where the service's probe
+/// presses: the fillets labelled `aorta` are walled like the aorta, not
+/// like the thinner branch they lead into (1.04 mm at the thinnest before).
+#[test]
+fn branched_arch_aorta_wall_keeps_its_thickness_under_the_probe_point() {
+    let params = BranchedArchParams::default();
+    let b = branched_arch(&params, 5832, 1, default_wall_ratio(&params)).expect("branched arch");
+    let t = thickness_near(&b.wall.mesh, &service_probe_point(), 0.010);
+    let min = t.iter().copied().fold(f64::INFINITY, f64::min);
+    let max = t.iter().copied().fold(0.0, f64::max);
+    let mean = t.iter().sum::<f64>() / t.len() as f64;
+    println!(
+        "{} outer-wall nodes within 10 mm of the probe point: thickness {:.3}–{:.3} mm, mean {:.3} mm",
+        t.len(),
+        min * 1e3,
+        max * 1e3,
+        mean * 1e3
+    );
+    assert!(t.len() >= 10, "{} outer-wall nodes near the probe point", t.len());
+    assert!(min >= 1.8e-3, "thinnest wall under the probe point {:.3} mm", min * 1e3);
+}
