@@ -81,6 +81,13 @@ fn smooth_over_neighbours(mesh: &crate::mesh::surface::SurfaceMesh, mut t: Vec<f
     t
 }
 
+/// The version of what [`branched_arch`] makes from its options: part of
+/// the key under which scenes cache the arch (`[mesh] arch_branches`), so
+/// a change here must come with a new tag or old caches would be read as
+/// the new mesh. Bump it whenever the same options give other nodes, tets,
+/// sets or labels (here, in the implicit lumen, the remesher or the wall).
+pub const MESHER_VERSION: &str = "nvtmm branched arch v1 (labelled-vessel wall thickness)";
+
 /// A built branched arch.
 #[derive(Debug, Clone)]
 pub struct BranchedArch {
