@@ -6,10 +6,22 @@
 
 use nvtmm::mesh::surface::SurfaceMesh;
 use nvtmm::mesh::vessel::branched::{branched_arch, default_wall_ratio, BranchedArch};
-use nvtmm::mesh::vessel::implicit::{label_vertices, nodes_around, BranchedArchParams, LumenTree, SEGMENT_NAMES};
+use nvtmm::mesh::vessel::implicit::{
+    label_vertices, nodes_around, ArchType, BranchedArchParams, LumenTree, SEGMENT_NAMES,
+};
 
 fn check(nodes: usize) {
-    let b = arch(nodes);
+    check_type(ArchType::I, nodes);
+}
+
+fn check_type(arch_type: ArchType, nodes: usize) {
+    let b = arch_of(
+        &BranchedArchParams {
+            arch_type,
+            ..BranchedArchParams::default()
+        },
+        nodes,
+    );
     assert!(
         b.wall.quality.min_dihedral_deg >= 10.0,
         "min dihedral {:.2}° at {nodes} nodes",
@@ -20,11 +32,16 @@ fn check(nodes: usize) {
 /// The arch at `nodes`: count within 1 %, no inverted tet, sets and labels
 /// (everything but the dihedral bound).
 fn arch(nodes: usize) -> BranchedArch {
-    let params = BranchedArchParams::default();
-    let b = branched_arch(&params, nodes, 1, default_wall_ratio(&params)).expect("branched arch");
+    arch_of(&BranchedArchParams::default(), nodes)
+}
+
+/// [`arch`] for other parameters (the arch type).
+fn arch_of(params: &BranchedArchParams, nodes: usize) -> BranchedArch {
+    let b = branched_arch(params, nodes, 1, default_wall_ratio(params)).expect("branched arch");
     let m = &b.wall.mesh;
     println!(
-        "{nodes}: {} nodes, {} tets, min dihedral {:.2}°, max aspect {:.2}",
+        "{:?} {nodes}: {} nodes, {} tets, min dihedral {:.2}°, max aspect {:.2}",
+        params.arch_type,
         m.num_nodes(),
         m.tets().len(),
         b.wall.quality.min_dihedral_deg,
@@ -133,6 +150,18 @@ fn branched_arch_at_5832_nodes() {
 #[test]
 fn branched_arch_at_23328_nodes() {
     check(23328);
+}
+
+/// Arch types II and III (the brachiocephalic origin 1.5 and 2.5 carotid
+/// diameters below the arch top) at the two smaller sizes: the same counts,
+/// sets, labels and the 10° bound as type I.
+#[test]
+fn branched_arch_types_ii_and_iii_at_1458_and_5832_nodes() {
+    for t in [ArchType::II, ArchType::III] {
+        for nodes in [1458, 5832] {
+            check_type(t, nodes);
+        }
+    }
 }
 
 /// The service's probe point (`[device] origin_m` of rt-config/nvtmm.toml,
