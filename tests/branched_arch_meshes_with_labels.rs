@@ -14,7 +14,7 @@ fn check(nodes: usize) {
     check_type(ArchType::I, nodes);
 }
 
-fn check_type(arch_type: ArchType, nodes: usize) {
+fn check_type(arch_type: ArchType, nodes: usize) -> BranchedArch {
     let b = arch_of(
         &BranchedArchParams {
             arch_type,
@@ -27,6 +27,7 @@ fn check_type(arch_type: ArchType, nodes: usize) {
         "min dihedral {:.2}° at {nodes} nodes",
         b.wall.quality.min_dihedral_deg
     );
+    b
 }
 
 /// The arch at `nodes`: count within 1 %, no inverted tet, sets and labels
@@ -111,8 +112,15 @@ fn arch_of(params: &BranchedArchParams, nodes: usize) -> BranchedArch {
 #[test]
 fn branched_arch_at_1458_nodes_counts_sets_and_labels() {
     let b = arch(1458);
+    assert_eight_around(&BranchedArchParams::default(), &b);
+}
+
+/// Every vessel of `b` keeps at least 8 lumen nodes around at every cut
+/// normal to its centreline (one per centreline point, 2 mm apart, from
+/// where a branch proper begins; [`nodes_around`]).
+fn assert_eight_around(params: &BranchedArchParams, b: &BranchedArch) {
     let m = &b.wall.mesh;
-    let tree = LumenTree::arch(&BranchedArchParams::default()).unwrap();
+    let tree = LumenTree::arch(params).unwrap();
     let n = m.node_set("inner_wall").unwrap().len();
     let lumen = SurfaceMesh {
         vertices: m.rest()[..n].to_vec(),
@@ -120,7 +128,7 @@ fn branched_arch_at_1458_nodes_counts_sets_and_labels() {
     };
     let labels = label_vertices(&tree, &lumen.vertices);
     let around = nodes_around(&tree, &lumen, &labels);
-    println!("nodes around: {around:?}");
+    println!("{:?}: nodes around: {around:?}", params.arch_type);
     assert!(around.iter().all(|&k| (8..usize::MAX).contains(&k)), "{around:?}");
 }
 
@@ -154,13 +162,18 @@ fn branched_arch_at_23328_nodes() {
 
 /// Arch types II and III (the brachiocephalic origin 1.5 and 2.5 carotid
 /// diameters below the arch top) at the two smaller sizes: the same counts,
-/// sets, labels and the 10° bound as type I.
+/// sets, labels and the 10° bound as type I, and 8 nodes around every
+/// vessel at the coarsest.
 #[test]
 fn branched_arch_types_ii_and_iii_at_1458_and_5832_nodes() {
-    for t in [ArchType::II, ArchType::III] {
-        for nodes in [1458, 5832] {
-            check_type(t, nodes);
-        }
+    for arch_type in [ArchType::II, ArchType::III] {
+        let coarse = check_type(arch_type, 1458);
+        let params = BranchedArchParams {
+            arch_type,
+            ..BranchedArchParams::default()
+        };
+        assert_eight_around(&params, &coarse);
+        check_type(arch_type, 5832);
     }
 }
 
