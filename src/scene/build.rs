@@ -35,18 +35,37 @@ pub struct VesselBuild {
     pub path: std::path::PathBuf,
 }
 
+/// The branched built-in arch (`[mesh] arch_branches = "three"`) and where
+/// it came from.
+#[derive(Debug, Clone)]
+pub struct ArchBuild {
+    /// The wall.
+    pub mesh: TetMesh,
+    /// Whether it was read from the cache.
+    pub cache_hit: bool,
+    /// The cache file.
+    pub path: std::path::PathBuf,
+    /// Why a freshly meshed arch could not be cached (the mesh is still
+    /// good; the next load meshes again). None on a hit or a stored miss.
+    pub cache_error: Option<String>,
+}
+
+/// The arch's options as the scene gives them: type I, one layer, the
+/// default wall ratio.
+fn scene_arch_options() -> (crate::mesh::vessel::implicit::BranchedArchParams, usize, f64) {
+    use crate::mesh::vessel::branched::default_wall_ratio;
+    let params = crate::mesh::vessel::implicit::BranchedArchParams::default();
+    let ratio = default_wall_ratio(&params);
+    (params, 1, ratio)
+}
+
 impl Scene {
     /// Builds the mesh.
     pub fn build_mesh(&self) -> Result<TetMesh, SceneError> {
         let m = &self.mesh;
         if let Some(n) = m.arch_nodes {
             if m.arch_branches == Some(ArchBranches::Three) {
-                use crate::mesh::vessel::branched::{branched_arch, default_wall_ratio};
-                use crate::mesh::vessel::implicit::BranchedArchParams;
-                let params = BranchedArchParams::default();
-                return branched_arch(&params, n, 1, default_wall_ratio(&params))
-                    .map(|b| b.wall.mesh)
-                    .map_err(|e| self.err("mesh.arch_nodes", format!("the branched arch: {e}")));
+                return self.branched_arch_mesh().map(|b| b.mesh);
             }
             return generate(&ArchParams::default(), n)
                 .map(|a| a.mesh)
@@ -97,6 +116,73 @@ impl Scene {
         opt(&mut h, v.edge_length);
         h.f64(v.scale);
         Ok(h.finish())
+    }
+
+    /// The cache key of the branched built-in arch: FNV-1a 64 of the
+    /// mesher's version tag ([`crate::mesh::vessel::branched::MESHER_VERSION`]),
+    /// every anatomical parameter (their `Debug` text, which prints each
+    /// float exactly), the node count, the layers and the wall ratio.
+    pub fn branched_arch_key(&self) -> Result<u64, SceneError> {
+        let n = self
+            .mesh
+            .arch_nodes
+            .ok_or_else(|| self.err("mesh.arch_nodes", "not given"))?;
+        let (params, layers, ratio) = scene_arch_options();
+        let mut h = crate::reduced::cache::Fnv1a::default();
+        h.str(crate::mesh::vessel::branched::MESHER_VERSION);
+        h.str(&format!("{params:?}"));
+        h.u64(n as u64);
+        h.u64(layers as u64);
+        h.f64(ratio);
+        Ok(h.finish())
+    }
+
+    /// The branched built-in arch of `[mesh] arch_nodes` (with
+    /// `arch_branches = "three"`): read from the cache
+    /// (`<cache_dir>/branched-arch-<key>.vtu`, [`Self::branched_arch_key`])
+    /// if there, else meshed and written there through a temporary file
+    /// and a rename. A cached file that cannot be read is meshed again and
+    /// replaced. Only a failed meshing is an error (naming
+    /// `mesh.arch_nodes`); a cache that cannot be written is reported in
+    /// [`ArchBuild::cache_error`], as the basis cache reports its own.
+    pub fn branched_arch_mesh(&self) -> Result<ArchBuild, SceneError> {
+        use crate::mesh::vessel::branched::branched_arch;
+        let n = self
+            .mesh
+            .arch_nodes
+            .ok_or_else(|| self.err("mesh.arch_nodes", "not given"))?;
+        let key = self.branched_arch_key()?;
+        let dir = self.cache_dir();
+        let path = dir.join(format!("branched-arch-{key:016x}.vtu"));
+        if path.exists() {
+            if let Ok(mesh) = crate::mesh::io::read_mesh(&path) {
+                return Ok(ArchBuild {
+                    mesh,
+                    cache_hit: true,
+                    path,
+                    cache_error: None,
+                });
+            }
+        }
+        let (params, layers, ratio) = scene_arch_options();
+        let mesh = branched_arch(&params, n, layers, ratio)
+            .map(|b| b.wall.mesh)
+            .map_err(|e| self.err("mesh.arch_nodes", format!("the branched arch: {e}")))?;
+        let tmp = dir.join(format!("branched-arch-{key:016x}.{}.tmp.vtu", std::process::id()));
+        let stored = std::fs::create_dir_all(&dir)
+            .map_err(|e| format!("cache directory {}: {e}", dir.display()))
+            .and_then(|_| crate::mesh::io::write_mesh(&mesh, &tmp).map_err(|e| e.to_string()))
+            .and_then(|_| std::fs::rename(&tmp, &path).map_err(|e| e.to_string()));
+        let cache_error = stored.err().map(|e| {
+            let _ = std::fs::remove_file(&tmp);
+            format!("caching the branched arch in {}: {e}", path.display())
+        });
+        Ok(ArchBuild {
+            mesh,
+            cache_hit: false,
+            path,
+            cache_error,
+        })
     }
 
     fn resolve(&self, p: &std::path::Path) -> std::path::PathBuf {

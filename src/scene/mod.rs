@@ -28,7 +28,7 @@ use std::path::{Path, PathBuf};
 mod build;
 mod validate;
 
-pub use build::Built;
+pub use build::{ArchBuild, Built};
 
 /// A scene error: the same type as every configuration error (the file,
 /// the dotted key and what is allowed).

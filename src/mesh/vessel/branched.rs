@@ -81,6 +81,13 @@ fn smooth_over_neighbours(mesh: &crate::mesh::surface::SurfaceMesh, mut t: Vec<f
     t
 }
 
+/// The version of what [`branched_arch`] makes from its options: part of
+/// the key under which scenes cache the arch (`[mesh] arch_branches`), so
+/// a change here must come with a new tag or old caches would be read as
+/// the new mesh. Bump it whenever the same options give other nodes, tets,
+/// sets or labels (here, in the implicit lumen, the remesher or the wall).
+pub const MESHER_VERSION: &str = "nvtmm branched arch v1 (labelled-vessel wall thickness)";
+
 /// A built branched arch.
 #[derive(Debug, Clone)]
 pub struct BranchedArch {
@@ -103,9 +110,12 @@ pub fn default_wall_ratio(params: &BranchedArchParams) -> f64 {
 }
 
 /// Builds the branched arch with `nodes` nodes (within 1 %), `layers`
-/// element layers through the wall and a wall `wall_ratio` times the local
-/// lumen radius thick ([`LumenTree::local_radius`], which a junction's
-/// fillet takes from the branch), at least [`MIN_WALL_M`] and at least
+/// element layers through the wall and a wall `wall_ratio` times the lumen
+/// radius of the vessel each vertex is labelled with
+/// ([`LumenTree::label_and_radius`]: a junction's fillet is the parent's, so
+/// the aorta's wall keeps the aorta's thickness up to where each branch
+/// proper begins; never below [`LumenTree::local_radius`]), at least
+/// [`MIN_WALL_M`] and at least
 /// [`MIN_WALL_PER_EDGE`] times the mean lumen edge at the vertex; then
 /// four passes of a one-ring mean that only ever thickens, so the wall
 /// does not step where the radius it follows jumps (at a junction).
@@ -141,9 +151,14 @@ pub fn branched_arch(
             ..CheckOptions::default()
         },
     )?;
-    // The thickness follows the radius the surface is meshed to
-    // (LumenTree::local_radius: a junction's fillet takes the branch's), so
-    // the thin branch wall goes with the branch's finer mesh.
+    // The thickness follows the radius of the vessel a vertex is labelled
+    // with (LumenTree::label_and_radius: a junction's fillet, before the
+    // branch proper, belongs to the parent), so the aorta keeps its own
+    // wall between the branch origins, where the probe presses, and a
+    // branch's wall is the branch's. The radius the surface is meshed to
+    // (LumenTree::local_radius, the branch's on a fillet) is never larger
+    // there; it is kept as a floor so the wall is never thinner than the
+    // mesh size it was tuned against.
     // Prisms flatter than about 1 : 4 split into tets with dihedral angles
     // below 10°: where the mesh is coarse for the wall (the junctions of
     // a coarse arch, meshed at the parent's size), the wall is at least
@@ -155,7 +170,7 @@ pub fn branched_arch(
         .iter()
         .zip(&edge)
         .map(|(p, &e)| {
-            (wall_ratio * tree.local_radius(p))
+            (wall_ratio * tree.local_radius(p).max(tree.label_and_radius(p).1))
                 .max(MIN_WALL_M)
                 .max(MIN_WALL_PER_EDGE * e)
         })
