@@ -538,7 +538,7 @@ impl Wire {
         self.feed();
         self.begin_step();
         let fed = self.s.inserted - before;
-        self.slide(fed);
+        self.slide(fed, lumen);
         let n = self.s.n;
         let r_w = 0.5 * self.p.diameter_m;
         let cap_step = 0.5 * r_w;
@@ -675,16 +675,36 @@ impl Wire {
     /// itself keeps every edge's length to second order in the turning
     /// angle, so the step starts near equilibrium, in the stiff regime,
     /// and converges there; the slide is part of the step's motion, so
-    /// inertia and friction see it.
-    fn slide(&mut self, fed: f64) {
+    /// inertia and friction see it. A tip against the wall slides along
+    /// it; a tip heading into the wall (a dead end) blocks the slide: the
+    /// feed stays in the hub edge, where the grip caps the force.
+    fn slide(&mut self, fed: f64, lumen: &dyn Lumen) {
         let n = self.s.n;
         if fed == 0.0 || n < 3 {
             return;
         }
         let x = &mut self.s.x;
         if fed > 0.0 {
+            // The tip leaves the centreline, along its last edge. Against
+            // the wall it slides along the wall (its component into the
+            // wall dropped); heading into the wall more steeply than 30°
+            // off the wall's plane, the wire's front is blocked: nothing
+            // slides, the feed stays in the hub edge, whose force the grip
+            // caps (a steel wire rammed into a dead end).
+            let (a, b) = (x[n - 2], x[n - 1]);
+            let l = (b - a).norm();
+            let mut tip_dir = if l > 1e-12 { (b - a) / l } else { Vec3::zeros() };
+            let r_w = 0.5 * self.p.diameter_m;
+            if let Some(hit) = lumen.probe(b + tip_dir * fed, 3.0 * r_w) {
+                if hit.distance <= r_w {
+                    let dn = tip_dir.dot(&hit.normal);
+                    if dn < -0.5 {
+                        return;
+                    }
+                    tip_dir -= hit.normal * dn.min(0.0);
+                }
+            }
             // Toward the tip: node i along edge i (its old end, not yet moved).
-            let mut prev_dir = (x[2] - x[1]).normalize();
             for i in 2..n {
                 let dir = if i + 1 < n {
                     let e = x[i + 1] - x[i];
@@ -692,13 +712,12 @@ impl Wire {
                     if l > 1e-12 {
                         e / l
                     } else {
-                        prev_dir
+                        tip_dir
                     }
                 } else {
-                    prev_dir
+                    tip_dir
                 };
                 x[i] += dir * fed;
-                prev_dir = dir;
             }
         } else {
             // Toward the hub: node i along edge i − 1 (its old start).
