@@ -50,6 +50,13 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let steps = (end / dt).round() as usize;
     let mut last_seg = String::new();
     let mut worst: f64 = 0.0;
+    // The largest |axial hub force| and Newton residual over each 0.1 s.
+    let (mut axial_max, mut residual_max, mut fed_max) = (0.0f64, 0.0f64, 0.0f64);
+    // `GUIDEWIRE_TRACE=t0,t1` prints every step between t0 and t1 (s).
+    let trace: Option<(f64, f64)> = std::env::var("GUIDEWIRE_TRACE").ok().and_then(|v| {
+        let (a, b) = v.split_once(',')?;
+        Some((a.trim().parse().ok()?, b.trim().parse().ok()?))
+    });
     let t0 = std::time::Instant::now();
     for k in 0..steps {
         let t = k as f64 * dt;
@@ -58,21 +65,45 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         w.set_hub(ins, roll);
         let rep = w.step(&lumen).map_err(|e| format!("t = {t:.3} s: {e}"))?;
         worst = worst.max(rep.max_penetration_m);
-        if k % 100 == 0 {
-            let seg = wall.segment_at(wall.rest(), w.tip()).unwrap_or("?").to_string();
-            if seg != last_seg || k % 1000 == 0 {
+        if let Some((a, b)) = trace {
+            if t >= a && t <= b {
                 println!(
-                    "t {:5.2} s  inserted {:6.1} mm  roll {:5.2}  tip {:.1?} mm  {}  contacts {}  axial {:.3} N",
+                    "  step {k}: fed {:7.2} µm  nodes {}  it {}  axial {:8.3} N  residual {:.2e} N  slipped {}  contacts {}",
+                    rep.fed_m * 1e6,
+                    w.num_nodes(),
+                    rep.iterations,
+                    rep.hub_axial_force_n,
+                    rep.residual_n,
+                    rep.grip_slipped,
+                    rep.contacts
+                );
+            }
+        }
+        axial_max = axial_max.max(rep.hub_axial_force_n.abs());
+        residual_max = residual_max.max(rep.residual_n);
+        fed_max = fed_max.max(rep.fed_m.abs());
+        if k % 100 == 99 {
+            let seg = wall.segment_at(wall.rest(), w.tip()).unwrap_or("?").to_string();
+            if seg != last_seg || (k + 1) % 500 == 0 {
+                println!(
+                    "t {:5.2} s  inserted {:6.1} mm  roll {:5.2}  tip {:.1?} mm  {}  contacts {}  \
+                     axial {:.3} N (0.1 s max {:.3})  residual max {:.2e} N  feed max {:.1} µm",
                     t,
                     w.inserted() * 1e3,
                     w.roll(),
                     (w.tip() * 1e3).as_slice(),
                     seg,
                     rep.contacts,
-                    rep.hub_axial_force_n
+                    rep.hub_axial_force_n,
+                    axial_max,
+                    residual_max,
+                    fed_max * 1e6
                 );
                 last_seg = seg;
             }
+            axial_max = 0.0;
+            residual_max = 0.0;
+            fed_max = 0.0;
         }
     }
     println!(

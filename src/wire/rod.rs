@@ -81,6 +81,12 @@ pub struct StepReport {
     /// `max_hub_force_n` and the inserted length fell back to what the wire
     /// took.
     pub grip_slipped: bool,
+    /// Newton residual at the end of the step: the largest net force on a
+    /// free node (N), i.e. the norm of the incremental potential's gradient
+    /// there. Zero when the step's minimisation converged.
+    pub residual_n: f64,
+    /// Material fed in (positive) or withdrawn at the hub this step (m).
+    pub fed_m: f64,
 }
 
 /// The state that [`Wire::save_good_state`] keeps.
@@ -453,9 +459,15 @@ impl Wire {
                     s.d1[j + 1] = s.d1[j];
                     s.rest[j + 1] = s.rest[j];
                 }
-                let frac = (r - h) / r;
+                // The new node sits one segment (its edge's rest length)
+                // before node 3 along the old hub edge, so that the slide
+                // of this step's feed (`Wire::slide`, which lengthens the
+                // hub edge) leaves both edges at their rest lengths; it
+                // enters moving with the wire.
+                let l = (s.x[3] - s.x[1]).norm();
+                let frac = if l > h { (l - h) / l } else { (r - h) / r };
                 s.x[2] = s.x[1] + (s.x[3] - s.x[1]) * frac;
-                s.v[2] = s.v[3] * frac;
+                s.v[2] = s.v[3];
                 s.u[2] = s.u[3] + h;
                 s.lam[2] = 0.0;
                 s.ref_twist[2] = 0.0;
@@ -522,12 +534,18 @@ impl Wire {
 
     /// Advances the wire by one time step against `lumen`.
     pub fn step(&mut self, lumen: &dyn Lumen) -> Result<StepReport, WireFault> {
+        let before = self.s.inserted;
         self.feed();
         self.begin_step();
+        let fed = self.s.inserted - before;
+        self.slide(fed, lumen);
         let n = self.s.n;
         let r_w = 0.5 * self.p.diameter_m;
         let cap_step = 0.5 * r_w;
-        let mut rep = StepReport::default();
+        let mut rep = StepReport {
+            fed_m: fed,
+            ..StepReport::default()
+        };
         // Past the configured iterations, go on (up to four times as many)
         // only while the wire is deeper than a quarter radius in the wall.
         let max_it = 4 * self.p.newton_iterations;
@@ -630,12 +648,85 @@ impl Wire {
             self.s.u[0] = self.s.inserted + self.p.segment_length_m;
             rep.grip_slipped = true;
         }
+        rep.residual_n = (2..n)
+            .map(|i| Vec3::new(self.grad[4 * i], self.grad[4 * i + 1], self.grad[4 * i + 2]).norm())
+            .fold(0.0, f64::max);
         rep.contacts = self.contacts.len();
         rep.max_penetration_m = self.contacts.iter().map(|c| c.penetration).fold(0.0, f64::max);
         if !self.s.is_finite() || !rep.hub_axial_force_n.is_finite() {
             return Err(WireFault::NonFinite);
         }
         Ok(rep)
+    }
+
+    /// The Newton iterations' starting point after `fed` metres entered
+    /// (or left, if negative) at the hub: every free node slides by `fed`
+    /// along the wire's own centreline, toward the tip (the tip along its
+    /// last edge), toward the hub on pull-back.
+    ///
+    /// Why: the feed lengthens the hub edge's rest length, and the
+    /// nearly inextensible wire (EA/h ≈ 10⁷ N/m) must follow within a
+    /// micrometre. Started from the unmoved nodes, the hub edge begins the
+    /// step compressed by the whole feed (0.1 mm: ~10³ N), far beyond the
+    /// grip's limit, where its Huber energy has no axial stiffness; Newton
+    /// then degenerates into a capped, bisected gradient step that never
+    /// lands within the micrometre, and the step ends with the hub force at
+    /// the grip's limit although nothing resists. Sliding the wire along
+    /// itself keeps every edge's length to second order in the turning
+    /// angle, so the step starts near equilibrium, in the stiff regime,
+    /// and converges there; the slide is part of the step's motion, so
+    /// inertia and friction see it. A tip against the wall slides along
+    /// it; a tip heading into the wall (a dead end) blocks the slide: the
+    /// feed stays in the hub edge, where the grip caps the force.
+    fn slide(&mut self, fed: f64, lumen: &dyn Lumen) {
+        let n = self.s.n;
+        // Pulling back stretches the hub edge instead: the grip does not
+        // cap a pull, so Newton stays in the stiff regime and converges
+        // from the unmoved nodes (sliding them back along the bent wire
+        // cut the inside of a bend: tests/wire_capstan_matches_euler_eytelwein.rs).
+        if fed <= 0.0 || n < 3 {
+            return;
+        }
+        let x = &mut self.s.x;
+        {
+            // The tip leaves the centreline, along its last edge. Against
+            // the wall it slides along the wall (its component into the
+            // wall dropped); heading into the wall more steeply than 30°
+            // off the wall's plane, the wire's front is blocked: nothing
+            // slides, the feed stays in the hub edge, whose force the grip
+            // caps (a steel wire rammed into a dead end).
+            let (a, b) = (x[n - 2], x[n - 1]);
+            let l = (b - a).norm();
+            let mut tip_dir = if l > 1e-12 { (b - a) / l } else { Vec3::zeros() };
+            let r_w = 0.5 * self.p.diameter_m;
+            if let Some(hit) = lumen.probe(b + tip_dir * fed, 3.0 * r_w) {
+                if hit.distance <= r_w {
+                    let dn = tip_dir.dot(&hit.normal);
+                    if dn < -0.5 {
+                        return;
+                    }
+                    tip_dir -= hit.normal * dn.min(0.0);
+                }
+            }
+            // Toward the tip: node i along edge i (its old end, not yet moved).
+            for i in 2..n {
+                let dir = if i + 1 < n {
+                    let e = x[i + 1] - x[i];
+                    let l = e.norm();
+                    if l > 1e-12 {
+                        e / l
+                    } else {
+                        tip_dir
+                    }
+                } else {
+                    tip_dir
+                };
+                x[i] += dir * fed;
+            }
+        }
+        for i in 2..n {
+            self.xt[i] = self.s.x[i];
+        }
     }
 
     /// Frames, curvature and twist at the trial state.
