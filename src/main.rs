@@ -179,6 +179,10 @@ enum ExperimentCmd {
         /// A small mesh and fewer settings.
         #[arg(long)]
         quick: bool,
+        /// Only the guidewire's knobs (segments, Newton iterations, contact
+        /// stiffness, friction model), a few seconds.
+        #[arg(long)]
+        wire: bool,
     },
 }
 
@@ -491,7 +495,7 @@ fn main() -> ExitCode {
             ExperimentCmd::Reduced { out, quick } => cli::reduced::experiment_reduced(&out, quick),
             ExperimentCmd::Fig5 { out, quick } => cli::sim::experiment_fig5(&out, quick),
             ExperimentCmd::Table { out, quick } => cli::sim::experiment_table(&out, quick),
-            ExperimentCmd::Trade { out, quick } => cli::sim::experiment_trade(&out, quick),
+            ExperimentCmd::Trade { out, quick, wire } => cli::sim::experiment_trade(&out, quick, wire),
         },
         Command::Replay(a) => cli::stream::replay(a),
         Command::View(a) => cli::stream::view(a),

@@ -177,7 +177,17 @@ pub fn experiment_table(out: &Path, quick: bool) -> Result<()> {
     Ok(())
 }
 
-pub fn experiment_trade(out: &Path, quick: bool) -> Result<()> {
+pub fn experiment_trade(out: &Path, quick: bool, wire_only: bool) -> Result<()> {
+    // The guidewire's knobs (docs/RESULTS.md, "Guidewire").
+    let wire = nvtmm::experiment::wire_trade::rows(quick)?;
+    let table = nvtmm::experiment::wire_trade::markdown(&wire);
+    std::fs::create_dir_all(out)?;
+    std::fs::write(out.join("trade_wire.md"), &table)?;
+    println!("{table}");
+    println!("wrote {}", out.join("trade_wire.md").display());
+    if wire_only {
+        return Ok(());
+    }
     let (rows, finest) = nvtmm::experiment::trade::run(out, quick)?;
     println!("{}", nvtmm::experiment::trade::markdown(&rows, finest));
     println!(

@@ -13,6 +13,7 @@ pub mod plot;
 pub mod reduced;
 pub mod table;
 pub mod trade;
+pub mod wire_trade;
 
 use std::path::{Path, PathBuf};
 
