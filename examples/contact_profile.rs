@@ -104,32 +104,24 @@ fn main() -> Result<(), String> {
     );
     let rows = &setup.rows;
     let q = nalgebra::SVector::<f64, 32>::from_fn(|i, _| 1e-4 * (i as f64).sin());
-    let deformed_us = time(reps, || {
-        evaluate_spheres(
-            index,
-            &setup.cp,
-            &centres,
-            |i| mesh.rest()[i as usize] + rows[i as usize] * q,
-            |i| rows.get(i as usize),
-            None,
-            None,
-            &mut scratch,
-            &mut out,
-        )
-    });
-    let series_us = time(reps, || {
-        evaluate_spheres(
-            index,
-            &setup.cp,
-            &centres,
-            |i| mesh.rest()[i as usize] + rows[i as usize] * q,
-            |i| rows.get(i as usize),
-            Some(&setup.table),
-            None,
-            &mut scratch,
-            &mut out,
-        )
-    });
+    // The same positions and rows, without and with the residual compliance.
+    let mut deformed = |compliance: Option<&nvtmm::reduced::compliance::LocalCompliance>| {
+        time(reps, || {
+            evaluate_spheres(
+                index,
+                &setup.cp,
+                &centres,
+                |i| mesh.rest()[i as usize] + rows[i as usize] * q,
+                |i| rows.get(i as usize),
+                compliance,
+                None,
+                &mut scratch,
+                &mut out,
+            )
+        })
+    };
+    let deformed_us = deformed(None);
+    let series_us = deformed(Some(&setup.table));
     println!(
         "{} nodes, {patches} patches: tick {tick_us:.1} µs; contact alone: rest {rest_us:.1} µs, deformed {deformed_us:.1} µs, with compliance {series_us:.1} µs",
         mesh.num_nodes()
