@@ -271,7 +271,7 @@ impl Setup {
         if r > R {
             return Err(format!("r = {r} is above the experiment's capacity {R}"));
         }
-        let (mesh, arch) = if spec.branched {
+        let (owned, arch) = if spec.branched {
             use crate::mesh::vessel::branched::{branched_arch, default_wall_ratio};
             use crate::mesh::vessel::implicit::BranchedArchParams;
             let params = BranchedArchParams::default();
@@ -285,7 +285,8 @@ impl Setup {
             youngs_pa: spec.youngs_pa,
             ..Material::aorta()
         };
-        let model = Nvtmm::new(&mesh, &mat);
+        let mesh = &owned;
+        let model = Nvtmm::new(mesh, &mat);
         // Every vessel end (the inlet and each outlet) fixed.
         let mut fixed: Vec<u32> = mesh
             .node_sets()
@@ -298,7 +299,6 @@ impl Setup {
         let n = mesh.num_nodes();
         let mass = mesh.lumped_mass(mat.density);
         let zeros = vec![Vec3::zeros(); n];
-        let mesh = &mesh;
         let basis = ModalBasis::compute(&crate::reduced::BasisSpec {
             stiffness: crate::reduced::Stiffness::Model {
                 mesh,
@@ -341,7 +341,7 @@ impl Setup {
             swap_blend_s: 0.0,
         };
         Ok(Setup {
-            mesh: mesh.clone(),
+            mesh: owned,
             arch,
             fixed,
             k,
