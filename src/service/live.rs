@@ -4,6 +4,7 @@
 //! keeps the latest state frame behind a mutex (it is a normal thread, never
 //! the loop).
 
+use crate::haptics::servo::flags;
 use crate::haptics::tick::TickResult;
 use crate::math::Vec3;
 use std::sync::atomic::{AtomicU32, AtomicU64, Ordering};
@@ -57,6 +58,7 @@ pub struct LiveStats {
     epoch: AtomicU64,
     gain: AtomicF64,
     bases: AtomicU64,
+    fault_ticks: [AtomicU64; 5],
     frame: Mutex<Option<FrameSnapshot>>,
 }
 
@@ -66,6 +68,11 @@ impl LiveStats {
         self.ticks.store(ticks, Ordering::Relaxed);
         self.misses.store(misses, Ordering::Relaxed);
         self.flags.store(out.flags, Ordering::Relaxed);
+        for ((_, bit), count) in FAULT_CAUSES.iter().zip(&self.fault_ticks) {
+            if out.flags & bit != 0 {
+                count.fetch_add(1, Ordering::Relaxed);
+            }
+        }
         self.loop_time.store(now_s);
         for k in 0..3 {
             self.force[k].store(out.force[k]);
@@ -133,6 +140,16 @@ impl LiveStats {
             model_epoch: self.epoch.load(Ordering::Relaxed),
             gain: self.gain.load(),
             bases_installed: self.bases.load(Ordering::Relaxed),
+            fault_ticks: {
+                let c = |k: usize| self.fault_ticks[k].load(Ordering::Relaxed);
+                FaultTicks {
+                    device_silent: c(0),
+                    nonfinite: c(1),
+                    overrun: c(2),
+                    bad_pose: c(3),
+                    model_expired: c(4),
+                }
+            },
             frame: self.frame.lock().ok().and_then(|f| f.clone()),
         }
     }
@@ -170,6 +187,91 @@ pub struct Snapshot {
     pub gain: f64,
     /// Bases the background basis refresh has installed so far.
     pub bases_installed: u64,
+    /// Ticks so far that raised each watchdog cause.
+    pub fault_ticks: FaultTicks,
     /// The latest state frame (None before the first one).
     pub frame: Option<FrameSnapshot>,
+}
+
+/// Ticks that raised each cause of the watchdog (a tick can raise several),
+/// counted since the service started: what made the gain drop.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, serde::Serialize)]
+pub struct FaultTicks {
+    /// No fresh device sample within the device timeout
+    /// ([`flags::DEVICE_SILENT`]).
+    pub device_silent: u64,
+    /// A non-finite sample or force ([`flags::NONFINITE`]).
+    pub nonfinite: u64,
+    /// A streak of deadline misses ([`flags::OVERRUN`]).
+    pub overrun: u64,
+    /// An implausible pose ([`flags::BAD_POSE`]).
+    pub bad_pose: u64,
+    /// The loop's model too old ([`flags::MODEL_EXPIRED`]).
+    pub model_expired: u64,
+}
+
+impl FaultTicks {
+    /// The causes whose count grew since `earlier`, by name (in field order).
+    pub fn grown_since(&self, earlier: &FaultTicks) -> impl Iterator<Item = &'static str> {
+        let now = self.as_array();
+        let then = earlier.as_array();
+        FAULT_CAUSES
+            .into_iter()
+            .zip(now.into_iter().zip(then))
+            .filter(|(_, (a, b))| a > b)
+            .map(|((name, _), _)| name)
+    }
+
+    fn as_array(&self) -> [u64; 5] {
+        [
+            self.device_silent,
+            self.nonfinite,
+            self.overrun,
+            self.bad_pose,
+            self.model_expired,
+        ]
+    }
+}
+
+/// The watchdog causes: name and flag bit, in [`FaultTicks`] field order.
+const FAULT_CAUSES: [(&str, u32); 5] = [
+    ("device_silent", flags::DEVICE_SILENT),
+    ("nonfinite", flags::NONFINITE),
+    ("overrun", flags::OVERRUN),
+    ("bad_pose", flags::BAD_POSE),
+    ("model_expired", flags::MODEL_EXPIRED),
+];
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn tick(flags: u32) -> TickResult {
+        TickResult {
+            force: Vec3::zeros(),
+            desired: Vec3::zeros(),
+            tool: Vec3::zeros(),
+            flags,
+            depth: 0.0,
+            qp_us: 0.0,
+            qp_solved: false,
+        }
+    }
+
+    #[test]
+    fn fault_ticks_count_each_cause_and_name_what_grew() {
+        let live = LiveStats::default();
+        live.record_tick(1, 0.001, &tick(0), 0);
+        let start = live.snapshot(0.0).fault_ticks;
+        assert_eq!(start, FaultTicks::default());
+        live.record_tick(2, 0.002, &tick(flags::DEVICE_SILENT | flags::OVERRUN), 1);
+        live.record_tick(3, 0.003, &tick(flags::DEVICE_SILENT | flags::WATCHDOG), 1);
+        let now = live.snapshot(0.0).fault_ticks;
+        assert_eq!(now.device_silent, 2);
+        assert_eq!(now.overrun, 1);
+        assert_eq!(now.nonfinite + now.bad_pose + now.model_expired, 0);
+        let grown: Vec<&str> = now.grown_since(&start).collect();
+        assert_eq!(grown, ["device_silent", "overrun"]);
+        assert_eq!(now.grown_since(&now).count(), 0);
+    }
 }

@@ -34,7 +34,7 @@ pub mod setup;
 pub mod wire;
 
 pub use config::ServiceConfig;
-pub use live::{FrameSnapshot, Snapshot};
+pub use live::{FaultTicks, FrameSnapshot, Snapshot};
 pub use report::Report;
 
 use running::RunningService;

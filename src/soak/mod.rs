@@ -26,7 +26,7 @@ use crate::haptics::udp::{UdpDevice, UdpParams};
 use crate::math::Vec3;
 use crate::rt::clock;
 use crate::service::faults::FaultSwitches;
-use crate::service::{DeviceContext, DeviceFactory, Service, ServiceError, StartOptions};
+use crate::service::{DeviceContext, DeviceFactory, FaultTicks, Service, ServiceError, StartOptions};
 use device::{CheckLimits, DeviceChecks, DeviceFault, DeviceFaultKind, SoakDevice};
 use hand::{random_hand, HandMoves, Rng};
 use std::collections::BTreeMap;
@@ -130,6 +130,11 @@ pub struct FaultOutcome {
     /// Longest time from the fault's end to full force again, or to the
     /// service's normal state (ms).
     pub max_recovery_ms: Option<f64>,
+    /// What made the watchdog act when this fault's outcome was a miss: the
+    /// causes (`FaultTicks` names) that grew while a fault that must change
+    /// nothing was on, or before a recovery that came late.
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub miss_causes: Vec<String>,
 }
 
 /// One leg's figures.
@@ -431,9 +436,19 @@ fn leg_config(config: &Path, youngs_pa: Option<f64>, stream_port: u16, scratch: 
 #[derive(Debug, Clone, Copy)]
 enum Watch {
     /// Full force again (gain 1) after `from_s`, by `deadline_s`.
-    GainBack { from_s: f64, deadline_s: f64 },
-    /// The gain stays at 1 from `from_s` to `until_s` (the fault must change nothing).
-    GainHeld { from_s: f64, until_s: f64, low: bool },
+    GainBack {
+        from_s: f64,
+        deadline_s: f64,
+        before: FaultTicks,
+    },
+    /// The gain stays at 1 from `from_s` to `until_s` (the fault must change
+    /// nothing); `before` is the watchdog's cause counts at the start.
+    GainHeld {
+        from_s: f64,
+        until_s: f64,
+        low: bool,
+        before: FaultTicks,
+    },
     /// The loop swaps in a new model after `from_s` (epoch above `epoch`) by `deadline_s`.
     SwapAfter { from_s: f64, epoch: u64, deadline_s: f64 },
     /// A served counter reaches `target`, then models flow again, by `deadline_s`.
@@ -572,7 +587,16 @@ fn finish(r: &mut SoakReport, legs_ok: bool) {
         add(
             &format!("fault {k}: injected and recovered"),
             f.injected > 0 && f.recovered == f.injected,
-            format!("{} injected, {} recovered", f.injected, f.recovered),
+            if f.miss_causes.is_empty() {
+                format!("{} injected, {} recovered", f.injected, f.recovered)
+            } else {
+                format!(
+                    "{} injected, {} recovered; misses: {}",
+                    f.injected,
+                    f.recovered,
+                    f.miss_causes.join("; ")
+                )
+            },
         );
     }
     r.passed = checks.iter().all(|c| c.passed);
@@ -775,11 +799,13 @@ fn run_leg(
                 "silence" | "nan_pose" | "wild_pose" => Watch::GainBack {
                     from_s: p.at_s + p.dur_s,
                     deadline_s: p.at_s + p.dur_s + recover_s + slack,
+                    before: FaultTicks::default(),
                 },
                 "garbage_datagrams" => Watch::GainHeld {
                     from_s: p.at_s,
                     until_s: p.at_s + p.dur_s,
                     low: false,
+                    before: handle.snapshot().fault_ticks,
                 },
                 "background_stall" => {
                     faults.stall_background_ms.store(STALL_MS, Ordering::Relaxed);
@@ -826,6 +852,7 @@ fn run_leg(
                     Watch::GainBack {
                         from_s: after,
                         deadline_s: after + recover_s + slack,
+                        before: FaultTicks::default(),
                     }
                 }
                 _ => continue,
@@ -847,20 +874,38 @@ fn run_leg(
         let snap = handle.snapshot();
         let full = snap.gain >= 0.999;
         let mut done: Vec<(usize, bool, Option<f64>)> = Vec::new();
+        let mut causes: Vec<(usize, FaultTicks)> = Vec::new();
         for (i, p) in pending.iter_mut().enumerate() {
             let verdict = match &mut p.watch {
-                Watch::GainBack { from_s, deadline_s } => {
+                Watch::GainBack {
+                    from_s,
+                    deadline_s,
+                    before,
+                } => {
+                    if now < *from_s {
+                        // Counted from the fault's end: what the fault itself raised is not a miss cause.
+                        *before = snap.fault_ticks;
+                    }
                     if now >= *from_s && full {
                         Some((true, Some((now - *from_s) * 1e3)))
                     } else if now > *deadline_s {
+                        causes.push((i, *before));
                         Some((false, Some((now - *from_s) * 1e3)))
                     } else {
                         None
                     }
                 }
-                Watch::GainHeld { from_s, until_s, low } => {
+                Watch::GainHeld {
+                    from_s,
+                    until_s,
+                    low,
+                    before,
+                } => {
                     if now >= *from_s && now <= *until_s && !full {
                         *low = true;
+                    }
+                    if now > *until_s && *low {
+                        causes.push((i, *before));
                     }
                     (now > *until_s).then_some((!*low, None))
                 }
@@ -914,6 +959,17 @@ fn run_leg(
         for (i, ok, ms) in done.into_iter().rev() {
             let p = pending.remove(i);
             let f = report.faults.entry(p.kind.to_string()).or_default();
+            if let Some((_, before)) = causes.iter().find(|(j, _)| *j == i) {
+                let grown: Vec<&str> = snap.fault_ticks.grown_since(before).collect();
+                f.miss_causes.push(format!(
+                    "at {now:.2} s: {}",
+                    if grown.is_empty() {
+                        "no watchdog cause counted (the gain was still ramping in)".to_string()
+                    } else {
+                        grown.join(" + ")
+                    }
+                ));
+            }
             f.injected += 1;
             if ok {
                 f.recovered += 1;
