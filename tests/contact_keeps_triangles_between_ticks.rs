@@ -111,3 +111,68 @@ fn kept_triangles_give_the_contact_a_fresh_search_gives() {
         2 * ticks
     );
 }
+
+/// Each patch keeps the residual compliance's blocks of its node pairs
+/// between evaluations (`contact::PAIR_CACHE_NODES`); a different table (a
+/// new basis) must replace them: an output that went from one table to
+/// the other gives what a new output gives with the second table.
+#[test]
+fn kept_pair_blocks_follow_the_compliance_table() {
+    // Two bases (16 and 8 vibration modes): two residual compliances.
+    let a = Setup::new(1458, 16, &ComplianceParams::default()).unwrap();
+    let b = Setup::new(1458, 8, &ComplianceParams::default()).unwrap();
+    assert_ne!(a.table.id(), b.table.id());
+    assert_eq!(a.table.id(), a.table.as_ref().clone().id(), "a copy keeps the identity");
+    let mesh = &a.mesh;
+    assert_eq!(mesh.num_nodes(), b.mesh.num_nodes());
+    let normals = mesh.surface_vertex_normals();
+    let outer: Vec<u32> = mesh
+        .node_set("outer_wall")
+        .unwrap()
+        .iter()
+        .copied()
+        .filter(|i| a.fixed.binary_search(i).is_err())
+        .collect();
+    let rho = a.cp.tool_radius_m;
+    // Two patches near each other (they couple) and one apart.
+    let (i, j) = (outer[outer.len() / 3] as usize, outer[outer.len() / 2] as usize);
+    let t = normals[i].cross(&Vec3::z()).normalize();
+    let centres = [
+        mesh.rest()[i] + normals[i] * (rho - 1e-3),
+        mesh.rest()[i] + t * 4e-3 + normals[i] * (rho - 1e-3),
+        mesh.rest()[j] + normals[j] * (rho - 1e-3),
+    ];
+    let q = SVector::<f64, R>::zeros();
+    let eval = |s: &Setup, out: &mut ContactOutput<R>| {
+        let mut scratch = Candidates::new();
+        evaluate_spheres(
+            &s.index,
+            &s.cp,
+            &centres,
+            |k| s.mesh.rest()[k as usize] + row_times(&s.rows[k as usize], &q),
+            |k| s.rows.get(k as usize),
+            Some(s.table.as_ref()),
+            None,
+            &mut scratch,
+            out,
+        );
+    };
+    let mut carried = ContactOutput::<R>::for_index(&a.index);
+    for (s, name) in [(&a, "a"), (&b, "b"), (&b, "b again"), (&a, "a again")] {
+        eval(s, &mut carried);
+        let mut new = ContactOutput::<R>::for_index(&s.index);
+        eval(s, &mut new);
+        assert!(new.corrected && !new.nodes.is_empty(), "{name}: the patches press");
+        assert_eq!(carried.tool_force, new.tool_force, "table {name}");
+        assert_eq!(carried.sphere_forces, new.sphere_forces, "table {name}");
+        assert_eq!(carried.reduced_stiffness, new.reduced_stiffness, "table {name}");
+    }
+    // The two tables give different contacts (else the test shows nothing).
+    let (mut oa, mut ob) = (
+        ContactOutput::<R>::for_index(&a.index),
+        ContactOutput::<R>::for_index(&b.index),
+    );
+    eval(&a, &mut oa);
+    eval(&b, &mut ob);
+    assert_ne!(oa.tool_force, ob.tool_force);
+}

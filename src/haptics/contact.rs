@@ -24,6 +24,12 @@
 //! tool radius plus [`COHERENCE_SLACK_M`]) and searches again only once it,
 //! or the surface under it by the bound of [`Motion`], has moved the slack:
 //! a held or slowly sliding patch costs its triangles, not a grid search.
+//! Each kept triangle also keeps its distance from the sphere's centre at
+//! the search; a tick skips, without reconstructing its nodes, every kept
+//! triangle whose distance less the motion since still exceeds the tool
+//! radius (it cannot touch the sphere: the distance from a point to a
+//! triangle changes by at most the largest move of the point or of a
+//! vertex).
 //!
 //! For the implicit reduced step the contact also gives its reduced stiffness
 //! K_c = Σ_a k_a (Φ_aᵀn_a)(Φ_aᵀn_a)ᵀ (k_a the node's share of the pressure
@@ -50,7 +56,7 @@
 //! patches, not the mesh (at most [`MAX_COMPLIANT_PATCHES`] are corrected;
 //! more are counted).
 
-use crate::math::Vec3;
+use crate::math::{Mat3, Vec3};
 use crate::mesh::TetMesh;
 use crate::reduced::compliance::LocalCompliance;
 use nalgebra::{SMatrix, SVector};
@@ -66,6 +72,12 @@ pub const COHERENCE_SLACK_M: f64 = 1e-3;
 /// searched every tick).
 pub const KEPT_TRIANGLES: usize = 192;
 
+/// Nodes of a patch whose node-pair blocks of the residual compliance are
+/// kept from one evaluation to the next (a patch over more looks them up
+/// every time): the self-coupling S_pp needs every pair, so a held patch
+/// reads them from its own contiguous copy, not the table's rows.
+pub const PAIR_CACHE_NODES: usize = 16;
+
 /// How far the surface can have moved since a sphere's triangles were
 /// searched: the reduced state q of the positions' model and a bound B on
 /// ‖Φᵢ‖ over its nodes (no node moves more than B ‖q − q₀‖ when q changes
@@ -80,6 +92,15 @@ pub struct Motion<'a, const R: usize> {
     pub q: &'a SVector<f64, R>,
     /// max ‖Φᵢ‖ (m per unit of q).
     pub row_bound: f64,
+}
+
+/// Which nodes' pair blocks a sphere keeps, and from which table.
+#[derive(Debug, Clone, Copy, Default)]
+struct PairKey {
+    /// [`LocalCompliance::id`]; 0: nothing kept.
+    table: u64,
+    len: u16,
+    nodes: [u32; PAIR_CACHE_NODES],
 }
 
 /// One sphere's triangles from its last search.
@@ -428,6 +449,14 @@ pub struct ContactOutput<const R: usize> {
     /// empty: nothing is kept ([`Default`] output).
     kept: Vec<Kept<R>>,
     kept_tris: Vec<u32>,
+    /// Distance from the sphere's centre to each kept triangle at the
+    /// search (m), beside `kept_tris`.
+    kept_dist: Vec<f64>,
+    /// Per sphere, the nodes of its patch whose ΔW pair blocks it keeps,
+    /// and the blocks (`pair_blocks[s * PAIR_CACHE_NODES² + a * len + b]`,
+    /// zero where the table has none).
+    pair_keys: Vec<PairKey>,
+    pair_blocks: Vec<Mat3>,
 }
 
 impl<const R: usize> ContactOutput<R> {
@@ -448,6 +477,9 @@ impl<const R: usize> ContactOutput<R> {
                 MAX_SPHERES
             ],
             kept_tris: vec![0; MAX_SPHERES * KEPT_TRIANGLES],
+            kept_dist: vec![0.0; MAX_SPHERES * KEPT_TRIANGLES],
+            pair_keys: vec![PairKey::default(); MAX_SPHERES],
+            pair_blocks: vec![Mat3::zeros(); MAX_SPHERES * PAIR_CACHE_NODES * PAIR_CACHE_NODES],
             ..Default::default()
         }
     }
@@ -457,16 +489,60 @@ impl<const R: usize> ContactOutput<R> {
     /// [`Motion`]). Allocates nothing.
     pub fn forget(&mut self) {
         self.kept.iter_mut().for_each(|k| k.valid = false);
+        self.pair_keys.iter_mut().for_each(|k| k.table = 0);
     }
 
-    /// Whether sphere `s` at `center` may reuse its kept triangles.
-    fn may_reuse(&self, s: usize, center: &Vec3, motion: &Motion<R>) -> bool {
+    /// Makes sphere `s`'s kept pair blocks those of patch `p`'s nodes in
+    /// table `w` (looked up only if the nodes or the table changed).
+    /// Returns whether the patch's blocks are kept (false: too many nodes,
+    /// or an output without room).
+    fn keep_pair_blocks(&mut self, w: &LocalCompliance, p: &Patch) -> bool {
+        let (s, len) = (p.sphere as usize, p.len as usize);
+        if len > PAIR_CACHE_NODES || s >= self.pair_keys.len() {
+            return false;
+        }
+        let nodes = &self.active[p.first as usize..p.first as usize + len];
+        let key = &mut self.pair_keys[s];
+        if key.table == w.id() && key.len as usize == len && nodes.iter().zip(&key.nodes).all(|(a, &n)| a.node == n) {
+            return true;
+        }
+        key.table = w.id();
+        key.len = len as u16;
+        for (k, a) in key.nodes.iter_mut().zip(nodes) {
+            *k = a.node;
+        }
+        let base = s * PAIR_CACHE_NODES * PAIR_CACHE_NODES;
+        for (ai, a) in nodes.iter().enumerate() {
+            for (bi, b) in nodes.iter().enumerate() {
+                self.pair_blocks[base + ai * len + bi] = w.block(a.node, b.node).copied().unwrap_or_else(Mat3::zeros);
+            }
+        }
+        true
+    }
+
+    /// How far sphere `s` at `center` and the surface under it have moved
+    /// since its triangles were kept, if it may reuse them.
+    fn may_reuse(&self, s: usize, center: &Vec3, motion: &Motion<R>) -> Option<f64> {
         match self.kept.get(s) {
             Some(k) if k.valid => {
                 let moved = (center - k.center).norm() + motion.row_bound * (motion.q - k.q).norm();
-                at_most(moved, COHERENCE_SLACK_M)
+                at_most(moved, COHERENCE_SLACK_M).then_some(moved)
             }
-            _ => false,
+            _ => None,
+        }
+    }
+
+    /// Sphere `s`'s kept triangles that may still touch a sphere of radius
+    /// `rho` after a motion `moved` (m) since they were kept, into `tris`.
+    fn take_kept(&mut self, s: usize, rho: f64, moved: f64) {
+        let (base, len) = (s * KEPT_TRIANGLES, self.kept[s].len as usize);
+        for k in base..base + len {
+            // Farther than the radius even after the motion: cannot touch
+            // (a NaN distance is not skipped).
+            if self.kept_dist[k] - moved > rho {
+                continue;
+            }
+            let _ = self.tris.push(self.kept_tris[k]);
         }
     }
 
@@ -584,6 +660,9 @@ impl<const R: usize> Default for ContactOutput<R> {
             tick: 0,
             kept: Vec::new(),
             kept_tris: Vec::new(),
+            kept_dist: Vec::new(),
+            pair_keys: Vec::new(),
+            pair_blocks: Vec::new(),
         }
     }
 }
@@ -726,15 +805,9 @@ fn press_sphere<const R: usize>(
     let rho = params.tool_radius_m;
     let rho2 = rho * rho;
     out.tris.clear();
-    match motion {
-        Some(m) if out.may_reuse(s as usize, center, m) => {
-            let (base, len) = (s as usize * KEPT_TRIANGLES, out.kept[s as usize].len as usize);
-            for k in 0..len {
-                let t = out.kept_tris[base + k];
-                let _ = out.tris.push(t);
-            }
-        }
-        _ => search_triangles(index, rho, s, center, position, motion, scratch, out),
+    match motion.and_then(|m| out.may_reuse(s as usize, center, m)) {
+        Some(moved) => out.take_kept(s as usize, rho, moved),
+        None => search_triangles(index, rho, s, center, position, motion, scratch, out),
     }
     let first = out.active.len();
     let sample_first = out.samples_buf.len();
@@ -803,9 +876,10 @@ fn press_sphere<const R: usize>(
         let r1 = disk * e2.norm() / twice_area;
         let r2 = disk * e1.norm() / twice_area;
         let lv = level as f64;
+        // floor() then clamp() equals clamp() then truncation (NaN: 0).
         let span = |b: f64, r: f64| -> (usize, usize) {
-            let lo = ((b - r) * lv).floor().clamp(0.0, lv - 1.0) as usize;
-            let hi = ((b + r) * lv).floor().clamp(0.0, lv - 1.0) as usize;
+            let lo = ((b - r) * lv).clamp(0.0, lv - 1.0) as usize;
+            let hi = ((b + r) * lv).clamp(0.0, lv - 1.0) as usize;
             (lo, hi)
         };
         let (ilo, ihi) = span(b1, r1);
@@ -936,7 +1010,7 @@ fn search_triangles<const R: usize>(
     if !complete || out.tris.is_full() {
         return;
     }
-    // Keep the triangles whose bounding sphere comes within the slack.
+    // Keep the triangles that come within the slack, with their distance.
     let base = s * KEPT_TRIANGLES;
     let mut len = 0usize;
     for ti in 0..out.tris.len() {
@@ -945,16 +1019,16 @@ fn search_triangles<const R: usize>(
         if !within_bounding_sphere(&x, center, reach) {
             continue;
         }
+        let dist = (crate::wire::lumen::closest_on_triangle(*center, x[0], x[1], x[2]) - center).norm();
+        if dist > reach {
+            continue;
+        }
         if len == KEPT_TRIANGLES {
             return;
         }
         out.kept_tris[base + len] = t;
+        out.kept_dist[base + len] = dist;
         len += 1;
-    }
-    // The tick integrates the kept ones (the others cannot press).
-    out.tris.clear();
-    for k in 0..len {
-        let _ = out.tris.push(out.kept_tris[base + k]);
     }
     out.kept[s] = Kept {
         valid: true,
@@ -962,6 +1036,10 @@ fn search_triangles<const R: usize>(
         q: *m.q,
         len: len as u16,
     };
+    // The tick integrates the kept ones that touch the sphere now (the
+    // others cannot press).
+    out.tris.clear();
+    out.take_kept(s, rho, 0.0);
 }
 
 /// Whether the sphere about the triangle `x`'s centroid through its
@@ -988,6 +1066,18 @@ fn push_force<const R: usize>(out: &mut ContactOutput<R>, node: u32, sphere: u16
     }
     if out.nodes.push(NodeContact { node, force: f, sphere }).is_err() {
         out.truncated = true;
+    }
+}
+
+/// K += α x yᵀ, column by column (contiguous, so it vectorizes; nalgebra's
+/// `ger` calls a non-inlined axpy per column).
+fn add_outer<const R: usize>(k: &mut SMatrix<f64, R, R>, alpha: f64, x: &SVector<f64, R>, y: &SVector<f64, R>) {
+    let x = x.as_slice();
+    for (col, &yj) in k.as_mut_slice().chunks_exact_mut(R).zip(y.as_slice()) {
+        let a = alpha * yj;
+        for (kij, &xi) in col.iter_mut().zip(x) {
+            *kij += xi * a;
+        }
     }
 }
 
@@ -1030,7 +1120,7 @@ fn plain_patch<'r, const R: usize>(
         let fa = a.f.norm();
         if let (Some(phi), true) = (rows(a.node), fa > 0.0) {
             let g = phi.tr_mul(&(a.f / fa));
-            out.reduced_stiffness.ger(a.k, &g, &g, 1.0);
+            add_outer(&mut out.reduced_stiffness, a.k, &g, &g);
         }
     }
 }
@@ -1105,7 +1195,24 @@ fn patch_law<const R: usize>(q: usize, out: &ContactOutput<R>, delta: f64) -> (f
 
 /// S_pq = Σ_ab e_aᵀ ΔW_ab e_b over the nodes of patches `p` and `q`, with
 /// e_a = f_a / F the patch's load shape.
-fn patch_coupling<const R: usize>(w: &LocalCompliance, p: usize, q: usize, out: &ContactOutput<R>) -> f64 {
+fn patch_coupling<const R: usize>(w: &LocalCompliance, p: usize, q: usize, out: &mut ContactOutput<R>) -> f64 {
+    if p == q {
+        let pa = out.patches[p];
+        if out.keep_pair_blocks(w, &pa) {
+            let (len, first) = (pa.len as usize, pa.first as usize);
+            let base = pa.sphere as usize * PAIR_CACHE_NODES * PAIR_CACHE_NODES;
+            let nodes = &out.active[first..first + len];
+            let blocks = &out.pair_blocks[base..base + len * len];
+            let mut s = 0.0;
+            for (a, row) in nodes.iter().zip(blocks.chunks_exact(len)) {
+                let ea = a.f / pa.force;
+                for (b, blk) in nodes.iter().zip(row) {
+                    s += ea.dot(&(blk * (b.f / pa.force)));
+                }
+            }
+            return s;
+        }
+    }
     let (p, q) = (&out.patches[p], &out.patches[q]);
     let apart = (p.rest_centre - q.rest_centre).norm() - p.rest_radius - q.rest_radius;
     if apart > w.reach() {
@@ -1313,7 +1420,7 @@ fn series_group<'r, const R: usize>(
                 h += g[a] * col[a];
             }
         }
-        out.reduced_stiffness.ger(1.0, &h, &g[b], 1.0);
+        add_outer(&mut out.reduced_stiffness, 1.0, &h, &g[b]);
     }
     Some(depth)
 }

@@ -79,14 +79,30 @@ pub struct ComplianceStats {
 
 /// ΔW near every surface node: for node i, the blocks ΔW_ij of the surface
 /// nodes j within the coupling radius (sorted by j, i itself included).
-#[derive(Debug, Clone, PartialEq)]
+#[derive(Debug, Clone)]
 pub struct LocalCompliance {
     offsets: Vec<u32>,
     cols: Vec<u32>,
     blocks: Vec<Mat3>,
     /// The largest rest distance between i and j over the stored blocks.
     reach: f64,
+    /// Unique to the computation that built it (copies share it): lets a
+    /// user keep blocks it looked up and know when they are stale.
+    id: u64,
 }
+
+impl PartialEq for LocalCompliance {
+    /// Same blocks (the identity is not compared).
+    fn eq(&self, other: &Self) -> bool {
+        self.offsets == other.offsets
+            && self.cols == other.cols
+            && self.blocks == other.blocks
+            && self.reach == other.reach
+    }
+}
+
+/// The next [`LocalCompliance::id`] (0 is never given).
+static NEXT_TABLE_ID: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(1);
 
 /// A uniform grid over points for radius queries (build-time only).
 struct Grid {
@@ -357,6 +373,7 @@ impl LocalCompliance {
                 cols,
                 blocks,
                 reach,
+                id: NEXT_TABLE_ID.fetch_add(1, std::sync::atomic::Ordering::Relaxed),
             },
             stats,
         ))
@@ -366,6 +383,13 @@ impl LocalCompliance {
     /// (m): nodes farther apart than this have none (ΔW_ij taken as 0).
     pub fn reach(&self) -> f64 {
         self.reach
+    }
+
+    /// An identity unique to the computation that built this table (never
+    /// 0; a clone keeps it): blocks looked up from a table with the same id
+    /// are still valid.
+    pub fn id(&self) -> u64 {
+        self.id
     }
 
     /// ΔW_ij (m/N) if j is within the coupling radius of i or in its surface
