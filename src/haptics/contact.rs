@@ -847,10 +847,12 @@ fn press_sphere<const R: usize>(
             if depth.is_nan() || depth <= 0.0 {
                 return;
             }
-            let n = if dist > 1e-9 * rho { v / dist } else { inward };
+            // The sample's force k_p dA d along its normal (one division).
+            let w = da * depth;
+            let fw = if dist > 1e-9 * rho { v * (w / dist) } else { inward * w };
             depth_max = depth_max.max(depth);
             for c in 0..3 {
-                fv[c] += n * (da * depth * b[c]);
+                fv[c] += fw * b[c];
                 kv[c] += da * b[c];
             }
             if samples_buf.len() < samples_buf.capacity() {
@@ -1196,6 +1198,7 @@ fn patch_law<const R: usize>(q: usize, out: &ContactOutput<R>, delta: f64) -> (f
 /// S_pq = Σ_ab e_aᵀ ΔW_ab e_b over the nodes of patches `p` and `q`, with
 /// e_a = f_a / F the patch's load shape.
 fn patch_coupling<const R: usize>(w: &LocalCompliance, p: usize, q: usize, out: &mut ContactOutput<R>) -> f64 {
+    // Σ f_aᵀ ΔW_ab f_b over the node forces, scaled once by 1 / (F_p F_q).
     if p == q {
         let pa = out.patches[p];
         if out.keep_pair_blocks(w, &pa) {
@@ -1205,12 +1208,11 @@ fn patch_coupling<const R: usize>(w: &LocalCompliance, p: usize, q: usize, out: 
             let blocks = &out.pair_blocks[base..base + len * len];
             let mut s = 0.0;
             for (a, row) in nodes.iter().zip(blocks.chunks_exact(len)) {
-                let ea = a.f / pa.force;
                 for (b, blk) in nodes.iter().zip(row) {
-                    s += ea.dot(&(blk * (b.f / pa.force)));
+                    s += a.f.dot(&(blk * b.f));
                 }
             }
-            return s;
+            return s / (pa.force * pa.force);
         }
     }
     let (p, q) = (&out.patches[p], &out.patches[q]);
@@ -1220,14 +1222,13 @@ fn patch_coupling<const R: usize>(w: &LocalCompliance, p: usize, q: usize, out: 
     }
     let mut s = 0.0;
     for a in &out.active[p.first as usize..(p.first + p.len) as usize] {
-        let ea = a.f / p.force;
         for b in &out.active[q.first as usize..(q.first + q.len) as usize] {
             if let Some(blk) = w.block(a.node, b.node) {
-                s += ea.dot(&(blk * (b.f / q.force)));
+                s += a.f.dot(&(blk * b.f));
             }
         }
     }
-    s
+    s / (p.force * q.force)
 }
 
 /// The patches with the residual compliance in series: one unknown per
