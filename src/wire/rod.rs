@@ -14,7 +14,7 @@
 //! tip stays with the material as nodes enter and leave at the hub.
 
 use super::band::BandMatrix;
-use super::lumen::{perpendicular, Lumen};
+use super::lumen::{perpendicular, Lumen, ProbeCache};
 use super::WireParams;
 use crate::config::ConfigError;
 use crate::math::{Mat3, Vec3};
@@ -184,6 +184,9 @@ pub struct Wire {
     last_axial: f64,
     eval_pen: f64,
     contacts: Vec<WireContact>,
+    /// Per node: what the lumen keeps near it between probes (moves with
+    /// the node when nodes enter or leave at the hub).
+    probe_cache: Vec<ProbeCache>,
 }
 
 /// Parallel transport of `d` from tangent `a` to tangent `b` (unit vectors).
@@ -270,6 +273,7 @@ impl Wire {
             last_axial: 0.0,
             eval_pen: 0.0,
             contacts: Vec::with_capacity(cap),
+            probe_cache: vec![ProbeCache::default(); cap],
         };
         w.lay_straight(inserted_m);
         w.save_good_state();
@@ -454,6 +458,7 @@ impl Wire {
                     s.lam[i + 1] = s.lam[i];
                     s.ref_twist[i + 1] = s.ref_twist[i];
                 }
+                self.probe_cache[2..=n].rotate_right(1);
                 for j in (1..n - 1).rev() {
                     s.theta[j + 1] = s.theta[j];
                     s.d1[j + 1] = s.d1[j];
@@ -490,6 +495,7 @@ impl Wire {
                     s.lam[i] = s.lam[i + 1];
                     s.ref_twist[i] = s.ref_twist[i + 1];
                 }
+                self.probe_cache[2..n].rotate_left(1);
                 for j in 1..n - 2 {
                     s.theta[j] = s.theta[j + 1];
                     s.d1[j] = s.d1[j + 1];
@@ -938,7 +944,7 @@ impl Wire {
 
         // Wall contact and friction on free nodes.
         for i in 2..n {
-            let Some(hit) = lumen.probe(self.xt[i], r_w + 2.0 * r_w) else {
+            let Some(hit) = lumen.probe_cached(self.xt[i], r_w + 2.0 * r_w, &mut self.probe_cache[i]) else {
                 continue;
             };
             let pen = r_w - hit.distance;
@@ -1039,7 +1045,7 @@ impl Wire {
         let eps_v = 1e-7;
         self.contacts.clear();
         for i in 2..n {
-            let Some(hit) = lumen.probe(self.xt[i], 3.0 * r_w) else {
+            let Some(hit) = lumen.probe_cached(self.xt[i], 3.0 * r_w, &mut self.probe_cache[i]) else {
                 self.s.lam[i] = 0.0;
                 continue;
             };
