@@ -165,6 +165,9 @@ pub struct Wire {
     d10: Vec<Vec3>,
     t0: Vec<Vec3>,
     rt0: Vec<f64>,
+    /// sin and cos of `rt0` (it changes once an iteration, the geometry is
+    /// evaluated several times).
+    rt0_sc: Vec<(f64, f64)>,
     xtilde: Vec<Vec3>,
     // Trial state and its geometry.
     xt: Vec<Vec3>,
@@ -211,6 +214,12 @@ fn transport(d: Vec3, a: Vec3, b: Vec3) -> Vec3 {
 /// Rotates `v` about the unit `axis` by `angle` (Rodrigues).
 fn rotate(v: Vec3, axis: Vec3, angle: f64) -> Vec3 {
     let (s, c) = angle.sin_cos();
+    rotate_sc(v, axis, s, c)
+}
+
+/// [`rotate`] by the angle whose sine and cosine are `s` and `c`.
+#[inline]
+fn rotate_sc(v: Vec3, axis: Vec3, s: f64, c: f64) -> Vec3 {
     v * c + axis.cross(&v) * s + axis * axis.dot(&v) * (1.0 - c)
 }
 
@@ -256,6 +265,7 @@ impl Wire {
             d10: vec![Vec3::zeros(); cap],
             t0: vec![Vec3::zeros(); cap],
             rt0: vec![0.0; cap],
+            rt0_sc: vec![(0.0, 1.0); cap],
             xtilde: vec![Vec3::zeros(); cap],
             xt: vec![Vec3::zeros(); cap],
             tht: vec![0.0; cap],
@@ -529,6 +539,7 @@ impl Wire {
             self.th0[i] = self.s.theta[i];
             self.d10[i] = self.s.d1[i];
             self.rt0[i] = self.s.ref_twist[i];
+            self.rt0_sc[i] = self.rt0[i].sin_cos();
             self.xt[i] = self.s.x[i];
             self.tht[i] = self.s.theta[i];
         }
@@ -616,6 +627,7 @@ impl Wire {
                 self.d10[i] = self.d1c[i];
                 self.t0[i] = self.tan[i];
                 self.rt0[i] = self.rt[i];
+                self.rt0_sc[i] = self.rt0[i].sin_cos();
             }
             rep.last_update = alpha * mx.max(mt);
             if alpha * mx < 1e-10 && alpha * mt < 1e-8 {
@@ -751,7 +763,8 @@ impl Wire {
         }
         for i in 1..n - 1 {
             let ut = transport(self.d1c[i - 1], self.tan[i - 1], self.tan[i]);
-            let ut = rotate(ut, self.tan[i], self.rt0[i]);
+            let (sn, cs) = self.rt0_sc[i];
+            let ut = rotate_sc(ut, self.tan[i], sn, cs);
             self.rt[i] = self.rt0[i] + signed_angle(ut, self.d1c[i], self.tan[i]);
         }
     }
@@ -882,7 +895,7 @@ impl Wire {
                     (1.0, 0.0)
                 }
             };
-            let kb_rest = 2.0 * (0.5 * k0 * lbar).tan();
+            let kb_rest = if k0 == 0.0 { 0.0 } else { 2.0 * (0.5 * k0 * lbar).tan() };
             let (te, tf) = (self.tan[i - 1], self.tan[i]);
             let (le, lf) = (self.len[i - 1], self.len[i]);
             let chi = (1.0 + te.dot(&tf)).max(1e-12);
@@ -1102,6 +1115,7 @@ impl Wire {
                 self.d10[i] = self.d1c[i];
                 self.t0[i] = self.tan[i];
                 self.rt0[i] = self.rt[i];
+                self.rt0_sc[i] = self.rt0[i].sin_cos();
             }
         }
         let e = self.eval(lumen, true);
