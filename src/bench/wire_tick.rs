@@ -133,8 +133,8 @@ pub fn bench_wire_tick(
     let mut refresher = Refresher::new(mesh, &p.basis, &p.mass);
     let zeros = vec![Vec3::zeros(); n];
     let k0 = refresher.reduced_stiffness(p.model.as_ref(), &zeros);
-    let mut first = crate::service::background::rest_model::<R>(rows, &k0, &p.dynamics, n)
-        .map_err(|e| arg(e.to_string()))?;
+    let mut first =
+        crate::service::background::rest_model::<R>(rows, &k0, &p.dynamics, n).map_err(|e| arg(e.to_string()))?;
     first.compliance = p.compliance.as_ref().map(|c| c.0.clone());
     let index = std::sync::Arc::new(SurfaceIndex::new(mesh, &p.cfg.contact));
     let origin = match &p.cfg.device.frame {
@@ -175,8 +175,8 @@ pub fn bench_wire_tick(
     let wall = InnerWall::from_mesh(mesh, &g.wall_set).map_err(|e| arg(e.to_string()))?;
     let mut lumen = wall.lumen().map_err(|e| arg(e.to_string()))?;
     let axis = Vec3::from(g.axis);
-    let mut wire = Wire::new(&params, Vec3::from(g.access_point_m), axis, g.inserted_m)
-        .map_err(|e| arg(e.to_string()))?;
+    let mut wire =
+        Wire::new(&params, Vec3::from(g.access_point_m), axis, g.inserted_m).map_err(|e| arg(e.to_string()))?;
     let dt = params.dt_s;
     let script_end = g.script.last().map(|r| r[0]).unwrap_or(0.0) + 0.5;
     let mut step = 0usize;
