@@ -572,10 +572,8 @@ impl TriangleLumen {
     }
 
     fn cell_of(&self, p: Vec3) -> [usize; 3] {
-        [0, 1, 2].map(|k| {
-            let f = ((p[k] - self.lo[k]) * self.inv_cell[k]).floor();
-            (f.max(0.0) as usize).min(self.dims[k] - 1)
-        })
+        // Truncating a non-negative value is its floor (no libm call).
+        [0, 1, 2].map(|k| (((p[k] - self.lo[k]) * self.inv_cell[k]).max(0.0) as usize).min(self.dims[k] - 1))
     }
 
     fn rebuild(&mut self) {
@@ -592,7 +590,15 @@ impl TriangleLumen {
         for t in 0..self.tris.len() {
             let [a, b, c] = self.tris[t].map(|i| self.verts[i as usize]);
             let g = (a + b + c) / 3.0;
-            reach = reach.max((a - g).norm()).max((b - g).norm()).max((c - g).norm());
+            // One square root: sqrt is monotonic, so this is the largest
+            // of the three distances exactly.
+            let r = (a - g)
+                .norm_squared()
+                .max((b - g).norm_squared())
+                .max((c - g).norm_squared())
+                .sqrt();
+            reach = reach.max(r);
+            self.tri_spheres[t] = [g.x, g.y, g.z, r];
             let [i, j, k] = self.cell_of(g);
             let id = i + nx * (j + ny * k);
             self.tri_cell[t] = id as u32;
@@ -608,19 +614,13 @@ impl TriangleLumen {
             let id = self.tri_cell[t] as usize;
             let slot = self.cell_start[id] as usize;
             self.items[slot] = t as u32;
+            self.spheres[slot] = self.tri_spheres[t];
             self.cell_start[id] += 1;
         }
         for i in (1..self.cell_start.len()).rev() {
             self.cell_start[i] = self.cell_start[i - 1];
         }
         self.cell_start[0] = 0;
-        for slot in 0..self.items.len() {
-            let [a, b, c] = self.tris[self.items[slot] as usize].map(|i| self.verts[i as usize]);
-            let g = (a + b + c) / 3.0;
-            let r = (a - g).norm().max((b - g).norm()).max((c - g).norm());
-            self.spheres[slot] = [g.x, g.y, g.z, r];
-            self.tri_spheres[self.items[slot] as usize] = [g.x, g.y, g.z, r];
-        }
     }
 }
 
