@@ -277,9 +277,9 @@ enum BenchCmd {
         /// Time the whole tick instead: the wire (default 128 nodes) in the branched arch's lumen, its wall loads on the reduced model, the reduced step and the passivity QP, in one thread.
         #[arg(long)]
         tick: bool,
-        /// With --tick: the service configuration whose scene, basis and wire it runs.
-        #[arg(long, default_value = "rt-config/guidewire.toml")]
-        config: PathBuf,
+        /// With --tick: the service configuration whose scene, basis and wire it runs (default: rt-config/guidewire.toml here, else the source tree's).
+        #[arg(long)]
+        config: Option<PathBuf>,
         /// With --tick: sideways load pressing the wire onto the wall (N/m).
         #[arg(long, default_value_t = 3.0)]
         line_load: f64,
@@ -500,7 +500,7 @@ fn main() -> ExitCode {
             } => {
                 if tick {
                     cli::wire::bench_wire_tick_cmd(
-                        &config,
+                        &config.unwrap_or_else(cli::wire::default_guidewire_config),
                         nodes.unwrap_or(128),
                         steps,
                         iterations,

@@ -121,7 +121,7 @@ pub fn bench_wire_tick(
         record: None,
         device: None,
     })
-    .map_err(|e| arg(format!("{}: {e}", config.display())))?;
+    .map_err(|e| arg(e.to_string()))?;
     let (Some(wp), Some(g)) = (&p.cfg.wire, &p.cfg.guidewire) else {
         return Err(arg(format!("{}: no [wire] and [guidewire] tables", config.display())));
     };

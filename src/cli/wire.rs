@@ -2,7 +2,24 @@
 
 use nvtmm::bench::wire::bench_wire;
 use nvtmm::bench::wire_tick::bench_wire_tick;
-use std::path::Path;
+use std::path::{Path, PathBuf};
+
+/// `rt-config/guidewire.toml` in the working directory if it is there,
+/// else the one in the source tree this binary was built from.
+pub fn default_guidewire_config() -> PathBuf {
+    let local = Path::new("rt-config").join("guidewire.toml");
+    if local.is_file() {
+        return local;
+    }
+    let built = Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("rt-config")
+        .join("guidewire.toml");
+    if built.is_file() {
+        built
+    } else {
+        local
+    }
+}
 
 type Result<T> = std::result::Result<T, Box<dyn std::error::Error>>;
 
