@@ -608,7 +608,17 @@ impl Wire {
                     accepted = true;
                     break;
                 }
-                alpha *= 0.5;
+                // Backtrack to the minimiser of the quadratic through e0,
+                // the slope and e1, within [0.1, 0.5] of the last trial (a
+                // contact or friction switching on along the step wants a
+                // much shorter one than halving finds in one trial).
+                let d = slope / scale;
+                let c = e1 - e0 - d * alpha;
+                alpha = if e1.is_finite() && d < 0.0 && c > 0.0 {
+                    (-d * alpha * alpha / (2.0 * c)).clamp(0.1 * alpha, 0.5 * alpha)
+                } else {
+                    0.5 * alpha
+                };
             }
             rep.iterations = it + 1;
             if !accepted {
