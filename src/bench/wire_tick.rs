@@ -4,7 +4,7 @@
 //! ([`Servo::set_point_loads`]), the haptic tick (contact, reduced implicit
 //! step, passivity QP, [`HapticTick::run`]) and, at the stream's 60 Hz, the
 //! lumen's grid rebuilt from the deformed wall
-//! ([`TriangleLumen::update_vertices`]).
+//! ([`crate::wire::TriangleLumen::update_vertices`]).
 //!
 //! The scene is the service's (`rt-config/guidewire.toml` by default: the
 //! branched arch, its cached basis, the `[wire]` and `[guidewire]` keys)
