@@ -58,12 +58,15 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         Some((a.trim().parse().ok()?, b.trim().parse().ok()?))
     });
     let t0 = std::time::Instant::now();
+    let mut step_us = Vec::with_capacity(steps);
     for k in 0..steps {
         let t = k as f64 * dt;
         // Linear between script rows (the device eases; close enough here).
         let (ins, roll) = interp(&g.script, t, g.inserted_m);
         w.set_hub(ins, roll);
+        let ts = std::time::Instant::now();
         let rep = w.step(&lumen).map_err(|e| format!("t = {t:.3} s: {e}"))?;
+        step_us.push(ts.elapsed().as_secs_f64() * 1e6);
         worst = worst.max(rep.max_penetration_m);
         if let Some((a, b)) = trace {
             if t >= a && t <= b {
@@ -112,6 +115,11 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         w.num_nodes(),
         worst * 1e3,
         t0.elapsed().as_secs_f64() / steps as f64 * 1e6
+    );
+    let p = nvtmm::rt::stats::Percentiles::of(&step_us);
+    println!(
+        "step time: p50 {:.1} µs, p99 {:.1} µs, p99.9 {:.1} µs, max {:.1} µs",
+        p.p50, p.p99, p.p999, p.max
     );
     Ok(())
 }

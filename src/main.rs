@@ -271,9 +271,21 @@ enum BenchCmd {
         /// Steps to time per row (after 200 warm-up steps).
         #[arg(long, default_value_t = 2000)]
         steps: usize,
-        /// Newton iterations per step at most (the wire's `newton_iterations`).
-        #[arg(long, default_value_t = 3)]
-        iterations: usize,
+        /// Newton iterations per step at most (the wire's `newton_iterations`; with --tick, default: the configuration's).
+        #[arg(long)]
+        iterations: Option<usize>,
+        /// Time the whole tick instead: the wire (default 128 nodes) in the branched arch's lumen, its wall loads on the reduced model, the reduced step and the passivity QP, in one thread.
+        #[arg(long)]
+        tick: bool,
+        /// With --tick: the service configuration whose scene, basis and wire it runs (default: rt-config/guidewire.toml here, else the source tree's).
+        #[arg(long)]
+        config: Option<PathBuf>,
+        /// With --tick: sideways load pressing the wire onto the wall (N/m).
+        #[arg(long, default_value_t = 3.0)]
+        line_load: f64,
+        /// With --tick: rebuild the lumen from the reduced model's deformed wall (loaded by the wire: unstable, docs/WIRE.md) instead of the rest wall.
+        #[arg(long)]
+        follow_wall: bool,
         /// Print JSON.
         #[arg(long)]
         json: bool,
@@ -480,8 +492,26 @@ fn main() -> ExitCode {
                 nodes,
                 steps,
                 iterations,
+                tick,
+                config,
+                line_load,
+                follow_wall,
                 json,
-            } => cli::wire::bench_wire_cmd(nodes, steps, iterations, json),
+            } => {
+                if tick {
+                    cli::wire::bench_wire_tick_cmd(
+                        &config.unwrap_or_else(cli::wire::default_guidewire_config),
+                        nodes.unwrap_or(128),
+                        steps,
+                        iterations,
+                        line_load,
+                        follow_wall,
+                        json,
+                    )
+                } else {
+                    cli::wire::bench_wire_cmd(nodes, steps, iterations.unwrap_or(3), json)
+                }
+            }
         },
         Command::Experiment(e) => match e {
             ExperimentCmd::Contact {

@@ -3,7 +3,8 @@
 //! ([`extremes`], `nvtmm bench extremes`), the reduced model's timings
 //! ([`reduced`], `nvtmm bench reduced`) and a timing harness for implicit
 //! steps ([`timing`]) and the guidewire's step against its node count
-//! ([`wire`], `nvtmm bench wire`). The scripts in `tools/` call these commands.
+//! ([`wire`], `nvtmm bench wire`), and the whole guidewire tick in the
+//! branched arch ([`wire_tick`], `nvtmm bench wire --tick`). The scripts in `tools/` call these commands.
 //!
 //! The *standard load* is what every timing here uses: the built-in arch with
 //! both ends fixed (`inlet`, `outlet_descending`) and a 0.15 N force pressing
@@ -16,6 +17,7 @@ pub mod extremes;
 pub mod reduced;
 pub mod timing;
 pub mod wire;
+pub mod wire_tick;
 
 use crate::material::{Law, Material, PronyTerm};
 use crate::math::Vec3;

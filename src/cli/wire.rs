@@ -1,6 +1,25 @@
 //! `nvtmm bench wire …`: the guidewire's step time against its node count.
 
 use nvtmm::bench::wire::bench_wire;
+use nvtmm::bench::wire_tick::bench_wire_tick;
+use std::path::{Path, PathBuf};
+
+/// `rt-config/guidewire.toml` in the working directory if it is there,
+/// else the one in the source tree this binary was built from.
+pub fn default_guidewire_config() -> PathBuf {
+    let local = Path::new("rt-config").join("guidewire.toml");
+    if local.is_file() {
+        return local;
+    }
+    let built = Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("rt-config")
+        .join("guidewire.toml");
+    if built.is_file() {
+        built
+    } else {
+        local
+    }
+}
 
 type Result<T> = std::result::Result<T, Box<dyn std::error::Error>>;
 
@@ -35,6 +54,61 @@ pub fn bench_wire_cmd(nodes: Option<usize>, steps: usize, iterations: usize, jso
                 r.contacts_mean
             );
         }
+    }
+    Ok(())
+}
+
+/// `nvtmm bench wire --tick [--config C] [--nodes N] [--steps S]
+/// [--iterations K] [--line-load F] [--follow-wall] [--json]`: the whole guidewire tick in
+/// the branched arch, and its parts.
+pub fn bench_wire_tick_cmd(
+    config: &Path,
+    nodes: usize,
+    ticks: usize,
+    iterations: Option<usize>,
+    line_load: f64,
+    follow_wall: bool,
+    json: bool,
+) -> Result<()> {
+    let b = bench_wire_tick(config, nodes, ticks, iterations, line_load, follow_wall)?;
+    if json {
+        println!("{}", serde_json::to_string_pretty(&b)?);
+        return Ok(());
+    }
+    println!(
+        "{} nodes ({:.2} mm segments, {:.1} mm inserted), {} Newton iterations at most ({:.2} mean), \
+         line load {} N/m: contacts {:.1} mean, {} max; {} point loads at most; QP solved on {} of {} ticks; \
+         {} lumen rebuilds ({}); {} resets; deepest {:.3} mm",
+        b.nodes,
+        b.segment_mm,
+        b.inserted_mm,
+        b.iterations_max,
+        b.iterations_mean,
+        b.line_load_n_per_m,
+        b.contacts_mean,
+        b.contacts_max,
+        b.loads_max,
+        b.qp_solved,
+        b.ticks,
+        b.lumen_updates,
+        if b.follow_wall { "deformed wall" } else { "rest wall" },
+        b.resets,
+        b.max_penetration_mm
+    );
+    println!("| part | p50 µs | p99 µs | p99.9 µs | max µs |");
+    println!("|:---|---:|---:|---:|---:|");
+    for (name, p) in [
+        ("whole tick", &b.tick_us),
+        ("wire step", &b.wire_us),
+        ("wall loads → reduced model", &b.loads_us),
+        ("haptic tick (contact, reduced step, QP)", &b.haptic_us),
+        ("  of which the passivity filter", &b.qp_us),
+        ("lumen rebuild (60 Hz ticks only)", &b.lumen_us),
+    ] {
+        println!(
+            "| {name} | {:.1} | {:.1} | {:.1} | {:.1} |",
+            p.p50, p.p99, p.p999, p.max
+        );
     }
     Ok(())
 }

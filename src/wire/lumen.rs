@@ -27,6 +27,87 @@ pub trait Lumen {
     /// no wall is within `range`. Must not allocate (it runs in the 1 kHz
     /// step).
     fn probe(&self, p: Vec3, range: f64) -> Option<WallHit>;
+
+    /// [`Lumen::probe`] for a query point that moves a little between calls
+    /// (a wire node across Newton iterates and steps): `cache` is the
+    /// caller's, one per query point, and lets a lumen keep what it found
+    /// near the point. The result is that of [`Lumen::probe`]. The default
+    /// keeps nothing. Must not allocate.
+    fn probe_cached(&self, p: Vec3, range: f64, cache: &mut ProbeCache) -> Option<WallHit> {
+        let _ = cache;
+        self.probe(p, range)
+    }
+}
+
+/// Candidate triangles a [`ProbeCache`] holds at most.
+pub const PROBE_CACHE_CAP: usize = 48;
+
+/// What [`TriangleLumen`] keeps for one query point between
+/// [`Lumen::probe_cached`] calls: every triangle that came within a
+/// distance `reach` of a centre point when it was built. A later query at
+/// p with range r uses them alone if |p − centre| + r + (how far the wall
+/// has moved since) ≤ `reach` and |p − centre| ≤ r / 2: every triangle
+/// within r of p is among them then (triangle inequality), and a point
+/// with none of them within r is on the centre's side of the wall, which
+/// was the lumen's side (the centre's nearest wall was farther than the
+/// distance moved). Otherwise the cache is rebuilt around p. Fixed size:
+/// nothing allocates.
+#[derive(Debug, Clone, Copy)]
+pub struct ProbeCache {
+    /// Which lumen instance built it (0: empty).
+    stamp: u64,
+    centre: Vec3,
+    reach: f64,
+    /// The lumen's accumulated wall motion when it was built.
+    moved: f64,
+    /// False when the centre was beyond the wall or the candidates did not
+    /// fit: queries then search the grid.
+    usable: bool,
+    len: u16,
+    tris: [u32; PROBE_CACHE_CAP],
+}
+
+impl Default for ProbeCache {
+    fn default() -> Self {
+        ProbeCache {
+            stamp: 0,
+            centre: Vec3::zeros(),
+            reach: 0.0,
+            moved: 0.0,
+            usable: false,
+            len: 0,
+            tris: [0; PROBE_CACHE_CAP],
+        }
+    }
+}
+
+impl ProbeCache {
+    /// Forgets what it holds (the next query rebuilds it).
+    pub fn clear(&mut self) {
+        self.stamp = 0;
+    }
+
+    /// Candidate triangles held (0 when empty or unusable).
+    pub fn len(&self) -> usize {
+        if self.stamp != 0 && self.usable {
+            self.len as usize
+        } else {
+            0
+        }
+    }
+
+    /// Whether it holds no candidate.
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+}
+
+/// Gives every [`TriangleLumen`] instance (clones included) its own stamp,
+/// so a [`ProbeCache`] is only used with the lumen that built it.
+static NEXT_STAMP: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(1);
+
+fn new_stamp() -> u64 {
+    NEXT_STAMP.fetch_add(1, std::sync::atomic::Ordering::Relaxed)
 }
 
 /// No wall at all (a wire in free space, for tests and benchmarks).
@@ -356,8 +437,10 @@ pub fn closest_on_triangle(p: Vec3, a: Vec3, b: Vec3, c: Vec3) -> Vec3 {
 ///
 /// Each triangle is filed in the grid cell of its centroid; a query searches
 /// the cells within the query range plus the largest centroid-to-vertex
-/// distance, so it is exact for any range.
-#[derive(Debug, Clone)]
+/// distance, so it is exact for any range. [`Lumen::probe_cached`] keeps,
+/// per query point, the triangles near it ([`ProbeCache`]): a wire node
+/// then tests a few triangles instead of walking the grid.
+#[derive(Debug)]
 pub struct TriangleLumen {
     verts: Vec<Vec3>,
     tris: Vec<[u32; 3]>,
@@ -373,6 +456,36 @@ pub struct TriangleLumen {
     /// farthest vertex, in the order a query walks them (a cheap lower
     /// bound on the distance that skips most triangles).
     spheres: Vec<[f64; 4]>,
+    /// The same bounding spheres indexed by triangle (for cached queries).
+    tri_spheres: Vec<[f64; 4]>,
+    /// This instance's stamp (see [`ProbeCache`]).
+    stamp: u64,
+    /// Sum over vertex updates of the largest vertex displacement (m): a
+    /// bound on how far any wall point moved between two of its values.
+    moved: f64,
+}
+
+impl Clone for TriangleLumen {
+    /// A copy with its own stamp: caches built with one are not used with
+    /// the other (the two may move differently).
+    fn clone(&self) -> Self {
+        TriangleLumen {
+            verts: self.verts.clone(),
+            tris: self.tris.clone(),
+            dims: self.dims,
+            lo: self.lo,
+            inv_cell: self.inv_cell,
+            cell: self.cell,
+            reach: self.reach,
+            cell_start: self.cell_start.clone(),
+            items: self.items.clone(),
+            tri_cell: self.tri_cell.clone(),
+            spheres: self.spheres.clone(),
+            tri_spheres: self.tri_spheres.clone(),
+            stamp: new_stamp(),
+            moved: self.moved,
+        }
+    }
 }
 
 impl TriangleLumen {
@@ -416,6 +529,9 @@ impl TriangleLumen {
             items: vec![0; triangles.len()],
             tri_cell: vec![0; triangles.len()],
             spheres: vec![[0.0; 4]; triangles.len()],
+            tri_spheres: vec![[0.0; 4]; triangles.len()],
+            stamp: new_stamp(),
+            moved: 0.0,
         };
         l.rebuild();
         Ok(l)
@@ -442,16 +558,22 @@ impl TriangleLumen {
             )));
         }
         check_finite(vertices)?;
+        let step = self
+            .verts
+            .iter()
+            .zip(vertices)
+            .map(|(a, b)| (a - b).norm_squared())
+            .fold(0.0, f64::max)
+            .sqrt();
+        self.moved += step;
         self.verts.copy_from_slice(vertices);
         self.rebuild();
         Ok(())
     }
 
     fn cell_of(&self, p: Vec3) -> [usize; 3] {
-        [0, 1, 2].map(|k| {
-            let f = ((p[k] - self.lo[k]) * self.inv_cell[k]).floor();
-            (f.max(0.0) as usize).min(self.dims[k] - 1)
-        })
+        // Truncating a non-negative value is its floor (no libm call).
+        [0, 1, 2].map(|k| (((p[k] - self.lo[k]) * self.inv_cell[k]).max(0.0) as usize).min(self.dims[k] - 1))
     }
 
     fn rebuild(&mut self) {
@@ -468,7 +590,15 @@ impl TriangleLumen {
         for t in 0..self.tris.len() {
             let [a, b, c] = self.tris[t].map(|i| self.verts[i as usize]);
             let g = (a + b + c) / 3.0;
-            reach = reach.max((a - g).norm()).max((b - g).norm()).max((c - g).norm());
+            // One square root: sqrt is monotonic, so this is the largest
+            // of the three distances exactly.
+            let r = (a - g)
+                .norm_squared()
+                .max((b - g).norm_squared())
+                .max((c - g).norm_squared())
+                .sqrt();
+            reach = reach.max(r);
+            self.tri_spheres[t] = [g.x, g.y, g.z, r];
             let [i, j, k] = self.cell_of(g);
             let id = i + nx * (j + ny * k);
             self.tri_cell[t] = id as u32;
@@ -484,18 +614,13 @@ impl TriangleLumen {
             let id = self.tri_cell[t] as usize;
             let slot = self.cell_start[id] as usize;
             self.items[slot] = t as u32;
+            self.spheres[slot] = self.tri_spheres[t];
             self.cell_start[id] += 1;
         }
         for i in (1..self.cell_start.len()).rev() {
             self.cell_start[i] = self.cell_start[i - 1];
         }
         self.cell_start[0] = 0;
-        for slot in 0..self.items.len() {
-            let [a, b, c] = self.tris[self.items[slot] as usize].map(|i| self.verts[i as usize]);
-            let g = (a + b + c) / 3.0;
-            let r = (a - g).norm().max((b - g).norm()).max((c - g).norm());
-            self.spheres[slot] = [g.x, g.y, g.z, r];
-        }
     }
 }
 
@@ -521,9 +646,17 @@ impl TriangleLumen {
     /// [`TriangleLumen::triangles`]): where a contact's force goes on the
     /// wall. Allocates nothing.
     pub fn probe_triangle(&self, p: Vec3, range: f64) -> Option<(WallHit, usize)> {
-        let r = range.max(0.0) + self.reach;
-        let a = self.cell_of(p - Vec3::repeat(r));
-        let b = self.cell_of(p + Vec3::repeat(r));
+        let best = self.nearest_in_grid(p, range.max(0.0));
+        self.finish(p, range, best)
+    }
+
+    /// The nearest triangle to `p` among those filed in the cells within
+    /// `range` plus the largest centroid-to-vertex distance (every triangle
+    /// within `range` of `p` is among them): squared distance, nearest
+    /// point, triangle. Walks the cells, and the triangles within them, in
+    /// increasing slot order.
+    fn nearest_in_grid(&self, p: Vec3, range: f64) -> Option<(f64, Vec3, usize)> {
+        let r = range + self.reach;
         // Entirely outside the grid's box on some axis: nothing in range.
         for k in 0..3 {
             let lo = self.lo[k] - r;
@@ -532,6 +665,8 @@ impl TriangleLumen {
                 return None;
             }
         }
+        let a = self.cell_of(p - Vec3::repeat(r));
+        let b = self.cell_of(p + Vec3::repeat(r));
         let [nx, ny, _] = self.dims;
         let mut best: Option<(f64, Vec3, usize)> = None;
         for k in a[2]..=b[2] {
@@ -540,40 +675,45 @@ impl TriangleLumen {
                     let id = i + nx * (j + ny * k);
                     let (s, e) = (self.cell_start[id] as usize, self.cell_start[id + 1] as usize);
                     for slot in s..e {
-                        // Skip a triangle whose bounding sphere is farther
-                        // than the best so far (exact: only farther ones go).
-                        let [gx, gy, gz, gr] = self.spheres[slot];
-                        let dc = ((p.x - gx).powi(2) + (p.y - gy).powi(2) + (p.z - gz).powi(2)).sqrt();
-                        if let Some((bd, _, _)) = best {
-                            let lb = dc - gr;
-                            if lb > 0.0 && lb * lb >= bd {
-                                continue;
-                            }
-                        }
-                        let t = self.items[slot];
-                        let [va, vb, vc] = self.tris[t as usize].map(|i| self.verts[i as usize]);
-                        let q = closest_on_triangle(p, va, vb, vc);
-                        let d2 = (p - q).norm_squared();
-                        if best.is_none_or(|(bd, _, _)| d2 < bd) {
-                            best = Some((d2, q, t as usize));
-                        }
+                        self.consider(p, self.items[slot] as usize, &self.spheres[slot], &mut best);
                     }
                 }
             }
         }
-        let (d2, q, t) = best?;
-        let d = d2.sqrt();
-        if d > range.max(0.0) {
-            // Beyond range on the lumen side is "no wall"; beyond the wall is
-            // always reported.
-            let [va, vb, vc] = self.tris[t].map(|i| self.verts[i as usize]);
-            let nf = (vb - va).cross(&(vc - va));
-            if (p - q).dot(&nf) >= 0.0 {
-                return None;
+        best
+    }
+
+    /// Updates `best` with triangle `t` (bounding sphere `sphere`) unless
+    /// its sphere is already farther than `best` (exact: only farther
+    /// triangles are skipped). Ties keep the earlier triangle.
+    #[inline]
+    fn consider(&self, p: Vec3, t: usize, sphere: &[f64; 4], best: &mut Option<(f64, Vec3, usize)>) {
+        let [gx, gy, gz, gr] = *sphere;
+        if let Some((bd, _, _)) = *best {
+            let dc = ((p.x - gx).powi(2) + (p.y - gy).powi(2) + (p.z - gz).powi(2)).sqrt();
+            let lb = dc - gr;
+            if lb > 0.0 && lb * lb >= bd {
+                return;
             }
         }
         let [va, vb, vc] = self.tris[t].map(|i| self.verts[i as usize]);
+        let q = closest_on_triangle(p, va, vb, vc);
+        let d2 = (p - q).norm_squared();
+        if best.is_none_or(|(bd, _, _)| d2 < bd) {
+            *best = Some((d2, q, t));
+        }
+    }
+
+    /// The hit for `p` from its nearest triangle: beyond `range` on the
+    /// lumen's side is no wall; beyond the wall is always reported.
+    fn finish(&self, p: Vec3, range: f64, best: Option<(f64, Vec3, usize)>) -> Option<(WallHit, usize)> {
+        let (d2, q, t) = best?;
+        let d = d2.sqrt();
+        let [va, vb, vc] = self.tris[t].map(|i| self.verts[i as usize]);
         let nf = (vb - va).cross(&(vc - va));
+        if d > range.max(0.0) && (p - q).dot(&nf) >= 0.0 {
+            return None;
+        }
         let nfn = nf.norm();
         let face = if nfn > 0.0 { nf / nfn } else { Vec3::z() };
         let side = (p - q).dot(&face);
@@ -591,6 +731,95 @@ impl TriangleLumen {
             },
             t,
         ))
+    }
+
+    /// [`TriangleLumen::probe_triangle`] through `cache` (see
+    /// [`ProbeCache`]): the same result, from the few triangles kept near
+    /// `p` when the cache covers it, rebuilding it around `p` otherwise.
+    /// Allocates nothing.
+    pub fn probe_triangle_cached(&self, p: Vec3, range: f64, cache: &mut ProbeCache) -> Option<(WallHit, usize)> {
+        let range = range.max(0.0);
+        if !self.covers(cache, p, range) {
+            self.build_cache(cache, p, range);
+        }
+        if !cache.usable {
+            return self.probe_triangle(p, range);
+        }
+        let mut best: Option<(f64, Vec3, usize)> = None;
+        for &t in &cache.tris[..cache.len as usize] {
+            let t = t as usize;
+            self.consider(p, t, &self.tri_spheres[t], &mut best);
+        }
+        match best {
+            // Every triangle within `range` of p is a candidate: none is
+            // within range, and p is on the lumen's side (see ProbeCache).
+            Some((d2, _, _)) if d2 > range * range => None,
+            _ => self.finish(p, range, best),
+        }
+    }
+
+    /// Whether `cache` was built by this lumen and holds every triangle
+    /// within `range` of `p`, with `p` close enough to its centre that the
+    /// side of the wall is known.
+    fn covers(&self, cache: &ProbeCache, p: Vec3, range: f64) -> bool {
+        if cache.stamp != self.stamp {
+            return false;
+        }
+        let off = (p - cache.centre).norm() + (self.moved - cache.moved);
+        off <= 0.5 * range && off + range <= cache.reach
+    }
+
+    /// Rebuilds `cache` around `c` for queries of `range`: every triangle
+    /// whose bounding sphere comes within 1.5 `range` of `c`, in slot
+    /// order (that of a grid query, so ties resolve alike).
+    fn build_cache(&self, cache: &mut ProbeCache, c: Vec3, range: f64) {
+        let reach = 1.5 * range;
+        cache.stamp = self.stamp;
+        cache.centre = c;
+        cache.reach = reach;
+        cache.moved = self.moved;
+        cache.len = 0;
+        // The centre must be on the lumen's side: a centre beyond the wall
+        // (or with no wall in reach but seen beyond it) is left to the grid.
+        cache.usable = match self.probe_triangle(c, reach) {
+            None => true,
+            Some((h, _)) => h.distance > 0.0,
+        };
+        if !cache.usable {
+            return;
+        }
+        let r = reach + self.reach;
+        for k in 0..3 {
+            let lo = self.lo[k] - r;
+            let hi = self.lo[k] + self.cell[k] * self.dims[k] as f64 + r;
+            if c[k] < lo || c[k] > hi {
+                return;
+            }
+        }
+        let a = self.cell_of(c - Vec3::repeat(r));
+        let b = self.cell_of(c + Vec3::repeat(r));
+        let [nx, ny, _] = self.dims;
+        for k in a[2]..=b[2] {
+            for j in a[1]..=b[1] {
+                for i in a[0]..=b[0] {
+                    let id = i + nx * (j + ny * k);
+                    let (s, e) = (self.cell_start[id] as usize, self.cell_start[id + 1] as usize);
+                    for slot in s..e {
+                        let [gx, gy, gz, gr] = self.spheres[slot];
+                        let dc = ((c.x - gx).powi(2) + (c.y - gy).powi(2) + (c.z - gz).powi(2)).sqrt();
+                        if dc - gr > reach {
+                            continue;
+                        }
+                        if cache.len as usize == PROBE_CACHE_CAP {
+                            cache.usable = false;
+                            return;
+                        }
+                        cache.tris[cache.len as usize] = self.items[slot];
+                        cache.len += 1;
+                    }
+                }
+            }
+        }
     }
 
     /// Barycentric weights of `q` (a point on or near triangle `t`) on the
@@ -620,6 +849,10 @@ impl TriangleLumen {
 impl Lumen for TriangleLumen {
     fn probe(&self, p: Vec3, range: f64) -> Option<WallHit> {
         self.probe_triangle(p, range).map(|(h, _)| h)
+    }
+
+    fn probe_cached(&self, p: Vec3, range: f64, cache: &mut ProbeCache) -> Option<WallHit> {
+        self.probe_triangle_cached(p, range, cache).map(|(h, _)| h)
     }
 }
 
@@ -693,6 +926,61 @@ mod tests {
             }
         }
         assert!(lum.update_vertices(&v[..3]).is_err());
+    }
+
+    /// A cached probe gives the grid probe's result, bit for bit, for
+    /// points wandering in small and large steps near and far from the
+    /// wall, across wall updates (small moves keep the caches, a large one
+    /// and a clone drop them).
+    #[test]
+    fn cached_probe_matches_the_grid_probe() {
+        let (v, t) = tube_mesh(5e-3, 0.05, 32, 20);
+        let mut lum = TriangleLumen::new(&v, &t).unwrap();
+        let mut s = 11u64;
+        let mut rnd = || {
+            s = s.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+            ((s >> 11) as f64 / (1u64 << 53) as f64) - 0.5
+        };
+        let range = 1.335e-3;
+        let mut caches = [ProbeCache::default(); 8];
+        let mut pts: Vec<Vec3> = (0..8)
+            .map(|k| Vec3::new(0.005 + 0.005 * k as f64, 4.0e-3 - 0.6e-3 * k as f64, 0.0))
+            .collect();
+        let (mut hits, mut kept) = (0, 0);
+        for it in 0..4000 {
+            if it % 500 == 499 {
+                // Breathe the wall by up to 20 µm; every 1500 iterations 1 mm.
+                let f = if it % 1500 == 1499 { 0.8 } else { 1.0 + 0.004 * rnd() };
+                let moved: Vec<Vec3> = lum
+                    .vertices()
+                    .iter()
+                    .map(|p| Vec3::new(p.x, p.y * f, p.z * f))
+                    .collect();
+                lum.update_vertices(&moved).unwrap();
+            }
+            if it == 2200 {
+                lum = lum.clone();
+            }
+            for (k, p) in pts.iter_mut().enumerate() {
+                let step = if it % 97 == k { 4e-3 } else { 0.1e-3 };
+                *p += Vec3::new(rnd(), rnd(), rnd()) * step;
+                p.x = p.x.clamp(0.002, 0.048);
+                let rho = (p.y * p.y + p.z * p.z).sqrt();
+                if rho > 6e-3 {
+                    *p *= 6e-3 / rho;
+                }
+                let before = (caches[k].stamp, caches[k].centre);
+                let a = lum.probe_triangle(*p, range);
+                let b = lum.probe_triangle_cached(*p, range, &mut caches[k]);
+                assert_eq!(a, b, "iteration {it}, point {k} at {p:?}");
+                hits += a.is_some() as usize;
+                // Answered from the kept candidates, without a rebuild.
+                kept += (before == (caches[k].stamp, caches[k].centre) && !caches[k].is_empty()) as usize;
+                assert!(caches[k].len() <= PROBE_CACHE_CAP);
+            }
+        }
+        assert!(hits > 2000, "{hits} hits");
+        assert!(kept > 10000, "{kept} cached queries");
     }
 
     #[test]

@@ -14,7 +14,7 @@
 //! tip stays with the material as nodes enter and leave at the hub.
 
 use super::band::BandMatrix;
-use super::lumen::{perpendicular, Lumen};
+use super::lumen::{perpendicular, Lumen, ProbeCache};
 use super::WireParams;
 use crate::config::ConfigError;
 use crate::math::{Mat3, Vec3};
@@ -165,6 +165,9 @@ pub struct Wire {
     d10: Vec<Vec3>,
     t0: Vec<Vec3>,
     rt0: Vec<f64>,
+    /// sin and cos of `rt0` (it changes once an iteration, the geometry is
+    /// evaluated several times).
+    rt0_sc: Vec<(f64, f64)>,
     xtilde: Vec<Vec3>,
     // Trial state and its geometry.
     xt: Vec<Vec3>,
@@ -184,6 +187,9 @@ pub struct Wire {
     last_axial: f64,
     eval_pen: f64,
     contacts: Vec<WireContact>,
+    /// Per node: what the lumen keeps near it between probes (moves with
+    /// the node when nodes enter or leave at the hub).
+    probe_cache: Vec<ProbeCache>,
 }
 
 /// Parallel transport of `d` from tangent `a` to tangent `b` (unit vectors).
@@ -208,6 +214,12 @@ fn transport(d: Vec3, a: Vec3, b: Vec3) -> Vec3 {
 /// Rotates `v` about the unit `axis` by `angle` (Rodrigues).
 fn rotate(v: Vec3, axis: Vec3, angle: f64) -> Vec3 {
     let (s, c) = angle.sin_cos();
+    rotate_sc(v, axis, s, c)
+}
+
+/// [`rotate`] by the angle whose sine and cosine are `s` and `c`.
+#[inline]
+fn rotate_sc(v: Vec3, axis: Vec3, s: f64, c: f64) -> Vec3 {
     v * c + axis.cross(&v) * s + axis * axis.dot(&v) * (1.0 - c)
 }
 
@@ -253,6 +265,7 @@ impl Wire {
             d10: vec![Vec3::zeros(); cap],
             t0: vec![Vec3::zeros(); cap],
             rt0: vec![0.0; cap],
+            rt0_sc: vec![(0.0, 1.0); cap],
             xtilde: vec![Vec3::zeros(); cap],
             xt: vec![Vec3::zeros(); cap],
             tht: vec![0.0; cap],
@@ -270,6 +283,7 @@ impl Wire {
             last_axial: 0.0,
             eval_pen: 0.0,
             contacts: Vec::with_capacity(cap),
+            probe_cache: vec![ProbeCache::default(); cap],
         };
         w.lay_straight(inserted_m);
         w.save_good_state();
@@ -454,6 +468,7 @@ impl Wire {
                     s.lam[i + 1] = s.lam[i];
                     s.ref_twist[i + 1] = s.ref_twist[i];
                 }
+                self.probe_cache[2..=n].rotate_right(1);
                 for j in (1..n - 1).rev() {
                     s.theta[j + 1] = s.theta[j];
                     s.d1[j + 1] = s.d1[j];
@@ -490,6 +505,7 @@ impl Wire {
                     s.lam[i] = s.lam[i + 1];
                     s.ref_twist[i] = s.ref_twist[i + 1];
                 }
+                self.probe_cache[2..n].rotate_left(1);
                 for j in 1..n - 2 {
                     s.theta[j] = s.theta[j + 1];
                     s.d1[j] = s.d1[j + 1];
@@ -523,6 +539,7 @@ impl Wire {
             self.th0[i] = self.s.theta[i];
             self.d10[i] = self.s.d1[i];
             self.rt0[i] = self.s.ref_twist[i];
+            self.rt0_sc[i] = self.rt0[i].sin_cos();
             self.xt[i] = self.s.x[i];
             self.tht[i] = self.s.theta[i];
         }
@@ -591,7 +608,17 @@ impl Wire {
                     accepted = true;
                     break;
                 }
-                alpha *= 0.5;
+                // Backtrack to the minimiser of the quadratic through e0,
+                // the slope and e1, within [0.1, 0.5] of the last trial (a
+                // contact or friction switching on along the step wants a
+                // much shorter one than halving finds in one trial).
+                let d = slope / scale;
+                let c = e1 - e0 - d * alpha;
+                alpha = if e1.is_finite() && d < 0.0 && c > 0.0 {
+                    (-d * alpha * alpha / (2.0 * c)).clamp(0.1 * alpha, 0.5 * alpha)
+                } else {
+                    0.5 * alpha
+                };
             }
             rep.iterations = it + 1;
             if !accepted {
@@ -610,6 +637,7 @@ impl Wire {
                 self.d10[i] = self.d1c[i];
                 self.t0[i] = self.tan[i];
                 self.rt0[i] = self.rt[i];
+                self.rt0_sc[i] = self.rt0[i].sin_cos();
             }
             rep.last_update = alpha * mx.max(mt);
             if alpha * mx < 1e-10 && alpha * mt < 1e-8 {
@@ -745,7 +773,8 @@ impl Wire {
         }
         for i in 1..n - 1 {
             let ut = transport(self.d1c[i - 1], self.tan[i - 1], self.tan[i]);
-            let ut = rotate(ut, self.tan[i], self.rt0[i]);
+            let (sn, cs) = self.rt0_sc[i];
+            let ut = rotate_sc(ut, self.tan[i], sn, cs);
             self.rt[i] = self.rt0[i] + signed_angle(ut, self.d1c[i], self.tan[i]);
         }
     }
@@ -876,7 +905,7 @@ impl Wire {
                     (1.0, 0.0)
                 }
             };
-            let kb_rest = 2.0 * (0.5 * k0 * lbar).tan();
+            let kb_rest = if k0 == 0.0 { 0.0 } else { 2.0 * (0.5 * k0 * lbar).tan() };
             let (te, tf) = (self.tan[i - 1], self.tan[i]);
             let (le, lf) = (self.len[i - 1], self.len[i]);
             let chi = (1.0 + te.dot(&tf)).max(1e-12);
@@ -938,7 +967,7 @@ impl Wire {
 
         // Wall contact and friction on free nodes.
         for i in 2..n {
-            let Some(hit) = lumen.probe(self.xt[i], r_w + 2.0 * r_w) else {
+            let Some(hit) = lumen.probe_cached(self.xt[i], r_w + 2.0 * r_w, &mut self.probe_cache[i]) else {
                 continue;
             };
             let pen = r_w - hit.distance;
@@ -1039,7 +1068,7 @@ impl Wire {
         let eps_v = 1e-7;
         self.contacts.clear();
         for i in 2..n {
-            let Some(hit) = lumen.probe(self.xt[i], 3.0 * r_w) else {
+            let Some(hit) = lumen.probe_cached(self.xt[i], 3.0 * r_w, &mut self.probe_cache[i]) else {
                 self.s.lam[i] = 0.0;
                 continue;
             };
@@ -1096,6 +1125,7 @@ impl Wire {
                 self.d10[i] = self.d1c[i];
                 self.t0[i] = self.tan[i];
                 self.rt0[i] = self.rt[i];
+                self.rt0_sc[i] = self.rt0[i].sin_cos();
             }
         }
         let e = self.eval(lumen, true);

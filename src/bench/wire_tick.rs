@@ -1,0 +1,326 @@
+//! `nvtmm bench wire --tick`: the whole guidewire tick in one thread, as
+//! issue 16 asks it to be timed: the wire step inside the branched arch's
+//! lumen, its wall loads applied to the reduced vessel model
+//! ([`Servo::set_point_loads`]), the haptic tick (contact, reduced implicit
+//! step, passivity QP, [`HapticTick::run`]) and, at the stream's 60 Hz, the
+//! lumen's grid rebuilt from the deformed wall
+//! ([`crate::wire::TriangleLumen::update_vertices`]).
+//!
+//! The scene is the service's (`rt-config/guidewire.toml` by default: the
+//! branched arch, its cached basis, the `[wire]` and `[guidewire]` keys)
+//! with the wire's capacity set to `nodes` and its segment length chosen so
+//! that the script's last insertion fills them. The script is run first,
+//! untimed (the wire alone, as `examples/guidewire_offline.rs` does). Then a
+//! sideways line load presses the wire onto the wall along its length (for
+//! the contacts the issue asks for), the hub moves ±1.5 mm at 1 Hz and
+//! rolls ±0.3 rad, and after a settling second `ticks` ticks are timed.
+//!
+//! The wall vertices the lumen is rebuilt from are computed outside the
+//! timed part (the service's stream publisher computes them in its own
+//! thread); the rebuild itself is timed. A step that fails or leaves a node
+//! deeper than the diameter in the wall restores the last good state (the
+//! service's watchdog) and is counted.
+
+use crate::haptics::contact::SurfaceIndex;
+use crate::haptics::device::DeviceSample;
+use crate::haptics::passivity::PassivityFilter;
+use crate::haptics::servo::{Servo, ServoParams};
+use crate::haptics::tick::{HapticTick, TickInput};
+use crate::math::Vec3;
+use crate::reduced::{basis_rows, Refresher};
+use crate::rt::stats::Percentiles;
+use crate::service::setup::prepare;
+use crate::service::{ConfigSource, StartOptions};
+use crate::wire::coupling::{wall_loads, InnerWall, WallLoad, MAX_WALL_LOADS};
+use crate::wire::{Wire, WireParams};
+use std::path::Path;
+use std::time::Instant;
+
+/// The reduced model's capacity the benchmark runs at (the service picks
+/// 32 for r ≤ 32, which the guidewire scene's r = 32 is).
+const R: usize = 32;
+
+/// What `nvtmm bench wire --tick` measured (JSON keys are a scripting
+/// contract). Times in µs.
+#[derive(Debug, Clone, serde::Serialize)]
+pub struct WireTickBench {
+    /// Wire nodes at the end (ghost and hub included).
+    pub nodes: usize,
+    /// Segment length (mm).
+    pub segment_mm: f64,
+    /// Inserted length at the end (mm).
+    pub inserted_mm: f64,
+    /// Newton iterations allowed per step.
+    pub iterations_max: usize,
+    /// Mean Newton iterations per step.
+    pub iterations_mean: f64,
+    /// Line load pressing the wire onto the wall (N/m).
+    pub line_load_n_per_m: f64,
+    /// Ticks timed.
+    pub ticks: usize,
+    /// Mean and largest contacts per tick.
+    pub contacts_mean: f64,
+    /// See `contacts_mean`.
+    pub contacts_max: usize,
+    /// Largest number of point loads on the reduced model.
+    pub loads_max: usize,
+    /// Ticks on which the passivity filter ran its QP solver (the others
+    /// took the interior shortcut).
+    pub qp_solved: usize,
+    /// Ticks that rebuilt the lumen (60 Hz).
+    pub lumen_updates: usize,
+    /// Whether the lumen followed the reduced model's deformed wall.
+    pub follow_wall: bool,
+    /// Steps restored to the last good state (failed or too deep).
+    pub resets: usize,
+    /// Deepest penetration over the timed ticks (mm).
+    pub max_penetration_mm: f64,
+    /// The whole tick: p50, p99, p99.9, max.
+    pub tick_us: Percentiles,
+    /// The wire step.
+    pub wire_us: Percentiles,
+    /// Wall loads from the contacts, onto the reduced model.
+    pub loads_us: Percentiles,
+    /// The haptic tick (contact, reduced step, QP, gain).
+    pub haptic_us: Percentiles,
+    /// The passivity filter within it.
+    pub qp_us: Percentiles,
+    /// The lumen's rebuild, on the ticks that had one.
+    pub lumen_us: Percentiles,
+}
+
+/// Runs it on the service configuration at `config`: a wire of `nodes`
+/// nodes, at most `iterations` Newton iterations a step (None: the
+/// configuration's), pressed onto the wall by `line_load` N/m, `ticks`
+/// ticks timed. With `follow_wall` the lumen is rebuilt from the reduced
+/// model's deformed wall (which the wire's loads move: the coupling
+/// docs/WIRE.md reports unstable), otherwise from the rest wall (the same
+/// rebuild cost).
+pub fn bench_wire_tick(
+    config: &Path,
+    nodes: usize,
+    ticks: usize,
+    iterations: Option<usize>,
+    line_load: f64,
+    follow_wall: bool,
+) -> Result<WireTickBench, super::BenchError> {
+    let arg = super::BenchError::Arg;
+    if !(16..=4096).contains(&nodes) {
+        return Err(arg(format!("--nodes {nodes}: must be in 16..=4096")));
+    }
+    if ticks == 0 {
+        return Err(arg("--steps must be at least 1".into()));
+    }
+    if !(line_load.is_finite() && (0.0..=100.0).contains(&line_load)) {
+        return Err(arg(format!("--line-load {line_load}: must be in [0, 100] N/m")));
+    }
+    let p = prepare(&StartOptions {
+        config: ConfigSource::File(config.to_path_buf()),
+        seconds: None,
+        progress: false,
+        record: None,
+        device: None,
+    })
+    .map_err(|e| arg(e.to_string()))?;
+    let (Some(wp), Some(g)) = (&p.cfg.wire, &p.cfg.guidewire) else {
+        return Err(arg(format!("{}: no [wire] and [guidewire] tables", config.display())));
+    };
+    let mesh = &p.mesh;
+    let n = mesh.num_nodes();
+
+    // The haptic loop as the service builds it (running.rs).
+    let rows = basis_rows::<R>(&p.basis).map_err(|e| arg(e.to_string()))?;
+    let mut refresher = Refresher::new(mesh, &p.basis, &p.mass);
+    let zeros = vec![Vec3::zeros(); n];
+    let k0 = refresher.reduced_stiffness(p.model.as_ref(), &zeros);
+    let mut first =
+        crate::service::background::rest_model::<R>(rows, &k0, &p.dynamics, n).map_err(|e| arg(e.to_string()))?;
+    first.compliance = p.compliance.as_ref().map(|c| c.0.clone());
+    let index = std::sync::Arc::new(SurfaceIndex::new(mesh, &p.cfg.contact));
+    let origin = match &p.cfg.device.frame {
+        Some(f) => Vec3::from(f.offset_m),
+        None => Vec3::from(p.cfg.device.origin_m),
+    };
+    let w = &p.cfg.watchdog;
+    let sp = ServoParams {
+        dt: 1.0 / p.cfg.servo.rate_hz,
+        contact: p.cfg.contact,
+        device_origin: origin,
+        device_timeout_s: w.device_timeout_ms * 1e-3,
+        model_timeout_s: f64::INFINITY,
+        model_max_age_s: f64::INFINITY,
+        max_speed_m_s: w.max_speed_m_s,
+        max_reach_m: w.max_reach_m,
+        overrun_streak: w.overrun_streak,
+        ramp_down_s: w.ramp_down_ms * 1e-3,
+        ramp_in_s: w.ramp_in_s,
+        swap_blend_s: p.cfg.servo.swap_blend_ms * 1e-3,
+    };
+    let filter = PassivityFilter::new(&p.passivity).map_err(|e| arg(e.to_string()))?;
+    let mut tick = HapticTick::new(Servo::new(first, index, sp, 0.0), filter);
+    tick.prime();
+
+    // The wire: `nodes` nodes holding the script's last insertion.
+    let end_ins = g.script.last().map(|r| r[1]).unwrap_or(g.inserted_m).max(g.inserted_m);
+    let seg = (end_ins / (nodes as f64 - 1.6)).max(wp.diameter_m);
+    let params = WireParams {
+        max_nodes: nodes,
+        segment_length_m: seg,
+        newton_iterations: iterations.unwrap_or(wp.newton_iterations),
+        ..wp.clone()
+    };
+    params
+        .validate(Path::new("(bench wire --tick)"))
+        .map_err(|e| arg(e.to_string()))?;
+    let wall = InnerWall::from_mesh(mesh, &g.wall_set).map_err(|e| arg(e.to_string()))?;
+    let mut lumen = wall.lumen().map_err(|e| arg(e.to_string()))?;
+    let axis = Vec3::from(g.axis);
+    let mut wire =
+        Wire::new(&params, Vec3::from(g.access_point_m), axis, g.inserted_m).map_err(|e| arg(e.to_string()))?;
+    let dt = params.dt_s;
+    let script_end = g.script.last().map(|r| r[0]).unwrap_or(0.0) + 0.5;
+    let mut step = 0usize;
+    let fail = |step: usize, reason: String| super::BenchError::Step { step, reason };
+    while (step as f64) * dt < script_end {
+        let (ins, roll) = script_at(&g.script, step as f64 * dt, g.inserted_m);
+        wire.set_hub(ins, roll);
+        step += 1;
+        wire.step(&lumen).map_err(|e| fail(step, e.to_string()))?;
+    }
+    let (ins0, roll0) = (wire.inserted(), wire.roll());
+
+    // Pressed sideways (across the arch's plane) onto the wall.
+    wire.set_line_load(Vec3::new(0.0, -line_load, 0.0));
+    wire.save_good_state();
+    let mut loads: heapless::Vec<WallLoad, MAX_WALL_LOADS> = heapless::Vec::new();
+    let mut point_loads: heapless::Vec<(u32, Vec3), MAX_WALL_LOADS> = heapless::Vec::new();
+    let mut verts = wall.rest().to_vec();
+    let settle = 1000;
+    let cap = settle + ticks;
+    let (mut t_tick, mut t_wire, mut t_loads, mut t_haptic, mut t_qp, mut t_lumen) = (
+        Vec::with_capacity(cap),
+        Vec::with_capacity(cap),
+        Vec::with_capacity(cap),
+        Vec::with_capacity(cap),
+        Vec::with_capacity(cap),
+        Vec::with_capacity(cap),
+    );
+    let (mut iters, mut contacts, mut contacts_max, mut loads_max, mut qp_solved, mut resets) =
+        (0usize, 0usize, 0usize, 0usize, 0usize, 0usize);
+    let mut deepest: f64 = 0.0;
+    let stream_every = (1.0 / (60.0 * dt)).round().max(1.0) as usize;
+    let r_w = 0.5 * params.diameter_m;
+    for k in 0..cap {
+        let t = k as f64 * dt;
+        let phase = (std::f64::consts::TAU * t).sin();
+        wire.set_hub(ins0 - 1.5e-3 + 1.5e-3 * phase, roll0 + 0.3 * phase);
+        let update = k % stream_every == 0;
+        if update && follow_wall {
+            // The publisher's part (another thread in the service): the
+            // deformed wall at the reduced model's state.
+            let servo = tick.servo();
+            for (v, &node) in verts.iter_mut().zip(wall.mesh_nodes()) {
+                *v = servo.node_position(node);
+            }
+        }
+        let t0 = Instant::now();
+        if update {
+            lumen.update_vertices(&verts).map_err(|e| fail(k, e.to_string()))?;
+        }
+        let t1 = Instant::now();
+        let rep = wire.step(&lumen);
+        let t2 = Instant::now();
+        let deep = match &rep {
+            Ok(r) => r.max_penetration_m > 2.0 * r_w,
+            Err(_) => true,
+        };
+        if deep {
+            wire.restore_good_state();
+        }
+        wall_loads(&wall, &lumen, wire.contacts(), &mut loads);
+        point_loads.clear();
+        for l in &loads {
+            let _ = point_loads.push((l.node, l.force));
+        }
+        tick.servo_mut().set_point_loads(&point_loads);
+        let axial = rep.as_ref().map(|r| r.hub_axial_force_n).unwrap_or(0.0);
+        tick.set_external_force(-axis * axial.clamp(-3.0, 3.0));
+        let t3 = Instant::now();
+        let sample = DeviceSample {
+            seq: k as u64 + 1,
+            time_s: t,
+            ..DeviceSample::REST
+        };
+        let out = tick.run(TickInput {
+            sample: Some(&sample),
+            now_s: t,
+            overrun_streak: 0,
+        });
+        let t4 = Instant::now();
+        if k % 100 == 0 && !deep {
+            wire.save_good_state();
+        }
+        if k >= settle {
+            let us = |a: Instant, b: Instant| (b - a).as_secs_f64() * 1e6;
+            t_tick.push(us(t0, t4));
+            t_wire.push(us(t1, t2));
+            t_loads.push(us(t2, t3));
+            t_haptic.push(us(t3, t4));
+            t_qp.push(out.qp_us);
+            if update {
+                t_lumen.push(us(t0, t1));
+            }
+            qp_solved += out.qp_solved as usize;
+            resets += deep as usize;
+            let c = wire.contacts().len();
+            contacts += c;
+            contacts_max = contacts_max.max(c);
+            loads_max = loads_max.max(point_loads.len());
+            if let Ok(r) = &rep {
+                iters += r.iterations;
+                deepest = deepest.max(r.max_penetration_m);
+            }
+        }
+    }
+    Ok(WireTickBench {
+        nodes: wire.num_nodes(),
+        segment_mm: seg * 1e3,
+        inserted_mm: wire.inserted() * 1e3,
+        iterations_max: params.newton_iterations,
+        iterations_mean: iters as f64 / ticks as f64,
+        line_load_n_per_m: line_load,
+        ticks,
+        contacts_mean: contacts as f64 / ticks as f64,
+        contacts_max,
+        loads_max,
+        qp_solved,
+        lumen_updates: t_lumen.len(),
+        follow_wall,
+        resets,
+        max_penetration_mm: deepest * 1e3,
+        tick_us: Percentiles::of(&t_tick),
+        wire_us: Percentiles::of(&t_wire),
+        loads_us: Percentiles::of(&t_loads),
+        haptic_us: Percentiles::of(&t_haptic),
+        qp_us: Percentiles::of(&t_qp),
+        lumen_us: Percentiles::of(&t_lumen),
+    })
+}
+
+/// The script's hub command at `t` (linear between rows).
+fn script_at(script: &[[f64; 3]], t: f64, start: f64) -> (f64, f64) {
+    let Some(first) = script.first() else {
+        return (start, 0.0);
+    };
+    if t <= first[0] {
+        return (first[1], first[2]);
+    }
+    for w in script.windows(2) {
+        if t <= w[1][0] {
+            let a = (t - w[0][0]) / (w[1][0] - w[0][0]).max(1e-12);
+            return (w[0][1] + a * (w[1][1] - w[0][1]), w[0][2] + a * (w[1][2] - w[0][2]));
+        }
+    }
+    let l = script[script.len() - 1];
+    (l[1], l[2])
+}

@@ -1,0 +1,64 @@
+//! `nvtmm bench wire --tick --json` runs the whole guidewire tick on the
+//! service's scene (`rt-config/guidewire.toml`: the branched arch and its
+//! cached basis) and prints the JSON keys scripts depend on; the wire got
+//! through the script without a reset and every part was timed. No timing
+//! thresholds (the machine is shared). The first run on a fresh checkout
+//! meshes the arch and computes its basis (minutes; cached after).
+
+use std::process::Command;
+
+#[test]
+fn bench_wire_tick_json_has_the_contract_keys_and_no_resets() {
+    let out = Command::new(env!("CARGO_BIN_EXE_nvtmm"))
+        .current_dir(env!("CARGO_MANIFEST_DIR"))
+        .args(["bench", "wire", "--tick", "--nodes", "64", "--steps", "200", "--json"])
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let v: serde_json::Value = serde_json::from_slice(&out.stdout).expect("JSON");
+    let obj = v.as_object().expect("an object");
+    let mut keys: Vec<&str> = obj.keys().map(String::as_str).collect();
+    keys.sort_unstable();
+    assert_eq!(
+        keys,
+        [
+            "contacts_max",
+            "contacts_mean",
+            "follow_wall",
+            "haptic_us",
+            "inserted_mm",
+            "iterations_max",
+            "iterations_mean",
+            "line_load_n_per_m",
+            "loads_max",
+            "loads_us",
+            "lumen_updates",
+            "lumen_us",
+            "max_penetration_mm",
+            "nodes",
+            "qp_solved",
+            "qp_us",
+            "resets",
+            "segment_mm",
+            "tick_us",
+            "ticks",
+            "wire_us"
+        ]
+    );
+    assert_eq!(obj["ticks"], 200);
+    assert_eq!(obj["resets"], 0);
+    assert_eq!(obj["follow_wall"], false);
+    let nodes = obj["nodes"].as_u64().unwrap();
+    assert!((50..=64).contains(&nodes), "{nodes} nodes");
+    assert!(obj["inserted_mm"].as_f64().unwrap() > 150.0);
+    assert!(obj["max_penetration_mm"].as_f64().unwrap() < 0.445);
+    assert!(obj["lumen_updates"].as_u64().unwrap() >= 11);
+    for k in ["tick_us", "wire_us", "loads_us", "haptic_us", "qp_us", "lumen_us"] {
+        let p = obj[k].as_object().unwrap_or_else(|| panic!("{k}"));
+        let p50 = p["p50"].as_f64().unwrap();
+        let max = p["max"].as_f64().unwrap();
+        assert!(p50.is_finite() && p50 >= 0.0 && max >= p50, "{k}: {p:?}");
+    }
+    // The whole tick holds its parts.
+    assert!(obj["tick_us"]["p50"].as_f64() >= obj["wire_us"]["p50"].as_f64());
+}
