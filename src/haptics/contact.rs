@@ -1021,7 +1021,7 @@ fn search_triangles<const R: usize>(
         if !within_bounding_sphere(&x, center, reach) {
             continue;
         }
-        let dist = (crate::wire::lumen::closest_on_triangle(*center, x[0], x[1], x[2]) - center).norm();
+        let dist = (crate::math::closest_on_triangle(*center, x[0], x[1], x[2]) - center).norm();
         if dist > reach {
             continue;
         }
