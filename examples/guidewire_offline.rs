@@ -62,7 +62,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     for k in 0..steps {
         let t = k as f64 * dt;
         // Linear between script rows (the device eases; close enough here).
-        let (ins, roll) = interp(&g.script, t, g.inserted_m);
+        let (ins, roll) = g.script_at(t);
         w.set_hub(ins, roll);
         let ts = std::time::Instant::now();
         let rep = w.step(&lumen).map_err(|e| format!("t = {t:.3} s: {e}"))?;
@@ -122,21 +122,4 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         p.p50, p.p99, p.p999, p.max
     );
     Ok(())
-}
-
-fn interp(script: &[[f64; 3]], t: f64, start: f64) -> (f64, f64) {
-    let Some(first) = script.first() else {
-        return (start, 0.0);
-    };
-    if t <= first[0] {
-        return (first[1], first[2]);
-    }
-    for w in script.windows(2) {
-        if t <= w[1][0] {
-            let a = (t - w[0][0]) / (w[1][0] - w[0][0]);
-            return (w[0][1] + a * (w[1][1] - w[0][1]), w[0][2] + a * (w[1][2] - w[0][2]));
-        }
-    }
-    let l = script[script.len() - 1];
-    (l[1], l[2])
 }

@@ -182,7 +182,7 @@ pub fn bench_wire_tick(
     let mut step = 0usize;
     let fail = |step: usize, reason: String| super::BenchError::Step { step, reason };
     while (step as f64) * dt < script_end {
-        let (ins, roll) = script_at(&g.script, step as f64 * dt, g.inserted_m);
+        let (ins, roll) = g.script_at(step as f64 * dt);
         wire.set_hub(ins, roll);
         step += 1;
         wire.step(&lumen).map_err(|e| fail(step, e.to_string()))?;
@@ -305,22 +305,4 @@ pub fn bench_wire_tick(
         qp_us: Percentiles::of(&t_qp),
         lumen_us: Percentiles::of(&t_lumen),
     })
-}
-
-/// The script's hub command at `t` (linear between rows).
-fn script_at(script: &[[f64; 3]], t: f64, start: f64) -> (f64, f64) {
-    let Some(first) = script.first() else {
-        return (start, 0.0);
-    };
-    if t <= first[0] {
-        return (first[1], first[2]);
-    }
-    for w in script.windows(2) {
-        if t <= w[1][0] {
-            let a = (t - w[0][0]) / (w[1][0] - w[0][0]).max(1e-12);
-            return (w[0][1] + a * (w[1][1] - w[0][1]), w[0][2] + a * (w[1][2] - w[0][2]));
-        }
-    }
-    let l = script[script.len() - 1];
-    (l[1], l[2])
 }

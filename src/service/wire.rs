@@ -76,6 +76,28 @@ pub struct GuidewireConfig {
     pub script: Vec<[f64; 3]>,
 }
 
+impl GuidewireConfig {
+    /// The script's hub command (inserted length m, roll rad) at time `t_s`,
+    /// linear between rows; before the first row its values, after the last
+    /// the last; with no script, `inserted_m` and no roll.
+    pub fn script_at(&self, t_s: f64) -> (f64, f64) {
+        let Some(first) = self.script.first() else {
+            return (self.inserted_m, 0.0);
+        };
+        if t_s <= first[0] {
+            return (first[1], first[2]);
+        }
+        for w in self.script.windows(2) {
+            if t_s <= w[1][0] {
+                let a = (t_s - w[0][0]) / (w[1][0] - w[0][0]).max(1e-12);
+                return (w[0][1] + a * (w[1][1] - w[0][1]), w[0][2] + a * (w[1][2] - w[0][2]));
+            }
+        }
+        let last = self.script[self.script.len() - 1];
+        (last[1], last[2])
+    }
+}
+
 impl Default for GuidewireConfig {
     fn default() -> Self {
         GuidewireConfig {
@@ -618,4 +640,23 @@ pub(super) fn wire_thread(mut p: WirePlan) -> WireResult {
     res.resets = p.shared.resets();
     res.wall = p.lumen.vertices().to_vec();
     res
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_script_is_linear_between_rows_and_held_outside() {
+        let mut g = GuidewireConfig {
+            script: vec![],
+            ..GuidewireConfig::default()
+        };
+        assert_eq!(g.script_at(3.0), (g.inserted_m, 0.0));
+        g.script = vec![[1.0, 0.10, 0.0], [3.0, 0.20, 1.0]];
+        assert_eq!(g.script_at(0.0), (0.10, 0.0));
+        let (ins, roll) = g.script_at(2.0);
+        assert!((ins - 0.15).abs() < 1e-12 && (roll - 0.5).abs() < 1e-12);
+        assert_eq!(g.script_at(9.0), (0.20, 1.0));
+    }
 }
