@@ -109,9 +109,20 @@ impl<const R: usize> HapticTick<R> {
             .map(|s| (s.position, s.velocity))
             .unwrap_or((Vec3::zeros(), Vec3::zeros()));
         let q0 = clock::now_ns();
+        // A rejected pose (a jump no hand makes) is not a motion of the
+        // port, and a tick without a sample has no position: the observer
+        // counts neither the jump to it nor the one back (the watchdog is
+        // ramping the force down meanwhile).
+        let bad_pose = out.flags & flags::BAD_POSE != 0 || input.sample.is_none();
+        if bad_pose {
+            self.filter.restart_observer();
+        }
         let v_pred = predict_velocity(v, self.v_prev);
         self.v_prev = v;
         let fo = self.filter.filter(out.desired, x, v_pred);
+        if bad_pose {
+            self.filter.restart_observer();
+        }
         let filtered = fo.force;
         let qp_solved = !matches!(fo.status, QpStatus::Interior | QpStatus::NotRun);
         let qp_us = (clock::now_ns() - q0) as f64 * 1e-3;

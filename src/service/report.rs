@@ -26,6 +26,13 @@ pub struct QpReport {
     pub fallbacks: u64,
     /// Lowest tank level (J).
     pub tank_low_j: f64,
+    /// Energy the filter's observer counted as delivered to the hand (J):
+    /// the commanded force times the measured motion. Beside the device's
+    /// own figure (`energy_out_j` when the device reports it), it shows
+    /// how well the observer sees the port.
+    pub observed_out_j: f64,
+    /// Energy the filter's observer counted as put in by the hand (J).
+    pub observed_in_j: f64,
     /// Ticks whose model force was inside every bound and went out as it
     /// was, without a solve (the shortcut).
     pub shortcuts: u64,
@@ -367,7 +374,7 @@ impl Report {
         } else {
             s += &format!(
                 "  QP: {} solves ({} ticks inside every bound took the shortcut), active norm {} rate {} energy {}, \
-                 iters p99 {}, solve p50 {:.1} µs p99 {:.1} µs, {} fallbacks\n",
+                 iters p99 {}, solve p50 {:.1} µs p99 {:.1} µs, {} fallbacks, tank low {:.4} J; observer: in {:.4} J, out {:.4} J\n",
                 q.solves,
                 q.shortcuts,
                 q.active_norm,
@@ -376,7 +383,10 @@ impl Report {
                 q.iters_p99,
                 q.solve_us_p50,
                 q.solve_us_p99,
-                q.fallbacks
+                q.fallbacks,
+                q.tank_low_j,
+                q.observed_in_j,
+                q.observed_out_j
             );
         }
         let b = &self.background;

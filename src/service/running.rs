@@ -234,6 +234,8 @@ impl<const R: usize> RunningService for Running<R> {
                 solve_us_p50: lr.qp_us.percentiles().p50,
                 fallbacks: qp.fallbacks(),
                 tank_low_j: qp.tank_low_j,
+                observed_out_j: qp.delivered_j,
+                observed_in_j: qp.absorbed_j,
                 shortcuts: qp.interior,
             },
             energy_in_j: energy_in,

@@ -36,7 +36,7 @@ pub struct Active {
     pub norm: bool,
     /// `‖F − F_prev‖ ≥ Δ` (at the rate bound or beyond it through the slack).
     pub rate: bool,
-    /// The energy row is binding.
+    /// The energy ball is binding.
     pub energy: bool,
 }
 
@@ -81,7 +81,7 @@ pub struct PassivityStats {
     pub active_rate: u64,
     /// Ticks where the rate bound was exceeded through the slack.
     pub rate_exceeded: u64,
-    /// Ticks with the energy row active.
+    /// Ticks with the energy ball active.
     pub active_energy: u64,
     /// Solver fallbacks.
     pub fallbacks_solver: u64,
@@ -166,10 +166,75 @@ impl PassivityStats {
 
 // Row layout of A (clarabel: A x + z = b, z in the cones).
 pub(super) const N_VARS: usize = 4; // F (3), s
-pub(super) const N_ROWS: usize = 10;
-pub(super) const ROW_ENERGY: usize = 1; // nonneg rows 0 (s ≥ 0), 1 (energy)
-pub(super) const ROW_NORM: usize = 2; // SOC(4): (B, F)
-pub(super) const ROW_RATE: usize = 6; // SOC(4): (Δ + s, F − F_prev)
+pub(super) const N_ROWS: usize = 13;
+// Nonneg row 0: s ≥ 0.
+pub(super) const ROW_NORM: usize = 1; // SOC(4): (B, F)
+pub(super) const ROW_RATE: usize = 5; // SOC(4): (Δ + s, F − F_prev)
+pub(super) const ROW_ENERGY: usize = 9; // SOC(4): (ρ, F − c)
+
+/// Least gap (N) between the energy ball's radius and its centre's
+/// distance from the origin: keeps `F = 0` strictly inside (the
+/// interior-point method wants a strictly feasible problem). It lets the
+/// port deliver at most `T²·2‖c‖·1e-9/(2m)` more per tick (~1e-12 J).
+pub(super) const RHO_FLOOR_N: f64 = 1e-9;
+
+/// The energy row as a ball of forces, `‖F − c‖ ≤ r` (N); it always
+/// contains `F = 0`. See the module doc of `passivity`.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct EnergyBall {
+    /// Centre (N): `−(m/T) v`.
+    pub c: Vec3,
+    /// Radius (N): `(m/T)·sqrt(|v|² + 2 (E − E_min)/m)`.
+    pub r: f64,
+    /// The ball holds the whole norm ball (`‖c‖ + B ≤ r`): it cannot bind,
+    /// and the QP gets a stand-in centred at 0 of radius `2B + 1`.
+    pub slack: bool,
+}
+
+impl EnergyBall {
+    /// The energy ball for the predicted stylus velocity `v` (m/s), the
+    /// tank's budget above its reserve `budget` (J, ≥ 0), the stylus mass
+    /// `m` (kg), the period `dt` (s) and the norm bound `bound` (N).
+    pub fn new(v: Vec3, budget: f64, m: f64, dt: f64, bound: f64) -> EnergyBall {
+        let k = m / dt;
+        let c = -v * k;
+        let cn = c.norm();
+        let r = (k * (v.norm_squared() + 2.0 * budget.max(0.0) / m).sqrt()).max(cn + RHO_FLOOR_N);
+        if !(r.is_finite() && cn.is_finite()) || r >= cn + bound {
+            EnergyBall {
+                c: Vec3::zeros(),
+                r: 2.0 * bound + 1.0,
+                slack: true,
+            }
+        } else {
+            EnergyBall { c, r, slack: false }
+        }
+    }
+
+    /// Whether `f` lies in the ball (to `tol`, N).
+    pub fn contains(&self, f: &Vec3, tol: f64) -> bool {
+        (f - self.c).norm() <= self.r + tol
+    }
+
+    /// The largest `α ∈ [0, 1]` with `α f` in the ball (the ball holds 0).
+    pub fn scale_into(&self, f: &Vec3) -> f64 {
+        if self.contains(f, 0.0) {
+            return 1.0;
+        }
+        // |f|² α² − 2 (f·c) α + (|c| − r)(|c| + r) = 0, the root in (0, 1).
+        let ff = f.norm_squared();
+        let fc = f.dot(&self.c);
+        let cn = self.c.norm();
+        let k = (cn - self.r) * (cn + self.r);
+        let disc = (fc * fc - ff * k).max(0.0);
+        let a = (fc + disc.sqrt()) / ff;
+        if a.is_finite() {
+            a.clamp(0.0, 1.0)
+        } else {
+            0.0
+        }
+    }
+}
 
 /// What one QP solve returns (before the post-processing of `filter`).
 #[derive(Debug, Clone, Copy)]
@@ -187,14 +252,12 @@ pub struct PassivityFilter {
     // Preallocated problem data; the update calls take &Vec.
     q: Vec<f64>,
     b: Vec<f64>,
-    a_nz: Vec<f64>,
     // State.
     f_prev: Vec3,
     x_prev: Vec3,
     have_prev: bool,
     tank: f64,
     theta: f64,
-    g_prev: Vec3,
     stats: PassivityStats,
     #[cfg(test)]
     inject_failure: bool,
@@ -211,15 +274,16 @@ impl std::fmt::Debug for PassivityFilter {
     }
 }
 
-/// The nonzeros of A in CSC order: column j of F holds (energy g_j, −1 in the
-/// norm cone, −1 in the rate cone) at indices 3j, 3j+1, 3j+2; the slack column
-/// holds −1 (s ≥ 0) and −1 (rate cone head). Only the energy entries change.
-fn a_matrix(g: Vec3) -> CscMatrix<f64> {
+/// A in CSC order: column j of F holds −1 in the tail of each cone (norm,
+/// rate, energy); the slack column holds −1 (s ≥ 0) and −1 (rate cone
+/// head). A never changes: the data of each tick (bound, `F_prev`, the
+/// energy ball) is all in b.
+fn a_matrix() -> CscMatrix<f64> {
     let mut rowval = Vec::with_capacity(11);
     let mut nzval = Vec::with_capacity(11);
     for j in 0..3 {
-        rowval.extend_from_slice(&[ROW_ENERGY, ROW_NORM + 1 + j, ROW_RATE + 1 + j]);
-        nzval.extend_from_slice(&[g[j], -1.0, -1.0]);
+        rowval.extend_from_slice(&[ROW_NORM + 1 + j, ROW_RATE + 1 + j, ROW_ENERGY + 1 + j]);
+        nzval.extend_from_slice(&[-1.0, -1.0, -1.0]);
     }
     rowval.extend_from_slice(&[0, ROW_RATE]);
     nzval.extend_from_slice(&[-1.0, -1.0]);
@@ -247,25 +311,15 @@ impl PassivityFilter {
         let p = params.clone();
         // P = 2 I on F (upper triangle), 0 on s.
         let pm = CscMatrix::new(N_VARS, N_VARS, vec![0, 1, 2, 3, 3], vec![0, 1, 2], vec![2.0; 3]);
-        // Representative data for the equilibration computed here: a unit
-        // energy row (it stays unit-norm), a mid-size force.
-        let g0 = Vec3::new(1.0, 1.0, 1.0).normalize();
-        let a = a_matrix(g0);
+        let a = a_matrix();
         let q = vec![-2.0, -2.0, -2.0, p.rate_slack_weight_n];
-        let b = vec![
-            0.0,
-            p.peak_force_n,
-            p.peak_force_n,
-            0.0,
-            0.0,
-            0.0,
-            p.rate_n_per_tick,
-            0.0,
-            0.0,
-            0.0,
-        ];
+        let mut b = vec![0.0; N_ROWS];
+        b[ROW_NORM] = p.peak_force_n;
+        b[ROW_RATE] = p.rate_n_per_tick;
+        b[ROW_ENERGY] = 2.0 * p.peak_force_n + 1.0;
         let cones = [
-            SupportedConeT::NonnegativeConeT(2),
+            SupportedConeT::NonnegativeConeT(1),
+            SupportedConeT::SecondOrderConeT(4),
             SupportedConeT::SecondOrderConeT(4),
             SupportedConeT::SecondOrderConeT(4),
         ];
@@ -276,7 +330,6 @@ impl PassivityFilter {
         }
         // One solve at set-up: whatever clarabel sizes lazily is sized now.
         solver.solve();
-        let a_nz = a.nzval.clone();
         Ok(PassivityFilter {
             tank: p.tank_initial_j,
             stats: PassivityStats::new(p.tank_initial_j),
@@ -284,12 +337,10 @@ impl PassivityFilter {
             solver,
             q,
             b,
-            a_nz,
             f_prev: Vec3::zeros(),
             x_prev: Vec3::zeros(),
             have_prev: false,
             theta: 0.0,
-            g_prev: g0,
             #[cfg(test)]
             inject_failure: false,
         })
@@ -323,16 +374,31 @@ impl PassivityFilter {
     /// the loop. Allocates (from the RT pool on an RT thread).
     pub fn prime(&mut self) {
         let bound = self.bound_n();
-        let _ = self.solve(Vec3::new(1.0, 1.0, 1.0) * bound, Vec3::zeros(), bound, self.g_prev, 1.0);
+        let ball = EnergyBall {
+            c: Vec3::zeros(),
+            r: 1.0,
+            slack: false,
+        };
+        let _ = self.solve(Vec3::new(1.0, 1.0, 1.0) * bound, Vec3::zeros(), bound, ball);
     }
 
-    /// Forgets the force and tank history (watchdog): force 0, tank at its
-    /// initial level, thermal state cold, observer restarted. Counters stay.
+    /// Forgets the force history (watchdog): force 0, observer restarted
+    /// (the interval across a fault is not accounted). The tank keeps its
+    /// level, debt included: a fault never refills it. The thermal state
+    /// keeps its heat. Counters stay.
     pub fn reset(&mut self) {
         self.f_prev = Vec3::zeros();
         self.have_prev = false;
-        self.tank = self.params.tank_initial_j;
-        self.theta = 0.0;
+    }
+
+    /// Restarts the energy observer without touching the force or the
+    /// tank: the next call to [`PassivityFilter::filter`] does not count
+    /// the motion from the last position. For a sample the watchdog
+    /// rejected (a pose jump no hand makes): the jump is not a motion the
+    /// port made, and counting it would credit the tank with energy that
+    /// never came in (or charge it with a debt).
+    pub fn restart_observer(&mut self) {
+        self.have_prev = false;
     }
 
     /// Tells the filter the force actually commanded after its output (the
@@ -409,20 +475,13 @@ impl PassivityFilter {
             };
         }
 
-        // Energy row, normalized (module doc).
-        let h_cap = 2.0 * bound + 1.0;
+        // The energy ball (module doc).
         let budget = (self.tank - p.tank_min_j).max(0.0);
-        let speed = v.norm();
-        let (g, h) = if speed * dt > 1e-15 {
-            (v / speed, (budget / (dt * speed)).min(h_cap))
-        } else {
-            (self.g_prev, h_cap)
-        };
-        self.g_prev = g;
+        let ball = EnergyBall::new(v, budget, p.stylus_mass_kg, dt, bound);
 
         // F_des inside every row is the answer: no solve (exact, and it
         // spares the solver the most common case, free motion).
-        let interior = f_des.norm() <= bound && g.dot(&f_des) <= h && (f_des - self.f_prev).norm() <= delta;
+        let interior = f_des.norm() <= bound && ball.contains(&f_des, 0.0) && (f_des - self.f_prev).norm() <= delta;
         let ans = if interior {
             self.stats.interior += 1;
             QpAnswer {
@@ -431,7 +490,7 @@ impl PassivityFilter {
                 iterations: 0,
             }
         } else {
-            self.solve(f_des, self.f_prev, bound, g, h)
+            self.solve(f_des, self.f_prev, bound, ball)
         };
         let ok = matches!(
             ans.status,
@@ -453,10 +512,7 @@ impl PassivityFilter {
         if n > bound {
             alpha = bound / n;
         }
-        let gf = g.dot(&f) * alpha;
-        if gf > h {
-            alpha *= h / gf;
-        }
+        alpha *= ball.scale_into(&(f * alpha));
         f *= alpha.clamp(0.0, 1.0);
 
         let tol = 1e-6 * bound.max(1.0);
@@ -464,7 +520,7 @@ impl PassivityFilter {
         let active = Active {
             norm: f.norm() >= bound - tol,
             rate: change >= delta - tol,
-            energy: h < h_cap && g.dot(&f) >= h - tol,
+            energy: !ball.slack && (f - ball.c).norm() >= ball.r - tol,
         };
         let excess = (change - delta).max(0.0);
         self.stats.solves += (ans.status != QpStatus::Interior) as u64;
@@ -488,19 +544,18 @@ impl PassivityFilter {
         }
     }
 
-    /// Updates q, b and the energy row of A in place and solves
-    /// `min ‖F − f_des‖² + w s` s.t. `‖F‖ ≤ bound`, `‖F − f_prev‖ ≤ Δ + s`,
-    /// `s ≥ 0`, `g·F ≤ h`.
-    fn solve(&mut self, f_des: Vec3, f_prev: Vec3, bound: f64, g: Vec3, h: f64) -> QpAnswer {
+    /// Updates q and b in place and solves `min ‖F − f_des‖² + w s` s.t.
+    /// `‖F‖ ≤ bound`, `‖F − f_prev‖ ≤ Δ + s`, `s ≥ 0`, `‖F − c‖ ≤ r`.
+    fn solve(&mut self, f_des: Vec3, f_prev: Vec3, bound: f64, ball: EnergyBall) -> QpAnswer {
         for j in 0..3 {
             self.q[j] = -2.0 * f_des[j];
-            self.a_nz[3 * j] = g[j];
             self.b[ROW_NORM + 1 + j] = 0.0;
             self.b[ROW_RATE + 1 + j] = -f_prev[j];
+            self.b[ROW_ENERGY + 1 + j] = -ball.c[j];
         }
         self.q[3] = self.params.rate_slack_weight_n;
         self.b[0] = 0.0;
-        self.b[ROW_ENERGY] = h;
+        self.b[ROW_ENERGY] = ball.r;
         self.b[ROW_NORM] = bound;
         self.b[ROW_RATE] = self.params.rate_n_per_tick;
         // The updates only fail on a dimension mismatch or a presolved
@@ -508,8 +563,7 @@ impl PassivityFilter {
         let upd = self
             .solver
             .update_q(&self.q)
-            .and_then(|_| self.solver.update_b(&self.b))
-            .and_then(|_| self.solver.update_A(&self.a_nz));
+            .and_then(|_| self.solver.update_b(&self.b));
         if upd.is_err() {
             return QpAnswer {
                 f: Vec3::zeros(),
@@ -546,10 +600,11 @@ impl PassivityFilter {
             let s_val = sol.x[3];
             let dual_norm = z[ROW_NORM];
             let dual_rate = z[ROW_RATE];
+            let dual_energy = z[ROW_ENERGY];
             let set = PolishSet {
                 norm: act(dual_norm).then_some(dual_norm / bound),
                 rate: (s_val <= 1e-9 * scale && act(dual_rate)).then_some(dual_rate / delta),
-                energy: act(z[ROW_ENERGY]).then_some(z[ROW_ENERGY]),
+                energy: act(dual_energy).then_some(dual_energy / ball.r),
                 slack: s_val > 1e-9 * scale,
             };
             if let Some(fp) = polish_any(
@@ -559,8 +614,7 @@ impl PassivityFilter {
                 bound,
                 delta,
                 self.params.rate_slack_weight_n,
-                g,
-                h,
+                ball,
                 set,
             ) {
                 f = fp;
@@ -598,15 +652,15 @@ mod tests {
     }
 
     // ---- An independent solver: exact projection by enumerating the faces
-    // of {‖F‖ ≤ R} ∩ {‖F − P‖ ≤ r} ∩ {g·F ≤ h}, and a golden-section search
-    // over the slack s on the convex function φ(s) + w s. ----
+    // of {‖F‖ ≤ R} ∩ {‖F − P‖ ≤ r} ∩ {‖F − c‖ ≤ ρ}, and a golden-section
+    // search over the slack s on the convex function φ(s) + w s. ----
 
     struct Sets {
         r1: f64,
         p: Vec3,
         r2: f64, // < 0: no rate ball
-        g: Vec3,
-        h: f64,
+        c: Vec3,
+        r3: f64,
     }
 
     impl Sets {
@@ -614,7 +668,7 @@ mod tests {
             let t = 1e-9;
             x.norm() <= self.r1 + t
                 && (self.r2 < 0.0 || (x - self.p).norm() <= self.r2 + t)
-                && self.g.dot(x) <= self.h + t
+                && (x - self.c).norm() <= self.r3 + t
         }
     }
 
@@ -646,39 +700,38 @@ mod tests {
         Some((c1 + n * a, n, (r1 * r1 - a * a).max(0.0).sqrt()))
     }
 
-    fn sphere_plane(c: Vec3, r: f64, g: Vec3, h: f64) -> Option<(Vec3, Vec3, f64)> {
-        let delta = h - g.dot(&c);
-        if delta.abs() > r {
-            return None;
-        }
-        Some((c + g * delta, g, (r * r - delta * delta).sqrt()))
-    }
-
     fn project(y: Vec3, s: &Sets) -> Option<Vec3> {
         let mut cand = vec![y];
         let has2 = s.r2 >= 0.0;
-        if y.norm() > 0.0 {
-            cand.push(y * (s.r1 / y.norm()));
+        let radial = |c: Vec3, r: f64, cand: &mut Vec<Vec3>| {
+            if (y - c).norm() > 0.0 {
+                cand.push(c + (y - c) * (r / (y - c).norm()));
+            }
+        };
+        radial(Vec3::zeros(), s.r1, &mut cand);
+        if has2 {
+            radial(s.p, s.r2, &mut cand);
         }
-        if has2 && (y - s.p).norm() > 0.0 {
-            cand.push(s.p + (y - s.p) * (s.r2 / (y - s.p).norm()));
-        }
-        cand.push(y - s.g * (s.g.dot(&y) - s.h));
+        radial(s.c, s.r3, &mut cand);
         let mut circles = vec![];
         if has2 {
             circles.extend(sphere_sphere(Vec3::zeros(), s.r1, s.p, s.r2));
-            circles.extend(sphere_plane(s.p, s.r2, s.g, s.h));
+            circles.extend(sphere_sphere(s.p, s.r2, s.c, s.r3));
         }
-        circles.extend(sphere_plane(Vec3::zeros(), s.r1, s.g, s.h));
+        circles.extend(sphere_sphere(Vec3::zeros(), s.r1, s.c, s.r3));
         for &(c, n, rho) in &circles {
             circle_points(&y, c, n, rho, &mut cand);
         }
-        // Triple points: the spheres' circle cut by the plane.
-        if has2 {
+        // Triple points: the first two spheres' circle cut by the plane the
+        // first and third spheres meet on, 2c·x = |c|² + r1² − r3².
+        let cn = s.c.norm();
+        if has2 && cn > 1e-14 {
             if let Some((c, n, rho)) = sphere_sphere(Vec3::zeros(), s.r1, s.p, s.r2) {
+                let g = s.c / cn;
+                let h = (cn * cn + s.r1 * s.r1 - s.r3 * s.r3) / (2.0 * cn);
                 let (u, w) = basis(n);
-                let (a, b) = (rho * s.g.dot(&u), rho * s.g.dot(&w));
-                let rhs = s.h - s.g.dot(&c);
+                let (a, b) = (rho * g.dot(&u), rho * g.dot(&w));
+                let rhs = h - g.dot(&c);
                 let m = (a * a + b * b).sqrt();
                 if m > 1e-14 && rhs.abs() <= m {
                     let phi = b.atan2(a);
@@ -695,13 +748,13 @@ mod tests {
     }
 
     /// The reference answer of the QP.
-    fn reference(f_des: Vec3, f_prev: Vec3, bound: f64, delta: f64, w: f64, g: Vec3, h: f64) -> Vec3 {
+    fn reference(f_des: Vec3, f_prev: Vec3, bound: f64, delta: f64, w: f64, ball: EnergyBall) -> Vec3 {
         let no_rate = Sets {
             r1: bound,
             p: f_prev,
             r2: -1.0,
-            g,
-            h,
+            c: ball.c,
+            r3: ball.r,
         };
         let pk_prev = project(f_prev, &no_rate).expect("K is never empty");
         let pk_des = project(f_des, &no_rate).expect("K is never empty");
@@ -712,8 +765,8 @@ mod tests {
                 r1: bound,
                 p: f_prev,
                 r2: delta + s,
-                g,
-                h,
+                c: ball.c,
+                r3: ball.r,
             };
             project(f_des, &sets).map(|f| (f, (f - f_des).norm_squared() + w * s))
         };
@@ -753,8 +806,9 @@ mod tests {
         fn qp_matches_an_independent_solver(
             fd in prop::array::uniform3(-15.0f64..15.0),
             pa in -1.0f64..1.0, pb in 0.0f64..std::f64::consts::TAU, pr in 0.0f64..1.0,
-            ga in -1.0f64..1.0, gb in 0.0f64..std::f64::consts::TAU,
-            h in 0.0f64..6.0,
+            ca in -1.0f64..1.0, cb in 0.0f64..std::f64::consts::TAU,
+            cr in prop::sample::select(vec![0.0, 0.5, 3.0, 20.0, 60.0]),
+            gap in prop::sample::select(vec![RHO_FLOOR_N, 0.01, 0.3, 2.0, 8.0]),
             bound in 1.0f64..7.9,
             delta in 0.05f64..2.0,
             w in prop::sample::select(vec![50.0, 1e3]),
@@ -762,10 +816,10 @@ mod tests {
             let mut flt = PassivityFilter::new(&PassivityParams { rate_n_per_tick: delta, rate_slack_weight_n: w, ..params() }).unwrap();
             let f_des = Vec3::from(fd);
             let f_prev = unit(pa, pb) * (pr * bound);
-            let g = unit(ga, gb);
-            let ans = flt.solve(f_des, f_prev, bound, g, h);
+            let ball = EnergyBall { c: unit(ca, cb) * cr, r: cr + gap, slack: false };
+            let ans = flt.solve(f_des, f_prev, bound, ball);
             prop_assert!(matches!(ans.status, QpStatus::Solved | QpStatus::AlmostSolved), "{:?}", ans.status);
-            let r = reference(f_des, f_prev, bound, delta, w, g, h);
+            let r = reference(f_des, f_prev, bound, delta, w, ball);
             prop_assert!((ans.f - r).norm() < 1e-6, "qp {:?} ref {:?} diff {:e}", ans.f, r, (ans.f - r).norm());
         }
 
@@ -782,14 +836,16 @@ mod tests {
             for (k, v) in xs.iter().enumerate() {
                 let v = Vec3::from(*v);
                 let f_des = Vec3::from(fd) * ((k % 3) as f64 - 1.0);
-                let tank_before_row = (flt.tank_j() - p.tank_min_j).max(0.0);
-                let _ = tank_before_row;
                 x += v * p.dt_s;
                 let out = flt.filter(f_des, x, v);
                 prop_assert!(out.fallback.is_none(), "{:?}", out);
                 prop_assert!(out.force.norm() <= out.bound_n * (1.0 + 1e-12));
+                // The work the force does over the next tick on the
+                // stylus mass moving at v: within the tank's budget.
                 let budget = (out.tank_j - p.tank_min_j).max(0.0);
-                prop_assert!(p.dt_s * v.dot(&out.force) <= budget + 1e-12, "{:?}", out);
+                let t = p.dt_s;
+                let work = t * v.dot(&out.force) + t * t * out.force.norm_squared() / (2.0 * p.stylus_mass_kg);
+                prop_assert!(work <= budget + 1e-11, "work {work} budget {budget} {:?}", out);
             }
         }
     }
@@ -839,13 +895,74 @@ mod tests {
         let out = flt.filter(Vec3::new(0.0, 0.0, 0.5), Vec3::zeros(), v);
         assert!(out.force.norm() < 1e-6, "{out:?}");
         assert!(out.active.energy);
-        // The part across the motion is still passed.
-        let out = flt.filter(Vec3::new(0.5, 0.0, 0.5), v * p.dt_s, v);
-        assert!((out.force - Vec3::new(0.5, 0.0, 0.0)).norm() < 1e-6, "{out:?}");
-        // Opposing the motion (absorbing) is always allowed.
+        // Across the motion a force still moves the stylus along itself
+        // (T²‖F‖²/2m): with nothing in the tank it must lean against the
+        // motion. The answer is the closest point of the energy ball,
+        // centred at −(m/T) v through the origin.
+        let f_des = Vec3::new(0.5, 0.0, 0.0);
+        let out = flt.filter(f_des, v * p.dt_s, v);
+        let k = p.stylus_mass_kg / p.dt_s;
+        let c = -v * k;
+        let want = c + (f_des - c) * ((c.norm() + RHO_FLOOR_N) / (f_des - c).norm());
+        assert!((out.force - want).norm() < 1e-6, "{out:?} vs {want:?}");
+        assert!(out.force.x > 0.1 && out.force.z < 0.0 && out.active.energy, "{out:?}");
+        // Opposing the motion (absorbing) is allowed up to the force that
+        // would stop the stylus within the tick and send it back (2 m v / T).
         let mut flt = PassivityFilter::new(&p).unwrap();
         let out = flt.filter(Vec3::new(0.0, 0.0, -0.5), Vec3::zeros(), v);
         assert!((out.force - Vec3::new(0.0, 0.0, -0.5)).norm() < 1e-6, "{out:?}");
+        assert!(!out.active.energy);
+        let mut flt = PassivityFilter::new(&p).unwrap();
+        let out = flt.filter(Vec3::new(0.0, 0.0, -20.0), Vec3::zeros(), v);
+        assert!(out.force.norm() <= 2.0 * k * v.norm() + 1e-6, "{out:?}");
+    }
+
+    #[test]
+    fn a_full_tank_leaves_the_force_alone_and_an_empty_one_at_rest_gives_none() {
+        let mut flt = PassivityFilter::new(&params()).unwrap();
+        // 7 mJ above the reserve: the ball holds every force within 7.9 N.
+        let ball = EnergyBall::new(Vec3::new(0.3, 0.0, 0.0), 7e-3, 0.045, 1e-3, 7.9);
+        assert!(ball.slack, "{ball:?}");
+        let out = flt.filter(Vec3::new(3.0, 0.0, 0.0), Vec3::zeros(), Vec3::zeros());
+        assert!((out.force.x - 1.0).abs() < 1e-6 && !out.active.energy, "{out:?}");
+        // Nothing above the reserve, stylus at rest: no force at all.
+        let p = PassivityParams {
+            tank_initial_j: 1e-3,
+            tank_min_j: 1e-3,
+            ..params()
+        };
+        let mut flt = PassivityFilter::new(&p).unwrap();
+        let out = flt.filter(Vec3::new(0.5, 0.0, 0.0), Vec3::zeros(), Vec3::zeros());
+        assert!(out.force.norm() < 1e-6, "{out:?}");
+        // The ball scales a force into itself along the ray from 0.
+        let ball = EnergyBall::new(Vec3::new(0.0, 0.0, 0.1), 1e-6, 0.045, 1e-3, 7.9);
+        let f = Vec3::new(2.0, 0.0, 1.0);
+        let a = ball.scale_into(&f);
+        assert!(
+            a > 0.0 && a < 1.0 && ((f * a - ball.c).norm() - ball.r).abs() < 1e-9,
+            "{a}"
+        );
+    }
+
+    #[test]
+    fn a_reset_keeps_the_tank_level() {
+        let p = PassivityParams {
+            tank_max_j: 10.0,
+            ..params()
+        };
+        let mut flt = PassivityFilter::new(&p).unwrap();
+        // The hand pulls against the force: the tank fills.
+        let mut x = Vec3::zeros();
+        for _ in 0..200 {
+            let v = Vec3::new(-0.1, 0.0, 0.0);
+            x += v * p.dt_s;
+            flt.filter(Vec3::new(1.0, 0.0, 0.0), x, v);
+        }
+        let full = flt.tank_j();
+        assert!(full > p.tank_initial_j, "{full}");
+        flt.reset();
+        assert_eq!(flt.tank_j(), full);
+        assert_eq!(flt.last_force(), Vec3::zeros());
     }
 
     #[test]

@@ -13,15 +13,38 @@
 //! subject to  ‖F‖ ≤ B                   norm bound (second-order cone, hard)
 //!             ‖F − F_prev‖ ≤ Δ + s      rate bound (second-order cone, soft)
 //!             s ≥ 0
-//!             T v·F ≤ E − E_min         energy bound (one linear row, hard)
+//!             ‖F − c‖ ≤ ρ               energy bound (second-order cone, hard)
 //! ```
 //!
-//! `v` is the measured stylus velocity, so `T v·F` is the energy the port is
-//! predicted to deliver during the coming tick (zero-order hold). The energy
-//! row is stored normalized, `g·F ≤ h` with `g = v/|v|` and
-//! `h = min((E − E_min)⁺ / (T|v|), 2B + 1)`: its coefficients stay O(1)
-//! whatever the speed, so the equilibration computed at set-up stays good;
-//! `h ≥ 2B + 1` is never binding because `g·F ≤ ‖F‖ ≤ B`.
+//! # The energy ball
+//!
+//! The force `F` is held for the coming tick. The port then delivers `F·Δx`,
+//! and the stylus moves by `Δx ≈ T v + T² F/(2m)`: `v` the stylus velocity
+//! predicted for the tick, `m` the lightest mass the force accelerates (the
+//! device's apparent mass at the tip, `stylus_mass_kg`; the hand only adds
+//! mass). So the energy row is
+//!
+//! ```text
+//! T v·F + T² ‖F‖² / (2m) ≤ E − E_min
+//! ⇔ ‖F + (m/T) v‖² ≤ (m/T)² ‖v‖² + 2 m (E − E_min) / T²
+//! ```
+//!
+//! a ball with centre `c = −(m/T) v` and radius
+//! `ρ = (m/T)·sqrt(‖v‖² + 2 (E − E_min)/m)`, through or around the origin
+//! (`ρ ≥ ‖c‖`). A linear row `T v·F ≤ E − E_min` alone (the `m → ∞` limit,
+//! this filter until 2026-11-27) lets any force across the motion through
+//! with an empty tank; that force still pushes the light stylus along
+//! itself, and the energy it delivers put the tank in debt tick after tick
+//! (a guidewire's stiff, delayed hub force drove the soak's port to 0.19 J
+//! over a 50 mJ tank; `tests/guidewire_closed_loop_is_passive.rs`). With
+//! the ball an empty tank at rest allows no force; a stylus moving into
+//! the force still gets up to `2 m ‖v‖ / T` against it (the force that
+//! stops it within the tick), so pressing into a wall refills the tank.
+//! While the tank holds more than `T² B²/(2m)` (0.7 mJ at 7.9 N and 45 g)
+//! beyond what `v` needs, the ball contains the whole norm ball and the QP
+//! gets a stand-in of radius `2B + 1` centred at 0, never binding. All the
+//! per-tick data (bound, `F_prev`, the ball) is in the right-hand side `b`;
+//! the matrix `A` never changes.
 //!
 //! The rate bound is the Euclidean norm of the change (rotation invariant: the
 //! device frame has no meaning for the tissue). It is soft because together
@@ -32,9 +55,10 @@
 //! the rate bound holds exactly; otherwise it is exceeded by the least amount.
 //!
 //! **Always feasible** (and strictly, so the interior-point method is on safe
-//! ground): `F = 0` satisfies the cone (`B > 0`) and the energy row
-//! (`h ≥ 0`); `s = ‖F_prev‖` satisfies the rate row; `F = −ε g`, `s` large is
-//! a strictly interior point.
+//! ground): `F = 0` satisfies the norm cone (`B > 0`) and the energy ball
+//! (`ρ ≥ ‖c‖ + 1e-9 N`, a floor that lets the port deliver ~1e-12 J a
+//! tick more); `s = ‖F_prev‖` satisfies the rate row; `F = ε c/‖c‖` (or
+//! `F = 0` when `c = 0`), `s` large is a strictly interior point.
 //!
 //! # The norm bound `B`
 //!
@@ -60,15 +84,18 @@
 //! `E_max` (energy above it is thrown away, which is conservative) but NOT at
 //! `E_min`: the QP predicts with `v_k`, the hold delivers along the real
 //! path, and clamping a small overshoot below `E_min` would forgive it. A
-//! tank below `E_min` is a debt; the energy row's right side is 0 until it is
+//! tank below `E_min` is a debt; the energy ball's budget is 0 until it is
 //! repaid. So, at every tick, exactly:
 //! `delivered − absorbed = E_0 − E + credit − (thrown away at E_max)`.
+//! A watchdog reset ([`PassivityFilter::reset`]) zeroes the force and
+//! restarts the observer but keeps the tank's level, debt included: a
+//! fault never hands out a fresh tank.
 //!
 //! # Fallback
 //!
 //! If the solver returns a status other than solved / almost solved or a
 //! non-finite answer, the output is `α F_prev` with the largest
-//! `α ≤ max(0, 1 − Δ/‖F_prev‖)` that keeps the norm and energy rows: the force
+//! `α ≤ max(0, 1 − Δ/‖F_prev‖)` that keeps the norm and energy bounds: the force
 //! ramps to zero at the rate bound and never breaks a hard row. A non-finite
 //! input (`F_des`, `x` or `v`) gives zero force (the service zeroes on NaN);
 //! a non-finite `x` or `v` also restarts the observer (the interval it spans

@@ -40,7 +40,9 @@ pub struct PassivityParams {
     /// Weight w of the rate slack (N): an exact penalty, keep it above twice
     /// the largest `‖F_des − F‖` you expect.
     pub rate_slack_weight_n: f64,
-    /// Energy in the tank at start and after [`super::PassivityFilter::reset`] (J).
+    /// Energy in the tank at start (J). A watchdog reset
+    /// ([`super::PassivityFilter::reset`]) keeps the level it finds (a
+    /// fault never refills the tank).
     pub tank_initial_j: f64,
     /// Reserve the output never draws on (J); covers the one-tick prediction
     /// error of the energy row.
@@ -50,6 +52,13 @@ pub struct PassivityParams {
     /// Physical damping of the device credited to the tank (N·s/m); 0 for no
     /// credit. Must not exceed the device's real damping.
     pub damping_credit_ns_per_m: f64,
+    /// The lightest mass the output force accelerates (kg): the device's
+    /// apparent mass at the tip without the hand (the Touch X: 45 g). The
+    /// energy row counts the work the force does by moving that mass during
+    /// the tick it is held (`T²‖F‖²/(2m)`, the module doc of `passivity`);
+    /// a larger value is less conservative.
+    #[serde(default = "default_stylus_mass")]
+    pub stylus_mass_kg: f64,
     /// Interior-point iteration limit (1..=100).
     pub max_iter: u32,
     /// Absolute duality-gap tolerance.
@@ -58,6 +67,12 @@ pub struct PassivityParams {
     pub tol_gap_rel: f64,
     /// Feasibility tolerance.
     pub tol_feas: f64,
+}
+
+/// The Touch X's apparent mass at the tip (kg), as the simulated device's
+/// default ([`crate::haptics::touchx::TouchXParams`]).
+fn default_stylus_mass() -> f64 {
+    0.045
 }
 
 impl Default for PassivityParams {
@@ -75,6 +90,7 @@ impl Default for PassivityParams {
             tank_min_j: 3e-3,
             tank_max_j: 0.05,
             damping_credit_ns_per_m: 0.0,
+            stylus_mass_kg: default_stylus_mass(),
             max_iter: 30,
             tol_gap_abs: 1e-8,
             tol_gap_rel: 1e-8,
@@ -128,6 +144,7 @@ impl PassivityParams {
             100.0,
             "N·s/m",
         )?;
+        checker.f64_in(&k("stylus_mass_kg"), self.stylus_mass_kg, 1e-3, 10.0, "kg")?;
         checker.int_in(&k("max_iter"), self.max_iter, 1, MAX_ITER_CAP)?;
         checker.f64_in(&k("tol_gap_abs"), self.tol_gap_abs, 1e-12, 1e-3, "")?;
         checker.f64_in(&k("tol_gap_rel"), self.tol_gap_rel, 1e-12, 1e-3, "")?;

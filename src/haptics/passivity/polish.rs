@@ -3,6 +3,7 @@
 //! active set (and the set's subsets), so the output sits on its bounds to
 //! round-off.
 
+use super::filter::EnergyBall;
 use crate::math::Vec3;
 
 /// The active set the interior-point answer shows, with initial multipliers.
@@ -32,8 +33,7 @@ pub(super) fn polish_any(
     bound: f64,
     delta: f64,
     w: f64,
-    g: Vec3,
-    h: f64,
+    ball: EnergyBall,
     set: PolishSet,
 ) -> Option<Vec3> {
     // The solver's guess, then the same with the rate term read the other
@@ -54,7 +54,7 @@ pub(super) fn polish_any(
         }
     };
     for base in [set, toggled] {
-        if let Some(f) = polish(f0, f_des, f_prev, bound, delta, w, g, h, base) {
+        if let Some(f) = polish(f0, f_des, f_prev, bound, delta, w, ball, base) {
             return Some(f);
         }
         let on = [base.norm.is_some(), base.rate.is_some(), base.energy.is_some()];
@@ -76,7 +76,7 @@ pub(super) fn polish_any(
                 energy: base.energy.filter(|_| m & 4 != 0),
                 slack: base.slack,
             };
-            polish(f0, f_des, f_prev, bound, delta, w, g, h, sub)
+            polish(f0, f_des, f_prev, bound, delta, w, ball, sub)
         });
         if found.is_some() {
             return found;
@@ -86,7 +86,8 @@ pub(super) fn polish_any(
 }
 
 /// Polishes an interior-point answer: Newton on the KKT equations of the
-/// active set the solver found (equality-constrained, ≤ 6 unknowns, fixed
+/// active set the solver found (the three rows are balls: the norm bound
+/// around 0, the rate bound around `F_prev`, the energy ball) (equality-constrained, ≤ 6 unknowns, fixed
 /// size, no allocation). An interior-point method stops with a duality gap
 /// of ~1e-9, which on a curved (cone) boundary leaves the force off by
 /// ~sqrt(gap) (1e-5 N); the polished answer is exact to round-off. It is
@@ -100,8 +101,7 @@ pub(super) fn polish(
     bound: f64,
     delta: f64,
     w: f64,
-    g: Vec3,
-    h: f64,
+    ball: EnergyBall,
     set: PolishSet,
 ) -> Option<Vec3> {
     use nalgebra::{SMatrix, SVector};
@@ -131,18 +131,17 @@ pub(super) fn polish(
             grad += u * w;
             hess += (nalgebra::Matrix3::identity() - u * u.transpose()) * (w / r);
         }
-        let jac = [f, f - f_prev, g];
+        // Each row is 0.5 (‖F − centre‖² − radius²) ≤ 0.
+        let jac = [f, f - f_prev, f - ball.c];
         let cons = [
             0.5 * (f.norm_squared() - bound * bound),
             0.5 * ((f - f_prev).norm_squared() - delta * delta),
-            g.dot(&f) - h,
+            0.5 * ((f - ball.c).norm_squared() - ball.r * ball.r),
         ];
         for i in 0..3 {
             if on[i] {
                 grad += jac[i] * lam[i];
-                if i < 2 {
-                    hess += nalgebra::Matrix3::identity() * lam[i];
-                }
+                hess += nalgebra::Matrix3::identity() * lam[i];
                 for r in 0..3 {
                     kkt[(r, 3 + i)] = jac[i][r];
                     kkt[(3 + i, r)] = jac[i][r];
@@ -168,7 +167,7 @@ pub(super) fn polish(
     let tol = 1e-10 * bound.max(1.0);
     let r = (f - f_prev).norm();
     let feasible = f.norm() <= bound + tol
-        && g.dot(&f) <= h + tol
+        && ball.contains(&f, tol)
         && (set.slack || r <= delta + tol)
         && (!set.slack || r >= delta - tol);
     let signs = (0..3).all(|i| !on[i] || lam[i] >= -tol);

@@ -1,0 +1,247 @@
+//! The guidewire in closed loop with the simulated Touch X, in simulated
+//! time, timed as the service runs it: each tick the stylus sample drives
+//! the hub (`HubDrive::command`), the hand force is the wire's axial force
+//! from the step that ended before the tick plus the virtual guide
+//! (`HubDrive::hand_force`), it goes through the service's own tick
+//! (`HapticTick`: passivity QP, watchdog gain) to the device, and the wire
+//! then steps with the new hub command.
+//!
+//! The hand pushes the wire into a tube with a dead end until it buckles,
+//! holds, pulls back and pushes again at up to the hand's top speed (far
+//! faster than the hub may follow), rolls the stylus and strays off the
+//! axis. The energy the device port delivers to the hand (the simulator's
+//! true sub-step motion) never exceeds what the hand put in plus the QP's
+//! initial tank, and over no window more than the tank's capacity.
+
+mod common;
+
+use nvtmm::haptics::contact::{ContactParams, SurfaceIndex};
+use nvtmm::haptics::device::HapticDevice;
+use nvtmm::haptics::passivity::{PassivityFilter, PassivityParams};
+use nvtmm::haptics::servo::{Servo, ServoParams};
+use nvtmm::haptics::tick::{HapticTick, TickInput};
+use nvtmm::haptics::touchx::{GimbalWaypoint, TouchXParams, TouchXSim, Waypoint};
+use nvtmm::material::Material;
+use nvtmm::math::Vec3;
+use nvtmm::reduced::{basis_rows, DynamicsParams, Refresher};
+use nvtmm::service::background::rest_model;
+use nvtmm::wire::{DriveParams, HubDrive, StraightTube, Wire, WireParams};
+use std::sync::Arc;
+
+const R: usize = 8;
+const DT: f64 = 1e-3;
+
+/// What one closed-loop run measured.
+struct Run {
+    /// Net energy the port delivered (J), true motion.
+    net_j: f64,
+    /// Largest net energy delivered over any window (J).
+    worst_window_j: f64,
+    /// Largest axial hub force (N).
+    axial_max_n: f64,
+    /// Largest force the device applied (N).
+    force_max_n: f64,
+    /// Lowest tank level the filter's observer saw (J).
+    tank_low_j: f64,
+    /// Energy the filter's observer counted as delivered and absorbed (J).
+    observed: (f64, f64),
+}
+
+/// A hand script: (time s, position along the drive axis m, off-axis m,
+/// roll rad).
+fn run(script: &[(f64, f64, f64, f64)], params: &PassivityParams, wire: &WireParams) -> Run {
+    // A vessel far from the stylus: the tool never touches it; the tick's
+    // force is the wire's.
+    let mat = Material::aorta();
+    let plate = common::contact_plate(&mat, &["x_min", "x_max", "z_min"], R);
+    let zeros = vec![Vec3::zeros(); plate.mesh.num_nodes()];
+    let rows = basis_rows::<R>(&plate.basis).unwrap();
+    let k0 = Refresher::new(&plate.mesh, &plate.basis, &plate.mass).reduced_stiffness(&plate.model, &zeros);
+    let dynp = DynamicsParams {
+        dt: DT,
+        alpha: 5.0,
+        beta: 1e-3,
+    };
+    let first = rest_model::<R>(rows, &k0, &dynp, plate.mesh.num_nodes()).unwrap();
+    let cp = ContactParams {
+        tool_radius_m: 3e-3,
+        pressure_stiffness: 1e9,
+        search_margin_m: 3e-3,
+    };
+    let index = Arc::new(SurfaceIndex::new(&plate.mesh, &cp));
+    let sp = ServoParams {
+        dt: DT,
+        contact: cp,
+        device_origin: plate.center + Vec3::new(0.0, 0.0, 0.3),
+        device_timeout_s: 5e-3,
+        model_timeout_s: f64::INFINITY,
+        model_max_age_s: f64::INFINITY,
+        max_speed_m_s: 100.0,
+        max_reach_m: 10.0,
+        overrun_streak: 5,
+        ramp_down_s: 10e-3,
+        ramp_in_s: 0.0,
+        swap_blend_s: 0.02,
+    };
+    let servo = Servo::new(first, index, sp, 0.0);
+    let mut tick = HapticTick::new(servo, PassivityFilter::new(params).unwrap());
+
+    // The wire in a 2 mm tube along x with a dead end 60 mm in.
+    let tube = StraightTube::new(Vec3::new(-0.01, 0.0, 0.0), Vec3::x(), 0.07, 2e-3, true).expect("tube");
+    let mut w = Wire::new(wire, Vec3::zeros(), Vec3::x(), 0.02).expect("wire");
+    let mut drive = HubDrive::new(wire, w.inserted(), w.roll()).expect("drive");
+    let a = Vec3::from(wire.drive.axis).normalize();
+    let side = a.cross(&Vec3::x()).try_normalize(1e-9).unwrap_or(Vec3::y());
+    let pts: Vec<Waypoint> = script
+        .iter()
+        .map(|&(t, along, off, _)| Waypoint {
+            t_s: t,
+            position: Vec3::from(wire.drive.origin_m) + a * along + side * off,
+        })
+        .collect();
+    let gim: Vec<GimbalWaypoint> = script
+        .iter()
+        .map(|&(t, _, _, roll)| {
+            let mut angles = [0.0; 3];
+            angles[wire.drive.roll_index] = roll;
+            GimbalWaypoint {
+                t_s: t,
+                angles_rad: angles,
+            }
+        })
+        .collect();
+    let mut dev = TouchXSim::new(TouchXParams::default(), &pts).unwrap();
+    dev.set_gimbal_script(&gim).unwrap();
+    dev.start().unwrap();
+
+    let end = script.last().unwrap().0;
+    let steps = (end / DT) as usize;
+    let mut axial = 0.0;
+    let (mut axial_max, mut force_max) = (0.0f64, 0.0f64);
+    let (mut min_net, mut worst) = (0.0f64, 0.0f64);
+    for k in 1..=steps {
+        let t = k as f64 * DT;
+        let s = dev.read(t).unwrap();
+        let cmd = drive.command(&s, t);
+        tick.set_external_force(drive.hand_force(&s, axial));
+        let out = tick.run(TickInput {
+            sample: Some(&s),
+            now_s: t,
+            overrun_streak: 0,
+        });
+        let applied = dev.write_force(out.force).unwrap();
+        assert!(applied.iter().all(|v| v.is_finite()), "tick {k}: force {applied:?}");
+        force_max = force_max.max(applied.norm());
+        w.set_hub(cmd.inserted_m, cmd.roll_rad);
+        let rep = w.step(&tube).unwrap_or_else(|e| panic!("tick {k}: wire step: {e}"));
+        axial = rep.hub_axial_force_n;
+        axial_max = axial_max.max(axial);
+        let e = dev.port_energy().unwrap();
+        let net = e.delivered_j - e.absorbed_j;
+        min_net = min_net.min(net);
+        worst = worst.max(net - min_net).max(net);
+    }
+    let e = dev.port_energy().unwrap();
+    let q = tick.qp_stats();
+    Run {
+        net_j: e.delivered_j - e.absorbed_j,
+        worst_window_j: worst,
+        axial_max_n: axial_max,
+        force_max_n: force_max,
+        tank_low_j: q.tank_low_j,
+        observed: (q.delivered_j, q.absorbed_j),
+    }
+}
+
+fn wire() -> WireParams {
+    WireParams {
+        segment_length_m: 3e-3,
+        max_nodes: 40,
+        drive: DriveParams {
+            axis: [1.0, 0.0, 0.0],
+            origin_m: [0.0; 3],
+            inserted_at_origin_m: 0.02,
+            ..DriveParams::default()
+        },
+        ..WireParams::default()
+    }
+}
+
+#[test]
+fn a_careless_hand_striking_about_gets_no_more_than_it_put_in_plus_the_tank() {
+    let p = PassivityParams::default();
+    // Fast strikes along and across the axis (up to ~1 m/s), the guide
+    // saturating, the hub rate-limited: a seeded random walk of waypoints.
+    let mut rng = 7u64;
+    let mut next = || {
+        rng = rng.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+        (rng >> 11) as f64 / (1u64 << 53) as f64
+    };
+    let mut script = vec![(0.0, 0.0, 0.0, 0.0), (0.2, 0.0, 0.0, 0.0)];
+    let mut t = 0.2;
+    for _ in 0..60 {
+        t += 0.02 + 0.15 * next();
+        script.push((t, -0.01 + 0.04 * next(), -0.03 + 0.06 * next(), -1.0 + 2.0 * next()));
+    }
+    script.push((t + 0.3, 0.0, 0.0, 0.0));
+    let r = run(&script, &p, &wire());
+    eprintln!(
+        "careless: net delivered {:.5} J, worst window {:.5} J, axial max {:.3} N, device force max {:.3} N, \
+         tank low {:.5} J, observer delivered {:.5} J absorbed {:.5} J",
+        r.net_j, r.worst_window_j, r.axial_max_n, r.force_max_n, r.tank_low_j, r.observed.0, r.observed.1
+    );
+    assert!(
+        r.force_max_n > 1.0,
+        "the hand felt the wire and the guide: {} N",
+        r.force_max_n
+    );
+    assert!(r.net_j <= p.tank_initial_j + 1e-9, "net delivered {} J", r.net_j);
+    assert!(r.worst_window_j <= p.tank_max_j + 1e-9, "window {} J", r.worst_window_j);
+}
+
+#[test]
+fn pushing_the_wire_into_a_dead_end_delivers_no_more_than_went_in_plus_the_tank() {
+    let p = PassivityParams::default();
+    // Along the axis (×3 on the hub): the dead end is 40 mm of wire away,
+    // 13 mm of stylus. Push 10 mm past it slowly, hold, pull back fast,
+    // strike in fast, wobble across the axis and roll, withdraw.
+    let script = [
+        (0.0, 0.0, 0.0, 0.0),
+        (0.2, 0.0, 0.0, 0.0),
+        (1.2, 0.023, 0.0, 0.0),
+        (1.7, 0.023, 0.0, 0.0),
+        (1.75, 0.0, 0.0, 0.0),
+        (2.0, 0.0, 0.0, 0.0),
+        (2.05, 0.025, 0.0, 0.0),
+        (2.3, 0.025, 0.004, 1.0),
+        (2.5, 0.020, -0.004, -1.0),
+        (2.7, 0.024, 0.003, 0.5),
+        (3.0, 0.024, 0.0, 0.0),
+        (3.3, 0.0, 0.0, 0.0),
+        (3.6, 0.0, 0.0, 0.0),
+    ];
+    let r = run(&script, &p, &wire());
+    eprintln!(
+        "net delivered {:.5} J, worst window {:.5} J, axial max {:.3} N, device force max {:.3} N, \
+         tank low {:.5} J, observer delivered {:.5} J absorbed {:.5} J",
+        r.net_j, r.worst_window_j, r.axial_max_n, r.force_max_n, r.tank_low_j, r.observed.0, r.observed.1
+    );
+    assert!(
+        r.axial_max_n > 1.0,
+        "the wire was pushed into the dead end: {} N",
+        r.axial_max_n
+    );
+    assert!(r.force_max_n > 1.0, "the hand felt it: {} N", r.force_max_n);
+    assert!(
+        r.net_j <= p.tank_initial_j + 1e-9,
+        "net delivered {} J > initial tank {} J",
+        r.net_j,
+        p.tank_initial_j
+    );
+    assert!(
+        r.worst_window_j <= p.tank_max_j + 1e-9,
+        "a window delivered {} J > tank {} J",
+        r.worst_window_j,
+        p.tank_max_j
+    );
+}
