@@ -48,8 +48,10 @@ struct Run {
 }
 
 /// A hand script: (time s, position along the drive axis m, off-axis m,
-/// roll rad).
-fn run(script: &[(f64, f64, f64, f64)], params: &PassivityParams, wire: &WireParams) -> Run {
+/// roll rad). On the ticks in `wild` the service gets a pose 5 cm off the
+/// stylus (as the soak's wild-pose fault sends), which its watchdog
+/// rejects.
+fn run(script: &[(f64, f64, f64, f64)], params: &PassivityParams, wire: &WireParams, wild: &[usize]) -> Run {
     // A vessel far from the stylus: the tool never touches it; the tick's
     // force is the wire's.
     let mat = Material::aorta();
@@ -76,8 +78,8 @@ fn run(script: &[(f64, f64, f64, f64)], params: &PassivityParams, wire: &WirePar
         device_timeout_s: 5e-3,
         model_timeout_s: f64::INFINITY,
         model_max_age_s: f64::INFINITY,
-        max_speed_m_s: 100.0,
-        max_reach_m: 10.0,
+        max_speed_m_s: 5.0,
+        max_reach_m: 0.25,
         overrun_streak: 5,
         ramp_down_s: 10e-3,
         ramp_in_s: 0.0,
@@ -121,7 +123,10 @@ fn run(script: &[(f64, f64, f64, f64)], params: &PassivityParams, wire: &WirePar
     let (mut min_net, mut worst) = (0.0f64, 0.0f64);
     for k in 1..=steps {
         let t = k as f64 * DT;
-        let s = dev.read(t).unwrap();
+        let mut s = dev.read(t).unwrap();
+        if wild.contains(&k) {
+            s.position.x += 0.05;
+        }
         let cmd = drive.command(&s, t);
         tick.set_external_force(drive.hand_force(&s, axial));
         let out = tick.run(TickInput {
@@ -184,7 +189,7 @@ fn a_careless_hand_striking_about_gets_no_more_than_it_put_in_plus_the_tank() {
         script.push((t, -0.01 + 0.04 * next(), -0.03 + 0.06 * next(), -1.0 + 2.0 * next()));
     }
     script.push((t + 0.3, 0.0, 0.0, 0.0));
-    let r = run(&script, &p, &wire());
+    let r = run(&script, &p, &wire(), &[]);
     eprintln!(
         "careless: net delivered {:.5} J, worst window {:.5} J, axial max {:.3} N, device force max {:.3} N, \
          tank low {:.5} J, observer delivered {:.5} J absorbed {:.5} J",
@@ -220,7 +225,7 @@ fn pushing_the_wire_into_a_dead_end_delivers_no_more_than_went_in_plus_the_tank(
         (3.3, 0.0, 0.0, 0.0),
         (3.6, 0.0, 0.0, 0.0),
     ];
-    let r = run(&script, &p, &wire());
+    let r = run(&script, &p, &wire(), &[]);
     eprintln!(
         "net delivered {:.5} J, worst window {:.5} J, axial max {:.3} N, device force max {:.3} N, \
          tank low {:.5} J, observer delivered {:.5} J absorbed {:.5} J",
@@ -244,4 +249,34 @@ fn pushing_the_wire_into_a_dead_end_delivers_no_more_than_went_in_plus_the_tank(
         r.worst_window_j,
         p.tank_max_j
     );
+}
+
+#[test]
+fn a_wild_pose_neither_credits_nor_charges_the_tank() {
+    let p = PassivityParams::default();
+    // Pushing on the wire in the dead end (the hand feels ~3 N) when the
+    // service gets single poses 5 cm off: the force times such a jump would
+    // be a 0.15 J credit or charge to the tank's observer.
+    let script = [
+        (0.0, 0.0, 0.0, 0.0),
+        (0.2, 0.0, 0.0, 0.0),
+        (1.2, 0.023, 0.0, 0.0),
+        (2.5, 0.023, 0.002, 0.0),
+        (3.0, 0.0, 0.0, 0.0),
+    ];
+    let wild = [1100, 1500, 1501, 2000, 2600];
+    let r = run(&script, &p, &wire(), &wild);
+    let observed = r.observed.0 - r.observed.1;
+    eprintln!(
+        "wild poses: net delivered {:.5} J (observer {:.5} J), worst window {:.5} J, tank low {:.5} J, force max {:.3} N",
+        r.net_j, observed, r.worst_window_j, r.tank_low_j, r.force_max_n
+    );
+    assert!(r.force_max_n > 1.0, "the hand felt the wire: {} N", r.force_max_n);
+    assert!(
+        (observed - r.net_j).abs() < 5e-3,
+        "the observer counted {observed} J net, the port delivered {} J",
+        r.net_j
+    );
+    assert!(r.net_j <= p.tank_initial_j + 1e-9, "net delivered {} J", r.net_j);
+    assert!(r.worst_window_j <= p.tank_max_j + 1e-9, "window {} J", r.worst_window_j);
 }
