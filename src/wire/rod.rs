@@ -14,7 +14,7 @@
 //! tip stays with the material as nodes enter and leave at the hub.
 
 use super::band::BandMatrix;
-use super::lumen::{perpendicular, Lumen, ProbeCache};
+use super::lumen::{perpendicular, Lumen, ProbeCache, WallHit};
 use super::WireParams;
 use crate::config::ConfigError;
 use crate::math::{Mat3, Vec3};
@@ -190,6 +190,22 @@ pub struct Wire {
     /// Per node: what the lumen keeps near it between probes (moves with
     /// the node when nodes enter or leave at the hub).
     probe_cache: Vec<ProbeCache>,
+    /// Per node: the wall probe of the last evaluation.
+    hits: Vec<Option<WallHit>>,
+}
+
+/// How much of the incremental potential's evaluation the buffers hold at
+/// the current Newton iterate, in increasing order.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord)]
+enum Have {
+    /// Nothing: the geometry is that of another state.
+    Nothing,
+    /// Its geometry (frames, curvatures, reference twist) and energy.
+    Geometry,
+    /// And its gradient.
+    Gradient,
+    /// And its Hessian.
+    Hessian,
 }
 
 /// Parallel transport of `d` from tangent `a` to tangent `b` (unit vectors).
@@ -284,6 +300,7 @@ impl Wire {
             eval_pen: 0.0,
             contacts: Vec::with_capacity(cap),
             probe_cache: vec![ProbeCache::default(); cap],
+            hits: vec![None; cap],
         };
         w.lay_straight(inserted_m);
         w.save_good_state();
@@ -566,11 +583,28 @@ impl Wire {
         // Past the configured iterations, go on (up to four times as many)
         // only while the wire is deeper than a quarter radius in the wall.
         let max_it = 4 * self.p.newton_iterations;
+        // What the buffers hold at the current iterate (`s.x`, `xt`): its
+        // geometry, energy (`e_cur`), penetration (`eval_pen`), gradient,
+        // Hessian. A line search's first trial assembles what the next
+        // iteration (or the reactions) will want there, so an accepted
+        // full step costs one evaluation instead of two.
+        let mut have = Have::Nothing;
+        let mut e_cur = 0.0;
         for it in 0..max_it {
-            let e0 = self.eval(lumen, true);
+            // `eval_pen` is that of the current iterate for it ≥ 1 (the
+            // accepted trial's evaluation).
             if it >= self.p.newton_iterations && self.eval_pen < 0.25 * r_w {
                 break;
             }
+            let e0 = if have == Have::Hessian {
+                e_cur
+            } else {
+                // Re-based frames at an evaluated iterate are its frames:
+                // no geometry to redo.
+                self.eval_at(lumen, have == Have::Nothing, true, true)
+            };
+            have = Have::Hessian;
+            e_cur = e0;
             if !e0.is_finite() {
                 break;
             }
@@ -595,15 +629,26 @@ impl Wire {
                 break;
             }
             let slope: f64 = (0..dofs).map(|k| self.grad[k] * self.dx[k]).sum::<f64>() * scale;
+            // What the first trial assembles: the Hessian if another
+            // iteration is likely to follow (below the configured count,
+            // or deep in the wall), else the gradient (the reactions').
+            let first = if it + 1 < max_it && (it + 1 < self.p.newton_iterations || self.eval_pen >= 0.25 * r_w) {
+                Have::Hessian
+            } else {
+                Have::Gradient
+            };
             let mut alpha = scale;
             let mut accepted = false;
-            for _ in 0..12 {
+            for trial in 0..12 {
                 for i in 0..n {
                     let d = Vec3::new(self.dx[4 * i], self.dx[4 * i + 1], self.dx[4 * i + 2]);
                     self.xt[i] = self.s.x[i] + d * alpha;
                     self.tht[i] = self.s.theta[i] + self.dx[4 * i + 3] * alpha;
                 }
-                let e1 = self.eval(lumen, false);
+                let want = if trial == 0 { first } else { Have::Geometry };
+                let e1 = self.eval_at(lumen, true, want >= Have::Gradient, want == Have::Hessian);
+                have = want;
+                e_cur = e1;
                 if e1.is_finite() && e1 <= e0 + 1e-4 * (alpha / scale) * slope.min(0.0) + 1e-12 * e0.abs() {
                     accepted = true;
                     break;
@@ -626,11 +671,14 @@ impl Wire {
                     self.xt[i] = self.s.x[i];
                     self.tht[i] = self.s.theta[i];
                 }
+                have = Have::Nothing;
                 break;
             }
             // Accept, and carry the reference frames to the new iterate: the
             // bend gradient below is exact where the frames were transported
-            // from, so each iteration's gradient is exact.
+            // from, so each iteration's gradient is exact. (The frames
+            // transported to themselves are unchanged, so the geometry, and
+            // what the trial assembled, stay those of the new iterate.)
             for i in 0..n {
                 self.s.x[i] = self.xt[i];
                 self.s.theta[i] = self.tht[i];
@@ -645,11 +693,10 @@ impl Wire {
             }
         }
         // Final geometry, reactions and contacts at the accepted state.
-        for i in 0..n {
-            self.xt[i] = self.s.x[i];
-            self.tht[i] = self.s.theta[i];
+        if have < Have::Gradient {
+            self.eval_at(lumen, have == Have::Nothing, true, false);
         }
-        self.eval_reactions(lumen);
+        self.reactions();
         let dt = self.p.dt_s;
         for i in 0..n {
             self.s.v[i] = (self.s.x[i] - self.x0[i]) / dt;
@@ -785,13 +832,17 @@ impl Wire {
     /// geometric term dropped, Gauss–Newton bend and twist, exact contact
     /// normal and friction terms), fixed unknowns pinned.
     fn eval(&mut self, lumen: &dyn Lumen, assemble: bool) -> f64 {
-        self.eval_with(lumen, assemble, assemble)
+        self.eval_at(lumen, true, assemble, assemble)
     }
 
-    /// [`Wire::eval`] with the gradient (`grad`) and the Hessian (`hess`,
-    /// only with `grad`) chosen separately.
-    fn eval_with(&mut self, lumen: &dyn Lumen, assemble: bool, hess: bool) -> f64 {
-        self.geometry();
+    /// [`Wire::eval`] with the geometry (`geometry`: false when the frames
+    /// already are those of `xt`, `tht`), the gradient (`grad`) and the
+    /// Hessian (`hess`, only with `grad`) chosen separately. Every node's
+    /// wall probe is kept in `hits`.
+    fn eval_at(&mut self, lumen: &dyn Lumen, geometry: bool, assemble: bool, hess: bool) -> f64 {
+        if geometry {
+            self.geometry();
+        }
         let n = self.s.n;
         let dofs = 4 * n;
         if assemble {
@@ -967,7 +1018,9 @@ impl Wire {
 
         // Wall contact and friction on free nodes.
         for i in 2..n {
-            let Some(hit) = lumen.probe_cached(self.xt[i], r_w + 2.0 * r_w, &mut self.probe_cache[i]) else {
+            let hit = lumen.probe_cached(self.xt[i], 3.0 * r_w, &mut self.probe_cache[i]);
+            self.hits[i] = hit;
+            let Some(hit) = hit else {
                 continue;
             };
             let pen = r_w - hit.distance;
@@ -1056,11 +1109,12 @@ impl Wire {
         energy
     }
 
-    /// Reactions at the hub and the contact list at the trial state.
-    fn eval_reactions(&mut self, lumen: &dyn Lumen) {
-        // Reactions come from the elastic terms only; the assembled gradient
-        // at the clamp holds exactly those (inertia acts on free nodes).
-        self.eval_with(lumen, true, false);
+    /// The contact list at the trial state, from the wall probes of its
+    /// evaluation (`hits`), and the next step's lagged normal forces. The
+    /// hub's reactions are in `hub_grad`, `hub_dtheta`: they come from the
+    /// elastic terms only, and the assembled gradient at the clamp holds
+    /// exactly those (inertia acts on free nodes).
+    fn reactions(&mut self) {
         let n = self.s.n;
         let r_w = 0.5 * self.p.diameter_m;
         let kc = self.p.contact_stiffness_n_per_m;
@@ -1068,7 +1122,7 @@ impl Wire {
         let eps_v = 1e-7;
         self.contacts.clear();
         for i in 2..n {
-            let Some(hit) = lumen.probe_cached(self.xt[i], 3.0 * r_w, &mut self.probe_cache[i]) else {
+            let Some(hit) = self.hits[i] else {
                 self.s.lam[i] = 0.0;
                 continue;
             };
