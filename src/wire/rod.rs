@@ -192,6 +192,33 @@ pub struct Wire {
     probe_cache: Vec<ProbeCache>,
     /// Per node: the wall probe of the last evaluation.
     hits: Vec<Option<WallHit>>,
+    /// Per node and edge: the step's coefficients.
+    coef: Vec<Coef>,
+    /// Per edge: 1 / its length at the trial state.
+    inv_len: Vec<f64>,
+}
+
+/// The terms' coefficients at a node i and the edge j = i that leaves it,
+/// fixed within a step (they depend on the rest lengths and material
+/// coordinates only): computed once a step by `Wire::coefficients`.
+#[derive(Debug, Clone, Copy, Default)]
+struct Coef {
+    /// Node i's inertia m_i / dt² (free nodes).
+    mass: f64,
+    /// Node i's drag c l̄_i / dt (free nodes).
+    drag: f64,
+    /// Node i's share of the line load's length, l̄_i (free nodes).
+    lbar: f64,
+    /// Edge j's twist inertia.
+    twist_mass: f64,
+    /// Edge j's axial stiffness EA / ē_j.
+    stretch: f64,
+    /// Node i's bending stiffness EI / l̄_i (tip factor included).
+    bend: f64,
+    /// Node i's twisting stiffness GJ / l̄_i (tip factor included).
+    twist: f64,
+    /// Node i's rest curvature κ̄₁.
+    kb_rest: f64,
 }
 
 /// How much of the incremental potential's evaluation the buffers hold at
@@ -209,7 +236,23 @@ enum Have {
 }
 
 /// Parallel transport of `d` from tangent `a` to tangent `b` (unit vectors).
+#[inline]
 fn transport(d: Vec3, a: Vec3, b: Vec3) -> Vec3 {
+    let k = a.cross(&b);
+    let c = a.dot(&b);
+    let s2 = k.norm_squared();
+    // The rotation about k = a × b taking a to b (Rodrigues, with
+    // |k|² = (1 − c)(1 + c)): no square root and one division. For turns
+    // beyond 90° (1 + c small), the normalised form below.
+    if s2 >= 1e-28 && c >= 0.0 {
+        return d * c + k.cross(&d) + k * (k.dot(&d) / (1.0 + c));
+    }
+    transport_slow(d, a, b)
+}
+
+/// [`transport`] through the normalised binormal: for any turn, and the
+/// parallel and reversed cases.
+fn transport_slow(d: Vec3, a: Vec3, b: Vec3) -> Vec3 {
     let c = a.cross(&b);
     let s = c.norm();
     if s < 1e-14 {
@@ -301,6 +344,8 @@ impl Wire {
             contacts: Vec::with_capacity(cap),
             probe_cache: vec![ProbeCache::default(); cap],
             hits: vec![None; cap],
+            coef: vec![Coef::default(); cap],
+            inv_len: vec![0.0; cap],
         };
         w.lay_straight(inserted_m);
         w.save_good_state();
@@ -562,7 +607,54 @@ impl Wire {
         }
         for j in 0..n - 1 {
             let e = self.s.x[j + 1] - self.s.x[j];
-            self.t0[j] = e / e.norm();
+            // As `geometry` computes it: unmoved frames stay bit for bit.
+            self.t0[j] = e * (1.0 / e.norm());
+        }
+        self.coefficients();
+    }
+
+    /// The step's coefficients of every term (`coef`), from the rest
+    /// lengths and material coordinates after the feed.
+    fn coefficients(&mut self) {
+        let n = self.s.n;
+        let p = &self.p;
+        let s = &self.s;
+        let dt = p.dt_s;
+        let area = p.area();
+        let ea = p.youngs_modulus_pa * area;
+        let ei = p.bending_stiffness();
+        let gj = p.twisting_stiffness();
+        let rho_a = p.density_kg_m3 * area;
+        let rho_j = p.density_kg_m3 * std::f64::consts::PI * p.diameter_m.powi(4) / 32.0;
+        for (i, c) in self.coef[..n].iter_mut().enumerate() {
+            *c = Coef::default();
+            if i >= 2 {
+                let lbar = if i == n - 1 {
+                    0.5 * s.rest[i - 1]
+                } else {
+                    0.5 * (s.rest[i - 1] + s.rest[i])
+                };
+                c.mass = rho_a * lbar / (dt * dt);
+                c.drag = p.drag_n_s_per_m2 * lbar / dt;
+                c.lbar = lbar;
+            }
+            if i >= 1 && i < n - 1 {
+                c.twist_mass = rho_j * s.rest[i] / (dt * dt);
+                c.stretch = ea / s.rest[i];
+                let lbar = if i == 1 {
+                    0.5 * s.rest[1]
+                } else {
+                    0.5 * (s.rest[i - 1] + s.rest[i])
+                };
+                let (factor, k0) = if s.u[i] < p.tip_length_m {
+                    (p.tip_stiffness_factor, p.tip_curvature_per_m)
+                } else {
+                    (1.0, 0.0)
+                };
+                c.kb_rest = if k0 == 0.0 { 0.0 } else { 2.0 * (0.5 * k0 * lbar).tan() };
+                c.bend = ei * factor / lbar;
+                c.twist = gj * factor / lbar;
+            }
         }
     }
 
@@ -810,8 +902,10 @@ impl Wire {
         for j in 0..n - 1 {
             let e = self.xt[j + 1] - self.xt[j];
             let l = e.norm();
+            let il = 1.0 / l;
             self.len[j] = l;
-            self.tan[j] = e / l;
+            self.inv_len[j] = il;
+            self.tan[j] = e * il;
             self.d1c[j] = transport(self.d10[j], self.t0[j], self.tan[j]);
             let d2 = self.tan[j].cross(&self.d1c[j]);
             let (sn, cs) = self.tht[j].sin_cos();
@@ -852,30 +946,18 @@ impl Wire {
             self.h.reset(dofs);
         }
         let p = &self.p;
-        let dt = p.dt_s;
-        let area = p.area();
-        let ea = p.youngs_modulus_pa * area;
-        let ei = p.bending_stiffness();
-        let gj = p.twisting_stiffness();
-        let rho_a = p.density_kg_m3 * area;
-        let rho_j = p.density_kg_m3 * std::f64::consts::PI * p.diameter_m.powi(4) / 32.0;
         let r_w = 0.5 * p.diameter_m;
         let kc = p.contact_stiffness_n_per_m;
         let mu = p.friction;
         let eps_v = 1e-7;
         let s = &self.s;
+        let coef = &self.coef[..n];
         let mut energy = 0.0;
         let mut max_pen: f64 = 0.0;
 
         // Inertia and drag (free nodes), twist inertia (free edges).
         for i in 2..n {
-            let lbar = if i == n - 1 {
-                0.5 * s.rest[i - 1]
-            } else {
-                0.5 * (s.rest[i - 1] + s.rest[i])
-            };
-            let km = rho_a * lbar / (dt * dt);
-            let kd = p.drag_n_s_per_m2 * lbar / dt;
+            let (km, kd) = (coef[i].mass, coef[i].drag);
             let a = self.xt[i] - self.xtilde[i];
             let b = self.xt[i] - self.x0[i];
             energy += 0.5 * km * a.norm_squared() + 0.5 * kd * b.norm_squared();
@@ -890,7 +972,7 @@ impl Wire {
             }
         }
         for j in 1..n - 1 {
-            let kt = rho_j * s.rest[j] / (dt * dt);
+            let kt = coef[j].twist_mass;
             let d = self.tht[j] - self.th0[j];
             energy += 0.5 * kt * d * d;
             if assemble {
@@ -906,7 +988,7 @@ impl Wire {
         // (a Huber energy), beyond which the wire slips in the hand.
         let f_grip = p.max_hub_force_n;
         for j in 1..n - 1 {
-            let k = ea / s.rest[j];
+            let k = coef[j].stretch;
             let st = self.len[j] - s.rest[j];
             let slipping = j == 1 && (k * st).abs() > f_grip;
             let (force, k_axial) = if slipping {
@@ -926,58 +1008,43 @@ impl Wire {
                 if !hess {
                     continue;
                 }
-                let geo = (force / self.len[j]).max(0.0);
-                let km = outer(&t, &t) * (k_axial - geo) + Mat3::identity() * geo;
-                for r in 0..3 {
-                    for c in 0..3 {
-                        let v = km[(r, c)];
-                        if c <= r {
-                            self.h.add(4 * j + r, 4 * j + c, v);
-                            self.h.add(4 * (j + 1) + r, 4 * (j + 1) + c, v);
-                        }
-                        self.h.add(4 * (j + 1) + r, 4 * j + c, -v);
+                let geo = (force * self.inv_len[j]).max(0.0);
+                let kt = k_axial - geo;
+                let mut km = [[0.0; 3]; 3];
+                for (r, row) in km.iter_mut().enumerate() {
+                    for (c, v) in row.iter_mut().enumerate() {
+                        *v = t[r] * t[c] * kt + if r == c { geo } else { 0.0 };
                     }
                 }
+                self.h.add_spring3(4 * j, 4 * (j + 1), &km);
             }
         }
 
         // Bend and twist at interior nodes 1..n−2.
         for i in 1..n - 1 {
-            let lbar = if i == 1 {
-                0.5 * s.rest[1]
-            } else {
-                0.5 * (s.rest[i - 1] + s.rest[i])
-            };
-            let (factor, k0) = {
-                let u = s.u[i];
-                if u < p.tip_length_m {
-                    (p.tip_stiffness_factor, p.tip_curvature_per_m)
-                } else {
-                    (1.0, 0.0)
-                }
-            };
-            let kb_rest = if k0 == 0.0 { 0.0 } else { 2.0 * (0.5 * k0 * lbar).tan() };
+            let Coef {
+                bend, twist, kb_rest, ..
+            } = coef[i];
             let (te, tf) = (self.tan[i - 1], self.tan[i]);
-            let (le, lf) = (self.len[i - 1], self.len[i]);
             let chi = (1.0 + te.dot(&tf)).max(1e-12);
-            let kb = te.cross(&tf) * (2.0 / chi);
+            let ichi = 1.0 / chi;
+            let kb = te.cross(&tf) * (2.0 * ichi);
             let (m1e, m1f, m2e, m2f) = (self.m1[i - 1], self.m1[i], self.m2[i - 1], self.m2[i]);
             let k1 = 0.5 * kb.dot(&(m2e + m2f));
             let k2 = -0.5 * kb.dot(&(m1e + m1f));
-            let bend = ei * factor / lbar;
             let (d1v, d2v) = (k1 - kb_rest, k2);
             energy += 0.5 * bend * (d1v * d1v + d2v * d2v);
-            let twist = gj * factor / lbar;
             let m = self.tht[i] - self.tht[i - 1] + self.rt[i];
             energy += 0.5 * twist * m * m;
             if assemble {
-                let tt = (te + tf) / chi;
-                let td1 = (m1e + m1f) / chi;
-                let td2 = (m2e + m2f) / chi;
-                let dk1de = (-tt * k1 + tf.cross(&td2)) / le;
-                let dk1df = (-tt * k1 - te.cross(&td2)) / lf;
-                let dk2de = (-tt * k2 - tf.cross(&td1)) / le;
-                let dk2df = (-tt * k2 + te.cross(&td1)) / lf;
+                let (ile, ilf) = (self.inv_len[i - 1], self.inv_len[i]);
+                let tt = (te + tf) * ichi;
+                let td1 = (m1e + m1f) * ichi;
+                let td2 = (m2e + m2f) * ichi;
+                let dk1de = (-tt * k1 + tf.cross(&td2)) * ile;
+                let dk1df = (-tt * k1 - te.cross(&td2)) * ilf;
+                let dk2de = (-tt * k2 - tf.cross(&td1)) * ile;
+                let dk2df = (-tt * k2 + te.cross(&td1)) * ilf;
                 let mut g1 = [0.0; 11];
                 let mut g2 = [0.0; 11];
                 let mut gt = [0.0; 11];
@@ -988,8 +1055,8 @@ impl Wire {
                     g2[c] = -dk2de[c];
                     g2[4 + c] = dk2de[c] - dk2df[c];
                     g2[8 + c] = dk2df[c];
-                    let a = kb[c] / (2.0 * le);
-                    let b = kb[c] / (2.0 * lf);
+                    let a = kb[c] * (0.5 * ile);
+                    let b = kb[c] * (0.5 * ilf);
                     gt[c] = -a;
                     gt[4 + c] = a - b;
                     gt[8 + c] = b;
@@ -1005,13 +1072,7 @@ impl Wire {
                     self.grad[base + r] += bend * (d1v * g1[r] + d2v * g2[r]) + twist * m * gt[r];
                 }
                 if hess {
-                    let mut blk = [0.0; 121];
-                    for r in 0..11 {
-                        for c in 0..=r {
-                            blk[r * 11 + c] = bend * (g1[r] * g1[c] + g2[r] * g2[c]) + twist * gt[r] * gt[c];
-                        }
-                    }
-                    self.h.add_block(base, 11, &blk);
+                    self.h.add_gram(base, &[g1, g2, gt], &[bend, bend, twist]);
                 }
             }
         }
@@ -1071,12 +1132,7 @@ impl Wire {
         // The load per length, lumped on the free nodes.
         if self.line_load != Vec3::zeros() {
             for i in 2..n {
-                let lbar = if i == n - 1 {
-                    0.5 * s.rest[i - 1]
-                } else {
-                    0.5 * (s.rest[i - 1] + s.rest[i])
-                };
-                let f = self.line_load * lbar;
+                let f = self.line_load * coef[i].lbar;
                 energy -= f.dot(&(self.xt[i] - self.x0[i]));
                 if assemble {
                     for c in 0..3 {
@@ -1173,6 +1229,7 @@ impl Wire {
         let n = self.s.n;
         self.xt[..n].copy_from_slice(&x[..n]);
         self.tht[..n].copy_from_slice(&theta[..n]);
+        self.coefficients();
         if rebase {
             self.geometry();
             for i in 0..n {
