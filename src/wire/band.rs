@@ -1,11 +1,15 @@
 //! A symmetric positive-definite banded matrix with a fixed half-bandwidth
-//! and its Cholesky factorisation in place: O(n p²) to factor, O(n p) to
+//! and its L D Lᵀ factorisation in place: O(n p²) to factor, O(n p) to
 //! solve, storage sized once at construction (nothing allocates after).
 //!
 //! The wire's implicit step assembles its Hessian here: with positions and
 //! twists interleaved per node (x₀ θ₀ x₁ θ₁ …, four unknowns a node) every
 //! energy term of a rod touches at most three consecutive nodes, so the
 //! matrix is banded with half-bandwidth 10 whatever the node count.
+
+/// The half-bandwidth whose factorisation and solve run on fixed-size
+/// windows (the wire's: x and θ interleaved, four unknowns a node).
+pub const FAST_BAND: usize = 10;
 
 /// Why a factorisation failed.
 #[derive(Debug, Clone, Copy, PartialEq, thiserror::Error)]
@@ -22,14 +26,18 @@ pub enum BandError {
 
 /// The lower band of a symmetric n × n matrix: entry (i, j) for
 /// i − p ≤ j ≤ i stored at `i (p + 1) + (j + p − i)`, so that a row's band
-/// is contiguous in column order (the factorisation's inner products run
-/// over two contiguous slices).
+/// is contiguous in column order (the factorisation's updates and the
+/// backward solve run over contiguous slices of a row).
 #[derive(Debug, Clone)]
 pub struct BandMatrix {
     n: usize,
     cap: usize,
     p: usize,
     a: Vec<f64>,
+    /// 1 / D after [`BandMatrix::factor`].
+    dinv: Vec<f64>,
+    /// Column scratch of the factorisation: p + 1.
+    col: Vec<f64>,
 }
 
 impl BandMatrix {
@@ -40,6 +48,8 @@ impl BandMatrix {
             cap: capacity,
             p,
             a: vec![0.0; capacity * (p + 1)],
+            dinv: vec![0.0; capacity],
+            col: vec![0.0; p + 1],
         }
     }
 
@@ -98,6 +108,60 @@ impl BandMatrix {
         }
     }
 
+    /// Adds Σ_q `w[q]` `v[q]` `v[q]`ᵀ (a symmetric block of rank ≤ R) at
+    /// rows and columns `base..base + K`, straight into the band (a
+    /// Gauss–Newton Hessian). `K` must not exceed the bandwidth + 1 and
+    /// `base + K` the size (checked in debug builds; ignored otherwise).
+    #[inline]
+    pub fn add_gram<const K: usize, const R: usize>(&mut self, base: usize, v: &[[f64; K]; R], w: &[f64; R]) {
+        let (p, wd) = (self.p, self.p + 1);
+        debug_assert!(K <= wd && base + K <= self.n);
+        if K == 0 || K > wd || base + K > self.n {
+            return;
+        }
+        // Row base + r, columns base..=base + r, starts at first + r p.
+        let first = base * wd + p;
+        let win = &mut self.a[first..first + (K - 1) * p + K];
+        for r in 0..K {
+            let mut s = [0.0; R];
+            for q in 0..R {
+                s[q] = w[q] * v[q][r];
+            }
+            let row = &mut win[r * p..r * p + r + 1];
+            for c in 0..r + 1 {
+                let mut acc = 0.0;
+                for q in 0..R {
+                    acc += s[q] * v[q][c];
+                }
+                row[c] += acc;
+            }
+        }
+    }
+
+    /// Adds the symmetric 3 × 3 block `m` at (a, a) and (b, b) and −`m` at
+    /// (b, a) (and so at (a, b)), with a + 3 ≤ b and b + 2 within the band
+    /// of a (the Hessian of a spring between two points whose coordinates
+    /// start at a and b); checked in debug builds, ignored otherwise.
+    #[inline]
+    pub fn add_spring3(&mut self, a: usize, b: usize, m: &[[f64; 3]; 3]) {
+        let (p, w) = (self.p, self.p + 1);
+        debug_assert!(a + 3 <= b && b + 2 - a <= p && b + 3 <= self.n);
+        if a + 3 > b || b + 2 - a > p || b + 3 > self.n {
+            return;
+        }
+        for r in 0..3 {
+            let ra = (a + r) * w + p - (a + r);
+            let rb = (b + r) * w + p - (b + r);
+            for c in 0..r + 1 {
+                self.a[ra + a + c] += m[r][c];
+                self.a[rb + b + c] += m[r][c];
+            }
+            for c in 0..3 {
+                self.a[rb + a + c] -= m[r][c];
+            }
+        }
+    }
+
     #[inline]
     fn at(&self, i: usize, j: usize) -> usize {
         i * (self.p + 1) + (j + self.p - i)
@@ -118,56 +182,154 @@ impl BandMatrix {
         self.a[k] = 1.0;
     }
 
-    /// Cholesky factorisation L Lᵀ in place (L replaces the lower band).
+    /// Factorisation L D Lᵀ in place (L unit lower triangular, D diagonal):
+    /// the strict lower band holds L, the diagonal D. Right-looking: each
+    /// column, once scaled, updates the triangle of the band below it, so
+    /// the only serial dependence is pivot to pivot (one division and one
+    /// multiply–add a column); the inner products of a left-looking
+    /// Cholesky are chains of dependent additions, and the square roots
+    /// sit on that chain too. The wire's bandwidth ([`FAST_BAND`]) has its
+    /// own loops, whose lengths the compiler knows.
     pub fn factor(&mut self) -> Result<(), BandError> {
+        if self.p == FAST_BAND {
+            return self.factor_fast();
+        }
         let (n, p) = (self.n, self.p);
         let w = p + 1;
-        for i in 0..n {
-            let j0 = i.saturating_sub(p);
-            for j in j0..=i {
-                // Σ_k L(i,k) L(j,k) over k in [max(j0, j − p), j).
-                let k0 = j0.max(j.saturating_sub(p));
-                let len = j - k0;
-                let ri = i * w + (k0 + p - i);
-                let rj = j * w + (k0 + p - j);
-                let mut dot = 0.0;
-                for (x, y) in self.a[ri..ri + len].iter().zip(&self.a[rj..rj + len]) {
-                    dot += x * y;
-                }
-                let idx = i * w + (j + p - i);
-                let s = self.a[idx] - dot;
-                if i == j {
-                    if !(s > 0.0 && s.is_finite()) {
-                        return Err(BandError::NotPositive { row: i, pivot: s });
-                    }
-                    self.a[idx] = s.sqrt();
-                } else {
-                    self.a[idx] = s / self.a[j * w + p];
+        // Column k's entries below the diagonal, unscaled.
+        let c = &mut self.col[..w];
+        for k in 0..n {
+            let d = self.a[k * w + p];
+            if !(d > 0.0 && d.is_finite()) {
+                return Err(BandError::NotPositive { row: k, pivot: d });
+            }
+            let inv = 1.0 / d;
+            self.dinv[k] = inv;
+            let m = p.min(n - 1 - k);
+            // (Exclusive ranges: an inclusive one's loop does not compile
+            // to a counted loop.)
+            for r in 1..m + 1 {
+                // L(k + r, k), then A(k + r, k + s) −= L(k + r, k) D_k
+                // L(k + s, k) for 1 ≤ s ≤ r: row k + r from column k + 1
+                // to its diagonal, contiguous.
+                let idx = (k + r) * w + p - r;
+                let cr = self.a[idx];
+                c[r] = cr;
+                let lr = cr * inv;
+                self.a[idx] = lr;
+                for (dst, cs) in self.a[idx + 1..idx + r + 1].iter_mut().zip(&c[1..r + 1]) {
+                    *dst -= lr * cs;
                 }
             }
         }
         Ok(())
     }
 
-    /// Solves (L Lᵀ) x = b in place after [`BandMatrix::factor`]; `b` holds
-    /// at least `size()` entries.
-    #[allow(clippy::needless_range_loop)] // the band's index arithmetic reads clearer
+    /// [`BandMatrix::factor`] for p = [`FAST_BAND`]: the same operations in
+    /// the same order, on fixed-size windows.
+    fn factor_fast(&mut self) -> Result<(), BandError> {
+        const P: usize = FAST_BAND;
+        const W: usize = P + 1;
+        let n = self.n;
+        let mut c = [0.0; P];
+        for k in 0..n {
+            let d = self.a[k * W + P];
+            if !(d > 0.0 && d.is_finite()) {
+                return Err(BandError::NotPositive { row: k, pivot: d });
+            }
+            let inv = 1.0 / d;
+            self.dinv[k] = inv;
+            let base = k * W + P;
+            if k + P < n {
+                // Rows k..=k + P from A(k, k): A(k + r, k + s) at r P + s.
+                let Ok(blk) = <&mut [f64; P * W + 1]>::try_from(&mut self.a[base..base + P * W + 1]) else {
+                    return Err(BandError::NotPositive {
+                        row: k,
+                        pivot: f64::NAN,
+                    });
+                };
+                for r in 0..P {
+                    let idx = (r + 1) * P;
+                    let cr = blk[idx];
+                    c[r] = cr;
+                    let lr = cr * inv;
+                    blk[idx] = lr;
+                    for s in 0..r + 1 {
+                        blk[idx + 1 + s] -= lr * c[s];
+                    }
+                }
+            } else {
+                for r in 0..n - 1 - k {
+                    let idx = base + (r + 1) * P;
+                    let cr = self.a[idx];
+                    c[r] = cr;
+                    let lr = cr * inv;
+                    self.a[idx] = lr;
+                    for s in 0..r + 1 {
+                        self.a[idx + 1 + s] -= lr * c[s];
+                    }
+                }
+            }
+        }
+        Ok(())
+    }
+
+    /// Solves (L D Lᵀ) x = b in place after [`BandMatrix::factor`]; `b`
+    /// holds at least `size()` entries. Both sweeps go by columns of L
+    /// (each solved unknown updates the next p), so the serial dependence
+    /// is one multiply–add an unknown.
     pub fn solve(&self, b: &mut [f64]) {
         let (n, p) = (self.n, self.p);
         let w = p + 1;
-        for i in 0..n {
-            let mut s = b[i];
-            for k in i.saturating_sub(p)..i {
-                s -= self.a[i * w + (k + p - i)] * b[k];
+        let b = &mut b[..n];
+        let fast = p == FAST_BAND;
+        // L y = b: y_k done, subtract L(k + r, k) y_k below it; L(k + r, k)
+        // is at k w + p + r p.
+        for k in 0..n {
+            let yk = b[k];
+            let base = k * w + p;
+            if fast && k + FAST_BAND < n {
+                const P: usize = FAST_BAND;
+                let (Ok(col), Ok(dst)) = (
+                    <&[f64; P * P + 1]>::try_from(&self.a[base..base + P * P + 1]),
+                    <&mut [f64; P]>::try_from(&mut b[k + 1..k + 1 + P]),
+                ) else {
+                    return;
+                };
+                for r in 0..P {
+                    dst[r] -= col[(r + 1) * P] * yk;
+                }
+            } else {
+                for r in 1..p.min(n - 1 - k) + 1 {
+                    b[k + r] -= self.a[base + r * p] * yk;
+                }
             }
-            b[i] = s / self.a[i * w + p];
         }
+        for (bk, inv) in b.iter_mut().zip(&self.dinv[..n]) {
+            *bk *= inv;
+        }
+        // Lᵀ x = z: x_i done, subtract L(i, k) x_i from x_k, k in i − p .. i
+        // (row i of L, contiguous).
         for i in (0..n).rev() {
-            let mut s = b[i];
-            for r in i + 1..(i + w).min(n) {
-                s -= self.a[r * w + (i + p - r)] * b[r];
+            let xi = b[i];
+            let k0 = i.saturating_sub(p);
+            let row = i * w + (k0 + p - i);
+            if fast && i >= FAST_BAND {
+                const P: usize = FAST_BAND;
+                let (Ok(l), Ok(dst)) = (
+                    <&[f64; P]>::try_from(&self.a[row..row + P]),
+                    <&mut [f64; P]>::try_from(&mut b[k0..i]),
+                ) else {
+                    return;
+                };
+                for t in 0..P {
+                    dst[t] -= l[t] * xi;
+                }
+            } else {
+                for (bk, lik) in b[k0..i].iter_mut().zip(&self.a[row..row + (i - k0)]) {
+                    *bk -= lik * xi;
+                }
             }
-            b[i] = s / self.a[i * w + p];
         }
     }
 
@@ -220,6 +382,51 @@ mod tests {
         }
         let mut bad = a;
         bad.add(3, 3, -1e3);
-        assert!(matches!(bad.factor(), Err(BandError::NotPositive { .. })));
+        assert!(matches!(bad.factor(), Err(BandError::NotPositive { row: 3, .. })));
+    }
+
+    /// Sizes below, at and just above the bandwidth, against a dense
+    /// Gaussian elimination of the same matrix.
+    #[test]
+    fn banded_ldlt_matches_a_dense_solve_at_small_sizes() {
+        for (p, n) in [4, 10]
+            .into_iter()
+            .flat_map(|p| [1, 2, 4, 5, 6, 10, 11, 12, 23].map(|n| (p, n)))
+        {
+            let mut m = BandMatrix::new(24, p);
+            m.reset(n);
+            for i in 0..n {
+                for j in i.saturating_sub(p)..i {
+                    m.add(i, j, ((i * 7 + j * 3) % 5) as f64 * 0.3 - 0.6);
+                }
+                m.add(i, i, 1.2 * p as f64 + 1.0 + i as f64 * 0.1);
+            }
+            let mut dense: Vec<Vec<f64>> = (0..n).map(|i| (0..n).map(|j| m.get(i, j)).collect()).collect();
+            let mut rhs: Vec<f64> = (0..n).map(|i| 1.0 + (i as f64).cos()).collect();
+            let mut b = rhs.clone();
+            m.factor().unwrap();
+            m.solve(&mut b);
+            for k in 0..n {
+                for i in k + 1..n {
+                    let f = dense[i][k] / dense[k][k];
+                    for j in k..n {
+                        dense[i][j] -= f * dense[k][j];
+                    }
+                    rhs[i] -= f * rhs[k];
+                }
+            }
+            for i in (0..n).rev() {
+                let s: f64 = (i + 1..n).map(|j| dense[i][j] * rhs[j]).sum();
+                rhs[i] = (rhs[i] - s) / dense[i][i];
+            }
+            for i in 0..n {
+                assert!(
+                    (b[i] - rhs[i]).abs() < 1e-13,
+                    "p {p}, n {n}, {i}: {} vs {}",
+                    b[i],
+                    rhs[i]
+                );
+            }
+        }
     }
 }

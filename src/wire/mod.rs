@@ -9,7 +9,7 @@
 //!   contacts; every buffer sized at construction, `step` allocates nothing.
 //! - [`lumen`]: what the wire touches (rigid tubes, a moving triangle
 //!   surface).
-//! - [`band`]: the banded Cholesky solve behind the implicit step.
+//! - [`band`]: the banded L D Lᵀ solve behind the implicit step.
 //! - [`drive`]: the hub drive, stylus to insertion and roll and the wire's
 //!   resistance back to the hand (`[wire.drive]` keys).
 //!

@@ -14,7 +14,7 @@
 //! tip stays with the material as nodes enter and leave at the hub.
 
 use super::band::BandMatrix;
-use super::lumen::{perpendicular, Lumen, ProbeCache};
+use super::lumen::{perpendicular, Lumen, ProbeCache, WallHit};
 use super::WireParams;
 use crate::config::ConfigError;
 use crate::math::{Mat3, Vec3};
@@ -190,10 +190,69 @@ pub struct Wire {
     /// Per node: what the lumen keeps near it between probes (moves with
     /// the node when nodes enter or leave at the hub).
     probe_cache: Vec<ProbeCache>,
+    /// Per node: the wall probe of the last evaluation.
+    hits: Vec<Option<WallHit>>,
+    /// Per node and edge: the step's coefficients.
+    coef: Vec<Coef>,
+    /// Per edge: 1 / its length at the trial state.
+    inv_len: Vec<f64>,
+}
+
+/// The terms' coefficients at a node i and the edge j = i that leaves it,
+/// fixed within a step (they depend on the rest lengths and material
+/// coordinates only): computed once a step by `Wire::coefficients`.
+#[derive(Debug, Clone, Copy, Default)]
+struct Coef {
+    /// Node i's inertia m_i / dt² (free nodes).
+    mass: f64,
+    /// Node i's drag c l̄_i / dt (free nodes).
+    drag: f64,
+    /// Node i's share of the line load's length, l̄_i (free nodes).
+    lbar: f64,
+    /// Edge j's twist inertia.
+    twist_mass: f64,
+    /// Edge j's axial stiffness EA / ē_j.
+    stretch: f64,
+    /// Node i's bending stiffness EI / l̄_i (tip factor included).
+    bend: f64,
+    /// Node i's twisting stiffness GJ / l̄_i (tip factor included).
+    twist: f64,
+    /// Node i's rest curvature κ̄₁.
+    kb_rest: f64,
+}
+
+/// How much of the incremental potential's evaluation the buffers hold at
+/// the current Newton iterate, in increasing order.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord)]
+enum Have {
+    /// Nothing: the geometry is that of another state.
+    Nothing,
+    /// Its geometry (frames, curvatures, reference twist) and energy.
+    Geometry,
+    /// And its gradient.
+    Gradient,
+    /// And its Hessian.
+    Hessian,
 }
 
 /// Parallel transport of `d` from tangent `a` to tangent `b` (unit vectors).
+#[inline]
 fn transport(d: Vec3, a: Vec3, b: Vec3) -> Vec3 {
+    let k = a.cross(&b);
+    let c = a.dot(&b);
+    let s2 = k.norm_squared();
+    // The rotation about k = a × b taking a to b (Rodrigues, with
+    // |k|² = (1 − c)(1 + c)): no square root and one division. For turns
+    // beyond 90° (1 + c small), the normalised form below.
+    if s2 >= 1e-28 && c >= 0.0 {
+        return d * c + k.cross(&d) + k * (k.dot(&d) / (1.0 + c));
+    }
+    transport_slow(d, a, b)
+}
+
+/// [`transport`] through the normalised binormal: for any turn, and the
+/// parallel and reversed cases.
+fn transport_slow(d: Vec3, a: Vec3, b: Vec3) -> Vec3 {
     let c = a.cross(&b);
     let s = c.norm();
     if s < 1e-14 {
@@ -284,6 +343,9 @@ impl Wire {
             eval_pen: 0.0,
             contacts: Vec::with_capacity(cap),
             probe_cache: vec![ProbeCache::default(); cap],
+            hits: vec![None; cap],
+            coef: vec![Coef::default(); cap],
+            inv_len: vec![0.0; cap],
         };
         w.lay_straight(inserted_m);
         w.save_good_state();
@@ -545,7 +607,54 @@ impl Wire {
         }
         for j in 0..n - 1 {
             let e = self.s.x[j + 1] - self.s.x[j];
-            self.t0[j] = e / e.norm();
+            // As `geometry` computes it: unmoved frames stay bit for bit.
+            self.t0[j] = e * (1.0 / e.norm());
+        }
+        self.coefficients();
+    }
+
+    /// The step's coefficients of every term (`coef`), from the rest
+    /// lengths and material coordinates after the feed.
+    fn coefficients(&mut self) {
+        let n = self.s.n;
+        let p = &self.p;
+        let s = &self.s;
+        let dt = p.dt_s;
+        let area = p.area();
+        let ea = p.youngs_modulus_pa * area;
+        let ei = p.bending_stiffness();
+        let gj = p.twisting_stiffness();
+        let rho_a = p.density_kg_m3 * area;
+        let rho_j = p.density_kg_m3 * std::f64::consts::PI * p.diameter_m.powi(4) / 32.0;
+        for (i, c) in self.coef[..n].iter_mut().enumerate() {
+            *c = Coef::default();
+            if i >= 2 {
+                let lbar = if i == n - 1 {
+                    0.5 * s.rest[i - 1]
+                } else {
+                    0.5 * (s.rest[i - 1] + s.rest[i])
+                };
+                c.mass = rho_a * lbar / (dt * dt);
+                c.drag = p.drag_n_s_per_m2 * lbar / dt;
+                c.lbar = lbar;
+            }
+            if i >= 1 && i < n - 1 {
+                c.twist_mass = rho_j * s.rest[i] / (dt * dt);
+                c.stretch = ea / s.rest[i];
+                let lbar = if i == 1 {
+                    0.5 * s.rest[1]
+                } else {
+                    0.5 * (s.rest[i - 1] + s.rest[i])
+                };
+                let (factor, k0) = if s.u[i] < p.tip_length_m {
+                    (p.tip_stiffness_factor, p.tip_curvature_per_m)
+                } else {
+                    (1.0, 0.0)
+                };
+                c.kb_rest = if k0 == 0.0 { 0.0 } else { 2.0 * (0.5 * k0 * lbar).tan() };
+                c.bend = ei * factor / lbar;
+                c.twist = gj * factor / lbar;
+            }
         }
     }
 
@@ -566,11 +675,28 @@ impl Wire {
         // Past the configured iterations, go on (up to four times as many)
         // only while the wire is deeper than a quarter radius in the wall.
         let max_it = 4 * self.p.newton_iterations;
+        // What the buffers hold at the current iterate (`s.x`, `xt`): its
+        // geometry, energy (`e_cur`), penetration (`eval_pen`), gradient,
+        // Hessian. A line search's first trial assembles what the next
+        // iteration (or the reactions) will want there, so an accepted
+        // full step costs one evaluation instead of two.
+        let mut have = Have::Nothing;
+        let mut e_cur = 0.0;
         for it in 0..max_it {
-            let e0 = self.eval(lumen, true);
+            // `eval_pen` is that of the current iterate for it ≥ 1 (the
+            // accepted trial's evaluation).
             if it >= self.p.newton_iterations && self.eval_pen < 0.25 * r_w {
                 break;
             }
+            let e0 = if have == Have::Hessian {
+                e_cur
+            } else {
+                // Re-based frames at an evaluated iterate are its frames:
+                // no geometry to redo.
+                self.eval_at(lumen, have == Have::Nothing, true, true)
+            };
+            have = Have::Hessian;
+            e_cur = e0;
             if !e0.is_finite() {
                 break;
             }
@@ -595,15 +721,26 @@ impl Wire {
                 break;
             }
             let slope: f64 = (0..dofs).map(|k| self.grad[k] * self.dx[k]).sum::<f64>() * scale;
+            // What the first trial assembles: the Hessian if another
+            // iteration is likely to follow (below the configured count,
+            // or deep in the wall), else the gradient (the reactions').
+            let first = if it + 1 < max_it && (it + 1 < self.p.newton_iterations || self.eval_pen >= 0.25 * r_w) {
+                Have::Hessian
+            } else {
+                Have::Gradient
+            };
             let mut alpha = scale;
             let mut accepted = false;
-            for _ in 0..12 {
+            for trial in 0..12 {
                 for i in 0..n {
                     let d = Vec3::new(self.dx[4 * i], self.dx[4 * i + 1], self.dx[4 * i + 2]);
                     self.xt[i] = self.s.x[i] + d * alpha;
                     self.tht[i] = self.s.theta[i] + self.dx[4 * i + 3] * alpha;
                 }
-                let e1 = self.eval(lumen, false);
+                let want = if trial == 0 { first } else { Have::Geometry };
+                let e1 = self.eval_at(lumen, true, want >= Have::Gradient, want == Have::Hessian);
+                have = want;
+                e_cur = e1;
                 if e1.is_finite() && e1 <= e0 + 1e-4 * (alpha / scale) * slope.min(0.0) + 1e-12 * e0.abs() {
                     accepted = true;
                     break;
@@ -626,11 +763,14 @@ impl Wire {
                     self.xt[i] = self.s.x[i];
                     self.tht[i] = self.s.theta[i];
                 }
+                have = Have::Nothing;
                 break;
             }
             // Accept, and carry the reference frames to the new iterate: the
             // bend gradient below is exact where the frames were transported
-            // from, so each iteration's gradient is exact.
+            // from, so each iteration's gradient is exact. (The frames
+            // transported to themselves are unchanged, so the geometry, and
+            // what the trial assembled, stay those of the new iterate.)
             for i in 0..n {
                 self.s.x[i] = self.xt[i];
                 self.s.theta[i] = self.tht[i];
@@ -645,11 +785,10 @@ impl Wire {
             }
         }
         // Final geometry, reactions and contacts at the accepted state.
-        for i in 0..n {
-            self.xt[i] = self.s.x[i];
-            self.tht[i] = self.s.theta[i];
+        if have < Have::Gradient {
+            self.eval_at(lumen, have == Have::Nothing, true, false);
         }
-        self.eval_reactions(lumen);
+        self.reactions();
         let dt = self.p.dt_s;
         for i in 0..n {
             self.s.v[i] = (self.s.x[i] - self.x0[i]) / dt;
@@ -763,8 +902,10 @@ impl Wire {
         for j in 0..n - 1 {
             let e = self.xt[j + 1] - self.xt[j];
             let l = e.norm();
+            let il = 1.0 / l;
             self.len[j] = l;
-            self.tan[j] = e / l;
+            self.inv_len[j] = il;
+            self.tan[j] = e * il;
             self.d1c[j] = transport(self.d10[j], self.t0[j], self.tan[j]);
             let d2 = self.tan[j].cross(&self.d1c[j]);
             let (sn, cs) = self.tht[j].sin_cos();
@@ -785,13 +926,17 @@ impl Wire {
     /// geometric term dropped, Gauss–Newton bend and twist, exact contact
     /// normal and friction terms), fixed unknowns pinned.
     fn eval(&mut self, lumen: &dyn Lumen, assemble: bool) -> f64 {
-        self.eval_with(lumen, assemble, assemble)
+        self.eval_at(lumen, true, assemble, assemble)
     }
 
-    /// [`Wire::eval`] with the gradient (`grad`) and the Hessian (`hess`,
-    /// only with `grad`) chosen separately.
-    fn eval_with(&mut self, lumen: &dyn Lumen, assemble: bool, hess: bool) -> f64 {
-        self.geometry();
+    /// [`Wire::eval`] with the geometry (`geometry`: false when the frames
+    /// already are those of `xt`, `tht`), the gradient (`grad`) and the
+    /// Hessian (`hess`, only with `grad`) chosen separately. Every node's
+    /// wall probe is kept in `hits`.
+    fn eval_at(&mut self, lumen: &dyn Lumen, geometry: bool, assemble: bool, hess: bool) -> f64 {
+        if geometry {
+            self.geometry();
+        }
         let n = self.s.n;
         let dofs = 4 * n;
         if assemble {
@@ -801,30 +946,18 @@ impl Wire {
             self.h.reset(dofs);
         }
         let p = &self.p;
-        let dt = p.dt_s;
-        let area = p.area();
-        let ea = p.youngs_modulus_pa * area;
-        let ei = p.bending_stiffness();
-        let gj = p.twisting_stiffness();
-        let rho_a = p.density_kg_m3 * area;
-        let rho_j = p.density_kg_m3 * std::f64::consts::PI * p.diameter_m.powi(4) / 32.0;
         let r_w = 0.5 * p.diameter_m;
         let kc = p.contact_stiffness_n_per_m;
         let mu = p.friction;
         let eps_v = 1e-7;
         let s = &self.s;
+        let coef = &self.coef[..n];
         let mut energy = 0.0;
         let mut max_pen: f64 = 0.0;
 
         // Inertia and drag (free nodes), twist inertia (free edges).
         for i in 2..n {
-            let lbar = if i == n - 1 {
-                0.5 * s.rest[i - 1]
-            } else {
-                0.5 * (s.rest[i - 1] + s.rest[i])
-            };
-            let km = rho_a * lbar / (dt * dt);
-            let kd = p.drag_n_s_per_m2 * lbar / dt;
+            let (km, kd) = (coef[i].mass, coef[i].drag);
             let a = self.xt[i] - self.xtilde[i];
             let b = self.xt[i] - self.x0[i];
             energy += 0.5 * km * a.norm_squared() + 0.5 * kd * b.norm_squared();
@@ -839,7 +972,7 @@ impl Wire {
             }
         }
         for j in 1..n - 1 {
-            let kt = rho_j * s.rest[j] / (dt * dt);
+            let kt = coef[j].twist_mass;
             let d = self.tht[j] - self.th0[j];
             energy += 0.5 * kt * d * d;
             if assemble {
@@ -855,7 +988,7 @@ impl Wire {
         // (a Huber energy), beyond which the wire slips in the hand.
         let f_grip = p.max_hub_force_n;
         for j in 1..n - 1 {
-            let k = ea / s.rest[j];
+            let k = coef[j].stretch;
             let st = self.len[j] - s.rest[j];
             let slipping = j == 1 && (k * st).abs() > f_grip;
             let (force, k_axial) = if slipping {
@@ -875,58 +1008,43 @@ impl Wire {
                 if !hess {
                     continue;
                 }
-                let geo = (force / self.len[j]).max(0.0);
-                let km = outer(&t, &t) * (k_axial - geo) + Mat3::identity() * geo;
-                for r in 0..3 {
-                    for c in 0..3 {
-                        let v = km[(r, c)];
-                        if c <= r {
-                            self.h.add(4 * j + r, 4 * j + c, v);
-                            self.h.add(4 * (j + 1) + r, 4 * (j + 1) + c, v);
-                        }
-                        self.h.add(4 * (j + 1) + r, 4 * j + c, -v);
+                let geo = (force * self.inv_len[j]).max(0.0);
+                let kt = k_axial - geo;
+                let mut km = [[0.0; 3]; 3];
+                for (r, row) in km.iter_mut().enumerate() {
+                    for (c, v) in row.iter_mut().enumerate() {
+                        *v = t[r] * t[c] * kt + if r == c { geo } else { 0.0 };
                     }
                 }
+                self.h.add_spring3(4 * j, 4 * (j + 1), &km);
             }
         }
 
         // Bend and twist at interior nodes 1..n−2.
         for i in 1..n - 1 {
-            let lbar = if i == 1 {
-                0.5 * s.rest[1]
-            } else {
-                0.5 * (s.rest[i - 1] + s.rest[i])
-            };
-            let (factor, k0) = {
-                let u = s.u[i];
-                if u < p.tip_length_m {
-                    (p.tip_stiffness_factor, p.tip_curvature_per_m)
-                } else {
-                    (1.0, 0.0)
-                }
-            };
-            let kb_rest = if k0 == 0.0 { 0.0 } else { 2.0 * (0.5 * k0 * lbar).tan() };
+            let Coef {
+                bend, twist, kb_rest, ..
+            } = coef[i];
             let (te, tf) = (self.tan[i - 1], self.tan[i]);
-            let (le, lf) = (self.len[i - 1], self.len[i]);
             let chi = (1.0 + te.dot(&tf)).max(1e-12);
-            let kb = te.cross(&tf) * (2.0 / chi);
+            let ichi = 1.0 / chi;
+            let kb = te.cross(&tf) * (2.0 * ichi);
             let (m1e, m1f, m2e, m2f) = (self.m1[i - 1], self.m1[i], self.m2[i - 1], self.m2[i]);
             let k1 = 0.5 * kb.dot(&(m2e + m2f));
             let k2 = -0.5 * kb.dot(&(m1e + m1f));
-            let bend = ei * factor / lbar;
             let (d1v, d2v) = (k1 - kb_rest, k2);
             energy += 0.5 * bend * (d1v * d1v + d2v * d2v);
-            let twist = gj * factor / lbar;
             let m = self.tht[i] - self.tht[i - 1] + self.rt[i];
             energy += 0.5 * twist * m * m;
             if assemble {
-                let tt = (te + tf) / chi;
-                let td1 = (m1e + m1f) / chi;
-                let td2 = (m2e + m2f) / chi;
-                let dk1de = (-tt * k1 + tf.cross(&td2)) / le;
-                let dk1df = (-tt * k1 - te.cross(&td2)) / lf;
-                let dk2de = (-tt * k2 - tf.cross(&td1)) / le;
-                let dk2df = (-tt * k2 + te.cross(&td1)) / lf;
+                let (ile, ilf) = (self.inv_len[i - 1], self.inv_len[i]);
+                let tt = (te + tf) * ichi;
+                let td1 = (m1e + m1f) * ichi;
+                let td2 = (m2e + m2f) * ichi;
+                let dk1de = (-tt * k1 + tf.cross(&td2)) * ile;
+                let dk1df = (-tt * k1 - te.cross(&td2)) * ilf;
+                let dk2de = (-tt * k2 - tf.cross(&td1)) * ile;
+                let dk2df = (-tt * k2 + te.cross(&td1)) * ilf;
                 let mut g1 = [0.0; 11];
                 let mut g2 = [0.0; 11];
                 let mut gt = [0.0; 11];
@@ -937,8 +1055,8 @@ impl Wire {
                     g2[c] = -dk2de[c];
                     g2[4 + c] = dk2de[c] - dk2df[c];
                     g2[8 + c] = dk2df[c];
-                    let a = kb[c] / (2.0 * le);
-                    let b = kb[c] / (2.0 * lf);
+                    let a = kb[c] * (0.5 * ile);
+                    let b = kb[c] * (0.5 * ilf);
                     gt[c] = -a;
                     gt[4 + c] = a - b;
                     gt[8 + c] = b;
@@ -954,20 +1072,16 @@ impl Wire {
                     self.grad[base + r] += bend * (d1v * g1[r] + d2v * g2[r]) + twist * m * gt[r];
                 }
                 if hess {
-                    let mut blk = [0.0; 121];
-                    for r in 0..11 {
-                        for c in 0..=r {
-                            blk[r * 11 + c] = bend * (g1[r] * g1[c] + g2[r] * g2[c]) + twist * gt[r] * gt[c];
-                        }
-                    }
-                    self.h.add_block(base, 11, &blk);
+                    self.h.add_gram(base, &[g1, g2, gt], &[bend, bend, twist]);
                 }
             }
         }
 
         // Wall contact and friction on free nodes.
         for i in 2..n {
-            let Some(hit) = lumen.probe_cached(self.xt[i], r_w + 2.0 * r_w, &mut self.probe_cache[i]) else {
+            let hit = lumen.probe_cached(self.xt[i], 3.0 * r_w, &mut self.probe_cache[i]);
+            self.hits[i] = hit;
+            let Some(hit) = hit else {
                 continue;
             };
             let pen = r_w - hit.distance;
@@ -1018,12 +1132,7 @@ impl Wire {
         // The load per length, lumped on the free nodes.
         if self.line_load != Vec3::zeros() {
             for i in 2..n {
-                let lbar = if i == n - 1 {
-                    0.5 * s.rest[i - 1]
-                } else {
-                    0.5 * (s.rest[i - 1] + s.rest[i])
-                };
-                let f = self.line_load * lbar;
+                let f = self.line_load * coef[i].lbar;
                 energy -= f.dot(&(self.xt[i] - self.x0[i]));
                 if assemble {
                     for c in 0..3 {
@@ -1056,11 +1165,12 @@ impl Wire {
         energy
     }
 
-    /// Reactions at the hub and the contact list at the trial state.
-    fn eval_reactions(&mut self, lumen: &dyn Lumen) {
-        // Reactions come from the elastic terms only; the assembled gradient
-        // at the clamp holds exactly those (inertia acts on free nodes).
-        self.eval_with(lumen, true, false);
+    /// The contact list at the trial state, from the wall probes of its
+    /// evaluation (`hits`), and the next step's lagged normal forces. The
+    /// hub's reactions are in `hub_grad`, `hub_dtheta`: they come from the
+    /// elastic terms only, and the assembled gradient at the clamp holds
+    /// exactly those (inertia acts on free nodes).
+    fn reactions(&mut self) {
         let n = self.s.n;
         let r_w = 0.5 * self.p.diameter_m;
         let kc = self.p.contact_stiffness_n_per_m;
@@ -1068,7 +1178,7 @@ impl Wire {
         let eps_v = 1e-7;
         self.contacts.clear();
         for i in 2..n {
-            let Some(hit) = lumen.probe_cached(self.xt[i], 3.0 * r_w, &mut self.probe_cache[i]) else {
+            let Some(hit) = self.hits[i] else {
                 self.s.lam[i] = 0.0;
                 continue;
             };
@@ -1119,6 +1229,7 @@ impl Wire {
         let n = self.s.n;
         self.xt[..n].copy_from_slice(&x[..n]);
         self.tht[..n].copy_from_slice(&theta[..n]);
+        self.coefficients();
         if rebase {
             self.geometry();
             for i in 0..n {
