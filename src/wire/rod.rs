@@ -938,6 +938,7 @@ impl Wire {
     /// already are those of `xt`, `tht`), the gradient (`grad`) and the
     /// Hessian (`hess`, only with `grad`) chosen separately. Every node's
     /// wall probe is kept in `hits`.
+    #[allow(clippy::needless_range_loop)] // each term reads several per-node arrays
     fn eval_at(&mut self, lumen: &dyn Lumen, geometry: bool, assemble: bool, hess: bool) -> f64 {
         if geometry {
             self.geometry();
