@@ -143,6 +143,7 @@ impl BandMatrix {
     /// of a (the Hessian of a spring between two points whose coordinates
     /// start at a and b); checked in debug builds, ignored otherwise.
     #[inline]
+    #[allow(clippy::needless_range_loop)] // rows and columns of two blocks
     pub fn add_spring3(&mut self, a: usize, b: usize, m: &[[f64; 3]; 3]) {
         let (p, w) = (self.p, self.p + 1);
         debug_assert!(a + 3 <= b && b + 2 - a <= p && b + 3 <= self.n);
@@ -227,6 +228,7 @@ impl BandMatrix {
 
     /// [`BandMatrix::factor`] for p = [`FAST_BAND`]: the same operations in
     /// the same order, on fixed-size windows.
+    #[allow(clippy::needless_range_loop)] // the band's index arithmetic
     fn factor_fast(&mut self) -> Result<(), BandError> {
         const P: usize = FAST_BAND;
         const W: usize = P + 1;
@@ -388,6 +390,7 @@ mod tests {
     /// Sizes below, at and just above the bandwidth, against a dense
     /// Gaussian elimination of the same matrix.
     #[test]
+    #[allow(clippy::needless_range_loop)] // the textbook elimination
     fn banded_ldlt_matches_a_dense_solve_at_small_sizes() {
         for (p, n) in [4, 10]
             .into_iter()

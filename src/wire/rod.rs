@@ -721,10 +721,15 @@ impl Wire {
                 break;
             }
             let slope: f64 = (0..dofs).map(|k| self.grad[k] * self.dx[k]).sum::<f64>() * scale;
-            // What the first trial assembles: the Hessian if another
-            // iteration is likely to follow (below the configured count,
-            // or deep in the wall), else the gradient (the reactions').
-            let first = if it + 1 < max_it && (it + 1 < self.p.newton_iterations || self.eval_pen >= 0.25 * r_w) {
+            // What the first trial assembles: nothing beyond its energy if
+            // the step was capped (the model is then far from the energy:
+            // in the arch two thirds of capped first trials fail); else the
+            // Hessian if another iteration is likely to follow (below the
+            // configured count, or deep in the wall), else the gradient
+            // (the reactions').
+            let first = if scale < 1.0 {
+                Have::Geometry
+            } else if it + 1 < max_it && (it + 1 < self.p.newton_iterations || self.eval_pen >= 0.25 * r_w) {
                 Have::Hessian
             } else {
                 Have::Gradient
@@ -933,6 +938,7 @@ impl Wire {
     /// already are those of `xt`, `tht`), the gradient (`grad`) and the
     /// Hessian (`hess`, only with `grad`) chosen separately. Every node's
     /// wall probe is kept in `hits`.
+    #[allow(clippy::needless_range_loop)] // each term reads several per-node arrays
     fn eval_at(&mut self, lumen: &dyn Lumen, geometry: bool, assemble: bool, hess: bool) -> f64 {
         if geometry {
             self.geometry();
