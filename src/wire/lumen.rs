@@ -64,6 +64,11 @@ pub struct ProbeCache {
     /// False when the centre was beyond the wall or the candidates did not
     /// fit: queries then search the grid.
     usable: bool,
+    /// A lower bound on the centre's distance to every candidate when it
+    /// was built (its nearest wall's distance, or `reach` if none was
+    /// within it): a query farther than its range from all of them needs
+    /// no candidate evaluated.
+    clear: f64,
     len: u16,
     tris: [u32; PROBE_CACHE_CAP],
 }
@@ -76,6 +81,7 @@ impl Default for ProbeCache {
             reach: 0.0,
             moved: 0.0,
             usable: false,
+            clear: 0.0,
             len: 0,
             tris: [0; PROBE_CACHE_CAP],
         }
@@ -707,6 +713,15 @@ impl TriangleLumen {
         if !cache.usable {
             return self.probe_triangle(p, range);
         }
+        // Every candidate is at least `clear` from the centre, less how far
+        // the wall moved since: when that is beyond `range` from p (with a
+        // margin far above the distances' rounding), none is within range,
+        // which the loop below would find too. Most of a wire's nodes are
+        // far from the wall.
+        let off = (p - cache.centre).norm() + (self.moved - cache.moved);
+        if cache.clear - off > range + 1e-9 * range.max(cache.clear) {
+            return None;
+        }
         let mut best: Option<(f64, Vec3, usize)> = None;
         for &t in &cache.tris[..cache.len as usize] {
             let t = t as usize;
@@ -743,9 +758,9 @@ impl TriangleLumen {
         cache.len = 0;
         // The centre must be on the lumen's side: a centre beyond the wall
         // (or with no wall in reach but seen beyond it) is left to the grid.
-        cache.usable = match self.probe_triangle(c, reach) {
-            None => true,
-            Some((h, _)) => h.distance > 0.0,
+        (cache.usable, cache.clear) = match self.probe_triangle(c, reach) {
+            None => (true, reach),
+            Some((h, _)) => (h.distance > 0.0, h.distance),
         };
         if !cache.usable {
             return;
