@@ -47,6 +47,36 @@ struct Run {
     observed: (f64, f64),
 }
 
+impl Run {
+    /// Prints the run and asserts the port's promise: net energy delivered
+    /// within the initial tank, every window within the tank's capacity.
+    fn print_and_check_energy(&self, what: &str, p: &PassivityParams) {
+        eprintln!(
+            "{what}: net delivered {:.5} J, worst window {:.5} J, axial max {:.3} N, device force max {:.3} N, \
+             tank low {:.5} J, observer delivered {:.5} J absorbed {:.5} J",
+            self.net_j,
+            self.worst_window_j,
+            self.axial_max_n,
+            self.force_max_n,
+            self.tank_low_j,
+            self.observed.0,
+            self.observed.1
+        );
+        assert!(
+            self.net_j <= p.tank_initial_j + 1e-9,
+            "{what}: net delivered {} J > initial tank {} J",
+            self.net_j,
+            p.tank_initial_j
+        );
+        assert!(
+            self.worst_window_j <= p.tank_max_j + 1e-9,
+            "{what}: a window delivered {} J > tank {} J",
+            self.worst_window_j,
+            p.tank_max_j
+        );
+    }
+}
+
 /// A hand script: (time s, position along the drive axis m, off-axis m,
 /// roll rad). On the ticks in `wild` the service gets a pose 5 cm off the
 /// stylus (as the soak's wild-pose fault sends), which its watchdog
@@ -190,18 +220,12 @@ fn a_careless_hand_striking_about_gets_no_more_than_it_put_in_plus_the_tank() {
     }
     script.push((t + 0.3, 0.0, 0.0, 0.0));
     let r = run(&script, &p, &wire(), &[]);
-    eprintln!(
-        "careless: net delivered {:.5} J, worst window {:.5} J, axial max {:.3} N, device force max {:.3} N, \
-         tank low {:.5} J, observer delivered {:.5} J absorbed {:.5} J",
-        r.net_j, r.worst_window_j, r.axial_max_n, r.force_max_n, r.tank_low_j, r.observed.0, r.observed.1
-    );
+    r.print_and_check_energy("careless hand", &p);
     assert!(
         r.force_max_n > 1.0,
         "the hand felt the wire and the guide: {} N",
         r.force_max_n
     );
-    assert!(r.net_j <= p.tank_initial_j + 1e-9, "net delivered {} J", r.net_j);
-    assert!(r.worst_window_j <= p.tank_max_j + 1e-9, "window {} J", r.worst_window_j);
 }
 
 #[test]
@@ -226,29 +250,13 @@ fn pushing_the_wire_into_a_dead_end_delivers_no_more_than_went_in_plus_the_tank(
         (3.6, 0.0, 0.0, 0.0),
     ];
     let r = run(&script, &p, &wire(), &[]);
-    eprintln!(
-        "net delivered {:.5} J, worst window {:.5} J, axial max {:.3} N, device force max {:.3} N, \
-         tank low {:.5} J, observer delivered {:.5} J absorbed {:.5} J",
-        r.net_j, r.worst_window_j, r.axial_max_n, r.force_max_n, r.tank_low_j, r.observed.0, r.observed.1
-    );
+    r.print_and_check_energy("dead end", &p);
     assert!(
         r.axial_max_n > 1.0,
         "the wire was pushed into the dead end: {} N",
         r.axial_max_n
     );
     assert!(r.force_max_n > 1.0, "the hand felt it: {} N", r.force_max_n);
-    assert!(
-        r.net_j <= p.tank_initial_j + 1e-9,
-        "net delivered {} J > initial tank {} J",
-        r.net_j,
-        p.tank_initial_j
-    );
-    assert!(
-        r.worst_window_j <= p.tank_max_j + 1e-9,
-        "a window delivered {} J > tank {} J",
-        r.worst_window_j,
-        p.tank_max_j
-    );
 }
 
 #[test]
@@ -267,16 +275,11 @@ fn a_wild_pose_neither_credits_nor_charges_the_tank() {
     let wild = [1100, 1500, 1501, 2000, 2600];
     let r = run(&script, &p, &wire(), &wild);
     let observed = r.observed.0 - r.observed.1;
-    eprintln!(
-        "wild poses: net delivered {:.5} J (observer {:.5} J), worst window {:.5} J, tank low {:.5} J, force max {:.3} N",
-        r.net_j, observed, r.worst_window_j, r.tank_low_j, r.force_max_n
-    );
     assert!(r.force_max_n > 1.0, "the hand felt the wire: {} N", r.force_max_n);
     assert!(
         (observed - r.net_j).abs() < 5e-3,
         "the observer counted {observed} J net, the port delivered {} J",
         r.net_j
     );
-    assert!(r.net_j <= p.tank_initial_j + 1e-9, "net delivered {} J", r.net_j);
-    assert!(r.worst_window_j <= p.tank_max_j + 1e-9, "window {} J", r.worst_window_j);
+    r.print_and_check_energy("wild poses", &p);
 }
