@@ -13,7 +13,7 @@ use super::contact::{self, Candidates, ContactOutput, ContactParams, SurfaceInde
 use super::device::DeviceSample;
 use crate::math::Vec3;
 use crate::reduced::compliance::LocalCompliance;
-use crate::reduced::ReducedDynamics;
+use crate::reduced::{ReducedDynamics, ReducedPart};
 use nalgebra::{SMatrix, SVector};
 use std::sync::Arc;
 
@@ -278,21 +278,32 @@ fn step_model<const R: usize>(
     m: &mut LoopModel<R>,
     c: &ContactOutput<R>,
     loads: &[(u32, Vec3)],
+    part: Option<&mut ReducedPart<R>>,
     counters: &mut ServoCounters,
 ) -> (Vec3, bool) {
     let mut f = c.reduced_force - m.f_bar;
     // Point loads of other instruments (the guidewire inside): Σ Φᵢᵀ fᵢ.
+    let mut f_loads = SVector::<f64, R>::zeros();
     for (i, fi) in loads {
         if let Some(rows) = m.dynamics.rows_at(*i) {
-            f += rows.tr_mul(fi);
+            f_loads += rows.tr_mul(fi);
         }
     }
+    f += f_loads;
     // The hand feels the tool sphere only (extra spheres are other contact
     // points of the instrument).
     let desired = c.sphere_forces.first().copied().unwrap_or(c.tool_force);
     let finite = desired.iter().all(|v| v.is_finite()) && f.iter().all(|v| v.is_finite());
-    if finite && !m.dynamics.step_with_contact(&f, &c.reduced_stiffness) {
-        counters.contact_stiffness_dropped += 1;
+    if finite {
+        let stiff = match part {
+            Some(part) => m
+                .dynamics
+                .step_with_contact_and(&f, &c.reduced_stiffness, part, &f_loads),
+            None => m.dynamics.step_with_contact(&f, &c.reduced_stiffness),
+        };
+        if !stiff {
+            counters.contact_stiffness_dropped += 1;
+        }
     }
     let state_ok = m.dynamics.q().iter().all(|v| v.is_finite()) && m.dynamics.qd().iter().all(|v| v.is_finite());
     (if finite { desired } else { Vec3::zeros() }, finite && state_ok)
@@ -322,6 +333,8 @@ pub struct Servo<const R: usize> {
     centers: heapless::Vec<Vec3, { contact::MAX_SPHERES }>,
     events: ContactEvents,
     point_loads: heapless::Vec<(u32, Vec3), MAX_POINT_LOADS>,
+    /// The share of the current model's state the point loads caused.
+    loads_part: ReducedPart<R>,
 }
 
 /// Most point loads [`Servo::set_point_loads`] keeps.
@@ -360,6 +373,7 @@ impl<const R: usize> Servo<R> {
             centers: heapless::Vec::new(),
             events: ContactEvents::default(),
             point_loads: heapless::Vec::new(),
+            loads_part: ReducedPart::default(),
         }
     }
 
@@ -426,7 +440,12 @@ impl<const R: usize> Servo<R> {
                 );
                 let c = &self.fade_contact;
                 let k = new.dynamics.stiffness() + c.reduced_stiffness;
-                let r = c.reduced_force - new.f_bar - new.dynamics.stiffness() * q;
+                let mut r = c.reduced_force - new.f_bar - new.dynamics.stiffness() * q;
+                for (i, fi) in self.point_loads.iter() {
+                    if let Some(rows) = new.dynamics.rows_at(*i) {
+                        r += rows.tr_mul(fi);
+                    }
+                }
                 if let Some(step) = k.cholesky().map(|ch| ch.solve(&r)) {
                     if step.iter().all(|v| v.is_finite()) {
                         q += step;
@@ -434,8 +453,10 @@ impl<const R: usize> Servo<R> {
                 }
             }
             new.dynamics.set_state(&q, &qd);
+            self.loads_part = self.loads_part.transferred(&new.transfer);
         } else {
             new.dynamics.reset();
+            self.loads_part = ReducedPart::default();
             self.counters.nonfinite += 1;
         }
         self.counters.model_swaps += 1;
@@ -559,6 +580,28 @@ impl<const R: usize> Servo<R> {
         }
     }
 
+    /// Deformed position of mesh node `i` without the share of the
+    /// deformation the point loads ([`Servo::set_point_loads`]) caused: the
+    /// wall as the instrument that loads it must see it, since that
+    /// instrument already feels the wall's compliance in series with its
+    /// contact (the guidewire, `wire::coupling`). Seeing its own dent too
+    /// would close a loop through the wall with a gain of about
+    /// k_contact × compliance ≫ 1.
+    pub fn node_position_without_point_loads(&self, i: u32) -> Vec3 {
+        let m = &self.model;
+        let base = self.index.rest(i) + m.offset.get(i as usize).copied().unwrap_or_else(Vec3::zeros);
+        match m.dynamics.rows_at(i) {
+            Some(rows) => base + rows * (m.dynamics.q() - self.loads_part.q),
+            None => base,
+        }
+    }
+
+    /// The share of the current model's reduced state that the point loads
+    /// caused (by linearity of the reduced step).
+    pub fn point_load_part(&self) -> &ReducedPart<R> {
+        &self.loads_part
+    }
+
     /// One tick: the freshest device `sample` (None if the ring was empty),
     /// the time `now_s`, and the current streak of deadline misses. Returns
     /// the desired force and the status; the caller filters it and then
@@ -637,8 +680,13 @@ impl<const R: usize> Servo<R> {
         if !c.nodes.is_empty() && self.model.compliance.is_some() {
             self.counters.compliance_ticks += 1;
         }
-        let (mut desired, mut finite) =
-            step_model(&mut self.model, &self.contact, &self.point_loads, &mut self.counters);
+        let (mut desired, mut finite) = step_model(
+            &mut self.model,
+            &self.contact,
+            &self.point_loads,
+            Some(&mut self.loads_part),
+            &mut self.counters,
+        );
         // A cross-fade: the old model runs on and the force blends over.
         if let Some(old) = self.fading.as_mut() {
             eval_contact(
@@ -649,7 +697,7 @@ impl<const R: usize> Servo<R> {
                 &mut self.fade_scratch,
                 &mut self.fade_contact,
             );
-            let (f_old, ok_old) = step_model(old, &self.fade_contact, &self.point_loads, &mut self.counters);
+            let (f_old, ok_old) = step_model(old, &self.fade_contact, &self.point_loads, None, &mut self.counters);
             self.blend = (self.blend + p.dt / p.swap_blend_s.max(p.dt)).min(1.0);
             desired = f_old * (1.0 - self.blend) + desired * self.blend;
             finite &= ok_old;
@@ -662,6 +710,7 @@ impl<const R: usize> Servo<R> {
         }
         if fl & flags::NONFINITE != 0 {
             self.model.dynamics.reset();
+            self.loads_part = ReducedPart::default();
             if let Some(old) = self.fading.as_mut() {
                 old.dynamics.reset();
             }

@@ -127,6 +127,51 @@ pub const MAX_PRONY_TERMS: usize = 4;
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct NodeOutOfRange(pub u32);
 
+/// A share of a reduced model's state: the part of (q, q̇) and of the Prony
+/// histories that one load alone caused, stepped beside the whole state by
+/// [`ReducedDynamics::step_with_contact_and`]. Fixed size, plain data.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ReducedPart<const R: usize> {
+    /// Its share of q.
+    pub q: SVector<f64, R>,
+    /// Its share of q̇.
+    pub qd: SVector<f64, R>,
+    gamma: [SVector<f64, R>; MAX_PRONY_TERMS],
+}
+
+impl<const R: usize> Default for ReducedPart<R> {
+    fn default() -> Self {
+        ReducedPart {
+            q: SVector::zeros(),
+            qd: SVector::zeros(),
+            gamma: [SVector::zeros(); MAX_PRONY_TERMS],
+        }
+    }
+}
+
+impl<const R: usize> ReducedPart<R> {
+    /// The share carried into another basis by the swap's transfer T
+    /// (q ← T q, q̇ ← T q̇; the Prony histories start empty, as a new
+    /// model's do); a share that is not finite is zeroed.
+    pub fn transferred(&self, t: &SMatrix<f64, R, R>) -> ReducedPart<R> {
+        let mut p = ReducedPart {
+            q: t * self.q,
+            qd: t * self.qd,
+            gamma: [SVector::zeros(); MAX_PRONY_TERMS],
+        };
+        if !p.is_finite() {
+            p = ReducedPart::default();
+        }
+        p
+    }
+
+    /// Whether every entry is finite.
+    pub fn is_finite(&self) -> bool {
+        self.q.iter().chain(self.qd.iter()).all(|v| v.is_finite())
+            && self.gamma.iter().all(|g| g.iter().all(|v| v.is_finite()))
+    }
+}
+
 /// The reduced model with capacity `R`: state (q, q̇), the reduced stiffness,
 /// the factored implicit-Euler matrix and, per node, its 3 rows of Φ.
 #[derive(Debug, Clone)]
@@ -324,11 +369,22 @@ impl<const R: usize> ReducedDynamics<R> {
 
     /// The right-hand side q̇ₙ + h (f − s K_r qₙ + H), inactive entries zeroed.
     fn rhs(&self, f: &SVector<f64, R>) -> SVector<f64, R> {
-        let mut force = f - self.k * self.q * self.prony_scale;
-        for i in 0..self.prony_n {
-            force += self.gamma[i] * self.prony_b[i];
+        self.rhs_of(&self.q, &self.qd, &self.gamma, f)
+    }
+
+    /// [`ReducedDynamics::rhs`] for the state (`q`, `qd`, `gamma`).
+    fn rhs_of(
+        &self,
+        q: &SVector<f64, R>,
+        qd: &SVector<f64, R>,
+        gamma: &[SVector<f64, R>; MAX_PRONY_TERMS],
+        f: &SVector<f64, R>,
+    ) -> SVector<f64, R> {
+        let mut force = f - self.k * q * self.prony_scale;
+        for (g, b) in gamma.iter().zip(&self.prony_b).take(self.prony_n) {
+            force += g * *b;
         }
-        let mut rhs = self.qd + force * self.dt;
+        let mut rhs = qd + force * self.dt;
         for v in rhs.iter_mut().skip(self.r) {
             *v = 0.0;
         }
@@ -337,12 +393,26 @@ impl<const R: usize> ReducedDynamics<R> {
 
     /// γ_i ← A_i K_r qₙ₊₁ + B_i γ_i after a step (eq. 15).
     fn update_history(&mut self) {
+        let q = self.q;
+        let mut gamma = self.gamma;
+        self.update_history_of(&q, &mut gamma);
+        self.gamma = gamma;
+    }
+
+    /// [`ReducedDynamics::update_history`] for the histories `gamma` of a
+    /// state at `q`.
+    fn update_history_of(&self, q: &SVector<f64, R>, gamma: &mut [SVector<f64, R>; MAX_PRONY_TERMS]) {
         if self.prony_n == 0 {
             return;
         }
-        let g = self.k * self.q;
-        for i in 0..self.prony_n {
-            self.gamma[i] = g * self.prony_a[i] + self.gamma[i] * self.prony_b[i];
+        let kq = self.k * q;
+        for ((g, a), b) in gamma
+            .iter_mut()
+            .zip(&self.prony_a)
+            .zip(&self.prony_b)
+            .take(self.prony_n)
+        {
+            *g = kq * *a + *g * *b;
         }
     }
 
@@ -387,6 +457,51 @@ impl<const R: usize> ReducedDynamics<R> {
         self.qd = rhs;
         self.q += self.qd * h;
         self.update_history();
+        ok
+    }
+
+    /// [`ReducedDynamics::step_with_contact`] that also steps `part`, the
+    /// component of the state that answers to the load `f_part` alone
+    /// (`f_part` is included in `f`): the same implicit-Euler system with the
+    /// same contact stiffness, factored once. By linearity `part` stays the
+    /// exact share of q that `f_part`'s history caused, e.g. the wall's
+    /// displacement under the guidewire's own loads, which the wire's lumen
+    /// leaves out. Allocates nothing.
+    pub fn step_with_contact_and(
+        &mut self,
+        f: &SVector<f64, R>,
+        k_c: &SMatrix<f64, R, R>,
+        part: &mut ReducedPart<R>,
+        f_part: &SVector<f64, R>,
+    ) -> bool {
+        let h = self.dt;
+        let mut a = self.a;
+        for i in 0..self.r {
+            for j in 0..self.r {
+                a[(i, j)] += h * h * k_c[(i, j)];
+            }
+        }
+        let mut rhs = self.rhs(f);
+        let mut rhs_part = self.rhs_of(&part.q, &part.qd, &part.gamma, f_part);
+        let ok = match Cholesky::new(a) {
+            Some(chol) => {
+                chol.solve_mut(&mut rhs);
+                chol.solve_mut(&mut rhs_part);
+                true
+            }
+            None => {
+                self.system.solve_mut(&mut rhs);
+                self.system.solve_mut(&mut rhs_part);
+                false
+            }
+        };
+        self.qd = rhs;
+        self.q += self.qd * h;
+        self.update_history();
+        part.qd = rhs_part;
+        part.q += part.qd * h;
+        let q = part.q;
+        self.update_history_of(&q, &mut part.gamma);
         ok
     }
 
@@ -638,5 +753,59 @@ mod tests {
         assert!(d
             .set_prony(&[PronyTerm { alpha: 0.6, tau: 1.0 }, PronyTerm { alpha: 0.5, tau: 1.0 }])
             .is_err());
+    }
+
+    #[test]
+    fn a_part_stepped_beside_the_state_is_the_response_to_its_load_alone() {
+        // Two modes with Prony terms and a contact stiffness that changes
+        // every step: the part stepped with load b equals a model driven by
+        // b alone, and the rest equals a model driven by a alone.
+        let b = ModalBasis {
+            phi: DMatrix::from_column_slice(3, 2, &[1.0, 0.0, 0.0, 0.3, 1.0, 0.0]),
+            omega2: vec![4.0, 90.0],
+            ..one_mode()
+        };
+        let p = DynamicsParams {
+            dt: 1e-3,
+            alpha: 5.0,
+            beta: 1e-3,
+        };
+        let prony = [PronyTerm { alpha: 0.3, tau: 0.05 }];
+        let mk = || {
+            let mut d = ReducedDynamics::<4>::new(&b, &p).unwrap();
+            d.set_prony(&prony).unwrap();
+            d
+        };
+        let (mut whole, mut only_a, mut only_b) = (mk(), mk(), mk());
+        let mut part = ReducedPart::<4>::default();
+        for n in 0..3000 {
+            let t = n as f64 * 1e-3;
+            let mut kc = SMatrix::<f64, 4, 4>::zeros();
+            kc[(0, 0)] = 1e6 * (1.0 + (7.0 * t).sin());
+            kc[(0, 1)] = 2e5;
+            kc[(1, 0)] = 2e5;
+            kc[(1, 1)] = 1e6;
+            let fa = SVector::<f64, 4>::from_column_slice(&[(3.0 * t).cos(), 0.5, 0.0, 0.0]);
+            let fb = SVector::<f64, 4>::from_column_slice(&[-0.2, (11.0 * t).sin(), 0.0, 0.0]);
+            assert!(whole.step_with_contact_and(&(fa + fb), &kc, &mut part, &fb));
+            only_a.step_with_contact(&fa, &kc);
+            only_b.step_with_contact(&fb, &kc);
+        }
+        let scale = whole.q().norm();
+        assert!(
+            (part.q - only_b.q()).norm() <= 1e-12 * scale,
+            "{} vs {}",
+            part.q,
+            only_b.q()
+        );
+        assert!((whole.q() - part.q - only_a.q()).norm() <= 1e-12 * scale);
+        assert!((part.qd - only_b.qd()).norm() <= 1e-9 * (1.0 + only_b.qd().norm()));
+        assert!(part.q.norm() > 1e-3 * scale, "the test's loads must move the part");
+        // The transfer carries it; a non-finite one is dropped.
+        let t = SMatrix::<f64, 4, 4>::identity() * 2.0;
+        assert_eq!(part.transferred(&t).q, part.q * 2.0);
+        let mut bad = part;
+        bad.q[0] = f64::NAN;
+        assert_eq!(bad.transferred(&t), ReducedPart::default());
     }
 }

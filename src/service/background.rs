@@ -524,7 +524,7 @@ pub fn run<const R: usize>(mut bg: Background<R>, mut io: BackgroundIo<R>) -> Ba
                     .zip(&u_at_basis)
                     .map(|(a, b)| (a - b).norm())
                     .fold(0.0, f64::max);
-                if change >= bg.basis_policy.min_change_m {
+                if change >= bg.basis_policy.min_change_m && bg.solver.has_stiffness() {
                     if let Some((tx, _)) = io.basis.as_mut() {
                         let job = BasisJob {
                             tangent: bg.solver.last_stiffness().clone(),
@@ -542,7 +542,11 @@ pub fn run<const R: usize>(mut bg: Background<R>, mut io: BackgroundIo<R>) -> Ba
 
         // Re-linearize and send (keep-latest if the ring is full).
         epoch += 1;
-        let built = if rep.ok() {
+        // A step that started in equilibrium (at rest, no load) assembled
+        // no tangent: build the model from a fresh assembly then, never
+        // from the solver's all-zero stiffness (a loop model with K_r = 0
+        // drifts under any load it is given).
+        let built = if rep.ok() && bg.solver.has_stiffness() {
             bg.build_model_from_step(&state.u, &fbar, epoch, sent_phi.as_ref())
         } else {
             bg.build_model(&state.u, &fbar, epoch, sent_phi.as_ref())

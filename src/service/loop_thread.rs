@@ -9,7 +9,6 @@ use super::background::{ContactMsg, CONTACT_MSG_NODES};
 use super::device_io::ForceCmd;
 use super::live::LiveStats;
 use super::publisher::StateSnapshot;
-use crate::haptics::contact::NodeContact;
 use crate::haptics::device::DeviceSample;
 use crate::haptics::frame::DeviceFrame;
 use crate::haptics::passivity::PassivityStats;
@@ -205,24 +204,11 @@ pub(super) fn loop_thread<const R: usize>(mut tick: HapticTick<R>, mut io: LoopI
                 res.contact_ring_full += 1;
             }
         }
-        // The wire's wall loads go to the full solve too, every tick (it
-        // averages per tick), in messages of at most CONTACT_MSG_NODES.
-        if let Some(w) = io.wire.as_ref() {
-            for chunk in w.loads().chunks(CONTACT_MSG_NODES) {
-                contact_msg.tick = n;
-                contact_msg.nodes.clear();
-                for &(node, force) in chunk {
-                    let _ = contact_msg.nodes.push(NodeContact {
-                        node,
-                        force,
-                        sphere: u16::MAX,
-                    });
-                }
-                if io.contact.push(contact_msg.clone()).is_err() {
-                    res.contact_ring_full += 1;
-                }
-            }
-        }
+        // The wire's wall loads load the reduced model only (`WireLink`):
+        // the full solve does not see them, since the wire already feels the
+        // wall's compliance in series with its contact and a delayed copy of
+        // its own dent in ū would close the loop the lumen leaves open
+        // (docs/WIRE.md, "The wall under the wire").
         if pending_return.is_none() {
             pending_return = tick.servo_mut().take_retired();
         }
@@ -243,6 +229,7 @@ pub(super) fn loop_thread<const R: usize>(mut tick: HapticTick<R>, mut io: LoopI
                 time_s: now_s,
                 epoch: model.epoch,
                 q: *model.dynamics.q(),
+                q_loads: tick.servo().point_load_part().q,
                 tool: out.tool,
                 force: out.force,
                 flags: out.flags,

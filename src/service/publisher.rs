@@ -21,6 +21,9 @@ pub struct StateSnapshot<const R: usize> {
     pub epoch: u64,
     /// Reduced coordinates δq.
     pub q: SVector<f64, R>,
+    /// The share of δq the guidewire's wall loads caused: the wire's lumen
+    /// is the wall without it (`Servo::node_position_without_point_loads`).
+    pub q_loads: SVector<f64, R>,
     /// Tool centre (m, scene frame).
     pub tool: Vec3,
     /// Commanded force (N).
@@ -38,6 +41,9 @@ pub(super) struct PublisherResult {
     pub errors: u64,
     pub first_error: Option<String>,
     pub igtl: Option<crate::stream::igtl::IgtlStats>,
+    /// Largest displacement of an inner-wall vertex under the guidewire's
+    /// wall loads (m), over the snapshots published.
+    pub wire_dent_max_m: f64,
 }
 
 /// What the publisher thread needs.
@@ -75,6 +81,7 @@ pub(super) fn publisher_thread<const R: usize>(mut p: PublisherPlan<R>) -> Publi
     let mut maxes: std::collections::VecDeque<f32> = std::collections::VecDeque::new();
     let mut errors = 0u64;
     let mut first_error = None;
+    let mut wire_dent_max_m: f64 = 0.0;
     while !p.stop.load(Ordering::Relaxed) {
         while let Ok(o) = p.offsets.pop() {
             offsets.push_back(o);
@@ -125,8 +132,16 @@ pub(super) fn publisher_thread<const R: usize>(mut p: PublisherPlan<R>) -> Publi
                     .as_ref()
                     .and_then(|o| o.get(i as usize).copied())
                     .unwrap_or_else(Vec3::zeros);
-                rest + ubar + rows.get(i as usize).map(|row| row * s.q).unwrap_or_else(Vec3::zeros)
+                let q = s.q - s.q_loads;
+                rest + ubar + rows.get(i as usize).map(|row| row * q).unwrap_or_else(Vec3::zeros)
             });
+            if s.q_loads.iter().any(|&v| v != 0.0) {
+                for &i in &w.nodes {
+                    if let Some(row) = rows.get(i as usize) {
+                        wire_dent_max_m = wire_dent_max_m.max((row * s.q_loads).norm());
+                    }
+                }
+            }
         }
         if s.epoch != last_epoch {
             last_epoch = s.epoch;
@@ -197,5 +212,6 @@ pub(super) fn publisher_thread<const R: usize>(mut p: PublisherPlan<R>) -> Publi
         errors,
         first_error,
         igtl,
+        wire_dent_max_m,
     }
 }

@@ -131,6 +131,20 @@ pub struct WireReport {
     pub allocations_after_start: u64,
     /// Wall-load messages the loop had no room for.
     pub loads_ring_full: u64,
+    /// Whether the wire's contacts load the vessel (`guidewire.load_wall`).
+    pub load_wall: bool,
+    /// The inner wall's normal compliance the wire's contact sees in series
+    /// (m/N): median and largest over the wall's vertices (0 with a rigid
+    /// lumen).
+    pub wall_compliance_p50_m_per_n: f64,
+    /// See `wall_compliance_p50_m_per_n`.
+    pub wall_compliance_max_m_per_n: f64,
+    /// Largest give of the wall under one contact (m): compliance × normal
+    /// force, what the wire's contact took as the wall's share.
+    pub wall_deflection_max_m: f64,
+    /// Largest displacement of an inner-wall vertex in the reduced model
+    /// under the wire's loads (m), as the stream shows it.
+    pub wall_dent_max_m: f64,
 }
 
 /// The whole report. Keys are a scripting contract.
@@ -475,7 +489,8 @@ impl Report {
         if let Some(w) = &self.wire {
             s += &format!(
                 "  wire: {} nodes, {:.1} mm inserted (most {:.1}), tip in {}; step (µs) {} over {} steps ({} Newton it. at most), \
-                 contacts p50 {:.0} max {}, deepest {:.3} mm, axial force max {:.3} N, {} resets, {} stalls, thread {} on CPU {}\n",
+                 contacts p50 {:.0} max {}, deepest {:.3} mm, axial force max {:.3} N, {} resets, {} stalls, thread {} on CPU {}\n\
+                 {}",
                 w.nodes,
                 w.inserted_m * 1e3,
                 w.inserted_max_m * 1e3,
@@ -490,7 +505,18 @@ impl Report {
                 w.resets,
                 w.stalls,
                 if w.rt_policy_granted { "SCHED_FIFO" } else { "normal policy" },
-                w.cpu.map(|c| c.to_string()).unwrap_or_else(|| "not pinned".into())
+                w.cpu.map(|c| c.to_string()).unwrap_or_else(|| "not pinned".into()),
+                if w.load_wall {
+                    format!(
+                        "    wall under the wire: compliance p50 {:.3} max {:.3} mm/N, give max {:.3} mm, reduced model's dent max {:.3} mm\n",
+                        w.wall_compliance_p50_m_per_n * 1e3,
+                        w.wall_compliance_max_m_per_n * 1e3,
+                        w.wall_deflection_max_m * 1e3,
+                        w.wall_dent_max_m * 1e3
+                    )
+                } else {
+                    "    wall under the wire: not loaded (guidewire.load_wall = false)\n".to_string()
+                }
             );
         }
         if let Some(g) = &self.igtl {

@@ -109,7 +109,7 @@ impl<const R: usize> RunningService for Running<R> {
             Some(h) => Some(join(Some(h), "wire")?),
             None => None,
         };
-        let wire = wr.map(|w| {
+        let mut wire = wr.map(|w| {
             let tip_segment = self
                 .wire_wall
                 .as_ref()
@@ -136,6 +136,11 @@ impl<const R: usize> RunningService for Running<R> {
                 cpu: w.grant.cpu,
                 allocations_after_start: w.allocations,
                 loads_ring_full: w.loads_ring_full,
+                load_wall: w.load_wall,
+                wall_compliance_p50_m_per_n: w.compliance_p50,
+                wall_compliance_max_m_per_n: w.compliance_max,
+                wall_deflection_max_m: w.deflection_max,
+                wall_dent_max_m: 0.0,
             }
         });
         let (dr, mut dev) = join(self.dev_handle.take(), "device")?;
@@ -153,6 +158,9 @@ impl<const R: usize> RunningService for Running<R> {
         };
         let pr = survive(join(self.pub_handle.take(), "stream"), &mut threads_lost).unwrap_or_default();
         let (stream_frames, stream_errors, stream_error) = (pr.frames, pr.errors, pr.first_error);
+        if let Some(w) = wire.as_mut() {
+            w.wall_dent_max_m = pr.wire_dent_max_m;
+        }
         let mut refusals = std::mem::take(&mut self.refusals);
         let (rings, memory_locked) = (self.rings, self.memory_locked);
         if let Some(e) = &stream_error {
@@ -516,6 +524,7 @@ pub(super) fn start_with<const R: usize>(p: Prepared) -> Result<Running<R>, Serv
                 wp,
                 g,
                 &mesh,
+                &first,
                 frame,
                 stop.clone(),
                 faults.clone(),

@@ -336,12 +336,6 @@ impl WireLink {
         let f = self.drive.hand_force(s, axial);
         tick.set_external_force(self.frame.force_to_scene(f));
     }
-
-    /// The wall loads in use (mesh node, force on the tissue, N): what the
-    /// background solve is sent with the tool's contact.
-    pub(super) fn loads(&self) -> &[(u32, Vec3)] {
-        &self.current
-    }
 }
 
 /// What the wire thread needs.
@@ -385,6 +379,10 @@ pub(super) struct WireResult {
     pub loads_ring_full: u64,
     pub loads_dropped: u64,
     pub wall: Vec<Vec3>,
+    pub load_wall: bool,
+    pub compliance_p50: f64,
+    pub compliance_max: f64,
+    pub deflection_max: f64,
 }
 
 /// Builds the rings, the loop's link, the publisher's part and the wire
@@ -427,10 +425,11 @@ impl PublisherWire {
 /// Everything the service needs to run the wire, built before the threads
 /// start.
 #[allow(clippy::too_many_arguments)]
-pub(super) fn build(
+pub(super) fn build<const R: usize>(
     params: &WireParams,
     g: &GuidewireConfig,
     mesh: &crate::mesh::TetMesh,
+    vessel: &crate::haptics::servo::LoopModel<R>,
     frame: DeviceFrame,
     stop: Arc<AtomicBool>,
     faults: Arc<FaultSwitches>,
@@ -439,9 +438,19 @@ pub(super) fn build(
 ) -> Result<WireParts, super::ServiceError> {
     let wall =
         InnerWall::from_mesh(mesh, &g.wall_set).map_err(|e| super::ServiceError::Solver(format!("guidewire: {e}")))?;
-    let lumen = wall
+    let mut lumen = wall
         .lumen()
         .map_err(|e| super::ServiceError::Solver(format!("guidewire: {e}")))?;
+    if g.load_wall {
+        // The wall gives under the wire: its compliance in series with the
+        // contact, the lumen without the wire's own dent (docs/WIRE.md).
+        let c = wall
+            .normal_compliance(&vessel.dynamics, vessel.compliance.as_deref())
+            .ok_or_else(|| super::ServiceError::Solver("guidewire: the reduced stiffness is singular".into()))?;
+        lumen
+            .set_compliance(&c)
+            .map_err(|e| super::ServiceError::Solver(format!("guidewire: {e}")))?;
+    }
     let wire = Wire::new(params, Vec3::from(g.access_point_m), Vec3::from(g.axis), g.inserted_m)
         .map_err(|e| super::ServiceError::Solver(format!("guidewire: {e}")))?;
     let drive = HubDrive::new(params, wire.inserted(), wire.roll())?;
@@ -532,7 +541,19 @@ pub(super) fn wire_thread(mut p: WirePlan) -> WireResult {
         loads_ring_full: 0,
         loads_dropped: 0,
         wall: Vec::new(),
+        load_wall: !p.lumen.compliance().is_empty(),
+        compliance_p50: 0.0,
+        compliance_max: 0.0,
+        deflection_max: 0.0,
     };
+    {
+        let mut c = p.lumen.compliance().to_vec();
+        c.sort_by(f64::total_cmp);
+        if let (Some(mid), Some(max)) = (c.get(c.len() / 2), c.last()) {
+            res.compliance_p50 = *mid;
+            res.compliance_max = *max;
+        }
+    }
     let _pool = crate::rt::alloc::enter_rt(p.pool_bytes);
     let mut msg = LoadMsg {
         loads: heapless::Vec::new(),
@@ -586,6 +607,9 @@ pub(super) fn wire_thread(mut p: WirePlan) -> WireResult {
                 res.contacts_max = res.contacts_max.max(rep.contacts);
                 res.max_penetration_m = res.max_penetration_m.max(rep.max_penetration_m);
                 res.axial_force_max_n = res.axial_force_max_n.max(rep.hub_axial_force_n.abs());
+                for c in p.wire.contacts() {
+                    res.deflection_max = res.deflection_max.max(c.wall_deflection);
+                }
                 res.iterations_max = res.iterations_max.max(rep.iterations);
                 WireShared::set(&p.shared.axial_bits, rep.hub_axial_force_n);
                 since_good += 1;

@@ -425,6 +425,9 @@ pub struct ImplicitEuler {
     dv: Vec<Vec3>,
     k0v: Vec<Vec3>,
     k: BlockTangent,
+    /// Whether `k` holds an assembled stiffness (a step that starts in
+    /// equilibrium stops before assembling one).
+    k_assembled: bool,
     k0: BlockTangent,
     a: BlockTangent,
     /// The state at the start of a step being split (`max_halvings`).
@@ -479,6 +482,7 @@ impl ImplicitEuler {
             k0: k.clone(),
             a: k.clone(),
             k,
+            k_assembled: false,
         })
     }
 
@@ -514,6 +518,15 @@ impl ImplicitEuler {
     /// projects it into the reduced basis instead of assembling it again.
     pub fn last_stiffness(&self) -> &BlockTangent {
         &self.k
+    }
+
+    /// Whether [`ImplicitEuler::last_stiffness`] holds an assembled
+    /// stiffness. It does not before the first step that iterated: a step
+    /// that starts in equilibrium (zero residual, e.g. at rest under no
+    /// load) converges before assembling one, and the stiffness is then
+    /// still all zeros.
+    pub fn has_stiffness(&self) -> bool {
+        self.k_assembled
     }
 
     /// v₁ += Δv on the free nodes; when `last` (the final iteration and no
@@ -756,11 +769,13 @@ impl ImplicitEuler {
 
             // Newton matrix A = (1 + hα) M + hβ K₀ + h² K(u_k).
             self.k.clear();
+            self.k_assembled = false;
             model.add_stiffness(&self.ut, &mut self.k);
             if !block_finite(&self.k) {
                 rep.failure = Some(StepFailure::NonFiniteStiffness { newton_iter: k });
                 return rep;
             }
+            self.k_assembled = true;
             if k == 0 && keep_k0 {
                 // Not `clone_from`: the derived one reallocates.
                 self.k0.diag.copy_from_slice(&self.k.diag);

@@ -11,6 +11,9 @@ use super::lumen::{LumenError, TriangleLumen};
 use super::rod::WireContact;
 use crate::math::Vec3;
 use crate::mesh::TetMesh;
+use crate::reduced::compliance::LocalCompliance;
+use crate::reduced::ReducedDynamics;
+use nalgebra::{SMatrix, SVector};
 
 /// Most wall point loads one wire step hands to the vessel (3 per contact
 /// node, merged where triangles share a vertex).
@@ -104,6 +107,68 @@ impl InnerWall {
     /// Rest positions of the wall vertices (m).
     pub fn rest(&self) -> &[Vec3] {
         &self.rest
+    }
+
+    /// Unit normal of each wall vertex at rest, into the lumen: the
+    /// area-weighted mean of its triangles' normals.
+    pub fn vertex_normals(&self) -> Vec<Vec3> {
+        let mut n = vec![Vec3::zeros(); self.rest.len()];
+        for t in &self.triangles {
+            let [a, b, c] = t.map(|i| self.rest[i as usize]);
+            let area2 = (b - a).cross(&(c - a));
+            for &i in t {
+                n[i as usize] += area2;
+            }
+        }
+        for v in n.iter_mut() {
+            let len = v.norm();
+            *v = if len > 0.0 { *v / len } else { Vec3::zeros() };
+        }
+        n
+    }
+
+    /// The wall's normal compliance at each vertex (m/N): how far the
+    /// vessel model lets the vertex go per newton pushed along its normal,
+    /// n_aᵀ (Φ_a K_r⁻¹ Φ_aᵀ + ΔW_aa) n_a — the reduced model's static
+    /// response (K_r of `dynamics`, its active block) plus, when the model
+    /// has one, the residual compliance of contact anywhere (`residual`),
+    /// which together are the full model's static compliance at the node
+    /// (docs/REDUCED.md). The wire puts it in series with its contact
+    /// penalty ([`TriangleLumen::set_compliance`]). Zero at vertices the
+    /// basis does not move; None if K_r is not positive definite.
+    pub fn normal_compliance<const R: usize>(
+        &self,
+        dynamics: &ReducedDynamics<R>,
+        residual: Option<&LocalCompliance>,
+    ) -> Option<Vec<f64>> {
+        let r = dynamics.active();
+        let mut k: SMatrix<f64, R, R> = *dynamics.stiffness();
+        for i in r..R {
+            k[(i, i)] = 1.0;
+        }
+        let chol = k.cholesky()?;
+        let normals = self.vertex_normals();
+        let mut out = Vec::with_capacity(self.nodes.len());
+        for (&node, n) in self.nodes.iter().zip(&normals) {
+            let reduced = match dynamics.rows_at(node) {
+                Some(rows) => {
+                    let mut g: SVector<f64, R> = rows.tr_mul(n);
+                    for v in g.iter_mut().skip(r) {
+                        *v = 0.0;
+                    }
+                    let q = chol.solve(&g);
+                    g.dot(&q)
+                }
+                None => 0.0,
+            };
+            let res = residual
+                .and_then(|c| c.block(node, node))
+                .map(|b| n.dot(&(b * n)))
+                .unwrap_or(0.0);
+            let c = reduced + res;
+            out.push(if c.is_finite() && c > 0.0 { c } else { 0.0 });
+        }
+        Some(out)
     }
 
     /// The wall at rest as a lumen for the wire.
@@ -204,6 +269,7 @@ mod tests {
             normal_force: 2.0,
             friction: Vec3::new(0.1, 0.0, 0.0),
             penetration: 1e-5,
+            wall_deflection: 0.0,
         };
         let mut out = heapless::Vec::new();
         assert_eq!(wall_loads(&wall, &lumen, &[c], &mut out), 0);

@@ -19,6 +19,10 @@ pub struct WallHit {
     pub normal: Vec3,
     /// The nearest wall point.
     pub point: Vec3,
+    /// The wall's normal compliance at `point` (m/N): how far the wall
+    /// gives per newton pressed on it along `normal`; 0 for a rigid wall.
+    /// The wire's contact puts it in series with its penalty.
+    pub compliance: f64,
 }
 
 /// A vessel lumen as seen by the wire's contact.
@@ -199,6 +203,7 @@ fn tube_hit(p: Vec3, c: Vec3, a: f64, fallback: Vec3) -> WallHit {
         distance: a - rho,
         normal: -out,
         point: c + out * a,
+        compliance: 0.0,
     }
 }
 
@@ -242,6 +247,7 @@ impl Lumen for StraightTube {
                     distance: d,
                     normal: -self.axis,
                     point: p + self.axis * d,
+                    compliance: 0.0,
                 });
             }
         }
@@ -426,6 +432,8 @@ pub struct TriangleLumen {
     spheres: Vec<[f64; 4]>,
     /// The same bounding spheres indexed by triangle (for cached queries).
     tri_spheres: Vec<[f64; 4]>,
+    /// The wall's normal compliance per vertex (m/N; empty: rigid).
+    compliance: Vec<f64>,
     /// This instance's stamp (see [`ProbeCache`]).
     stamp: u64,
     /// Sum over vertex updates of the largest vertex displacement (m): a
@@ -450,6 +458,7 @@ impl Clone for TriangleLumen {
             tri_cell: self.tri_cell.clone(),
             spheres: self.spheres.clone(),
             tri_spheres: self.tri_spheres.clone(),
+            compliance: self.compliance.clone(),
             stamp: new_stamp(),
             moved: self.moved,
         }
@@ -498,6 +507,7 @@ impl TriangleLumen {
             tri_cell: vec![0; triangles.len()],
             spheres: vec![[0.0; 4]; triangles.len()],
             tri_spheres: vec![[0.0; 4]; triangles.len()],
+            compliance: Vec::new(),
             stamp: new_stamp(),
             moved: 0.0,
         };
@@ -513,6 +523,32 @@ impl TriangleLumen {
     /// The triangles.
     pub fn triangles(&self) -> &[[u32; 3]] {
         &self.tris
+    }
+
+    /// Sets the wall's normal compliance at each vertex (m/N, ≥ 0, finite;
+    /// one per vertex), interpolated over the triangles into
+    /// [`WallHit::compliance`]; an empty slice makes the wall rigid again.
+    pub fn set_compliance(&mut self, per_vertex: &[f64]) -> Result<(), LumenError> {
+        if !per_vertex.is_empty() && per_vertex.len() != self.verts.len() {
+            return Err(LumenError::Update(format!(
+                "{} compliances given, the surface has {} vertices",
+                per_vertex.len(),
+                self.verts.len()
+            )));
+        }
+        if let Some(i) = per_vertex.iter().position(|c| !(c.is_finite() && *c >= 0.0)) {
+            return Err(LumenError::Update(format!(
+                "the compliance of vertex {i} is {} (must be finite and >= 0 m/N)",
+                per_vertex[i]
+            )));
+        }
+        self.compliance = per_vertex.to_vec();
+        Ok(())
+    }
+
+    /// The wall's normal compliance per vertex (m/N; empty: rigid).
+    pub fn compliance(&self) -> &[f64] {
+        &self.compliance
     }
 
     /// Moves the vertices (same count as at construction) and rebuilds the
@@ -691,11 +727,19 @@ impl TriangleLumen {
         } else {
             (0.0, face)
         };
+        let compliance = if self.compliance.is_empty() {
+            0.0
+        } else {
+            let w = self.barycentric(t, q);
+            let c = self.tris[t].map(|i| self.compliance[i as usize]);
+            (w[0] * c[0] + w[1] * c[1] + w[2] * c[2]).max(0.0)
+        };
         Some((
             WallHit {
                 distance,
                 normal,
                 point: q,
+                compliance,
             },
             t,
         ))

@@ -57,8 +57,12 @@ pub struct WireContact {
     pub normal_force: f64,
     /// Friction force of the wall on the wire (N, tangent to the wall).
     pub friction: Vec3,
-    /// How far the wire's surface is beyond the wall (m, ≥ 0).
+    /// How far the wire's surface is beyond the wall as the contact pushes
+    /// it (m, ≥ 0): the penalty's share, normal_force / contact stiffness.
     pub penetration: f64,
+    /// How far the contact pushes a compliant wall back (m, ≥ 0): its
+    /// normal compliance times the normal force; 0 against a rigid wall.
+    pub wall_deflection: f64,
 }
 
 /// What a step did.
@@ -1095,8 +1099,13 @@ impl Wire {
                 continue;
             }
             let nn = hit.normal;
-            max_pen = max_pen.max(pen);
-            energy += 0.5 * kc * pen * pen;
+            // A compliant wall gives in series with the penalty: the
+            // contact's stiffness is 1/(1/k_c + c), and the depth the
+            // penalty alone takes (the wire's surface beyond the pushed
+            // wall) is k pen / k_c.
+            let k = kc / (1.0 + kc * hit.compliance);
+            max_pen = max_pen.max(pen * (k / kc));
+            energy += 0.5 * k * pen * pen;
             let lam = s.lam[i];
             let pm = Mat3::identity() - outer(&nn, &nn);
             let ut = pm * (self.xt[i] - self.x0[i]);
@@ -1111,8 +1120,8 @@ impl Wire {
                     };
             }
             if assemble {
-                let mut g = -nn * (kc * pen);
-                let mut hm = outer(&nn, &nn) * kc;
+                let mut g = -nn * (k * pen);
+                let mut hm = outer(&nn, &nn) * k;
                 if mu > 0.0 && lam > 0.0 {
                     if un < eps_v {
                         g += ut * (mu * lam / eps_v);
@@ -1206,7 +1215,7 @@ impl Wire {
             } else {
                 Vec3::zeros()
             };
-            let lam = kc * pen;
+            let lam = kc / (1.0 + kc * hit.compliance) * pen;
             self.s.lam[i] = lam;
             if self.contacts.len() < self.contacts.capacity() {
                 self.contacts.push(WireContact {
@@ -1215,7 +1224,8 @@ impl Wire {
                     normal: nn,
                     normal_force: lam,
                     friction,
-                    penetration: pen,
+                    penetration: lam / kc,
+                    wall_deflection: lam * hit.compliance,
                 });
             }
         }
