@@ -283,7 +283,7 @@ enum BenchCmd {
         /// With --tick: sideways load pressing the wire onto the wall (N/m).
         #[arg(long, default_value_t = 3.0)]
         line_load: f64,
-        /// With --tick: rebuild the lumen from the reduced model's deformed wall (loaded by the wire: unstable, docs/WIRE.md) instead of the rest wall.
+        /// With --tick: rebuild the lumen from the reduced model's deformed wall, as the service does (without the dent of the wire's own loads, docs/WIRE.md "The wall under the wire"), instead of the rest wall.
         #[arg(long)]
         follow_wall: bool,
         /// Print JSON.

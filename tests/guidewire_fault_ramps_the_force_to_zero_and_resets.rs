@@ -15,7 +15,7 @@ fn a_non_finite_wire_step_zeroes_the_force_and_resets_the_wire() {
         dir.path(),
         60.0,
         "[[0.0, 0.02, 0.0], [0.3, 0.02, 0.0], [3.0, 0.06, 0.0]]",
-        false,
+        true,
     );
     let h = Service::start(StartOptions::file(cfg)).expect("the guidewire service starts");
     assert!(

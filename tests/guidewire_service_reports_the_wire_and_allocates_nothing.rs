@@ -19,7 +19,7 @@ fn a_short_guidewire_run_reports_finite_wire_keys_and_allocates_nothing() {
         dir.path(),
         4.0,
         "[[0.0, 0.02, 0.0], [0.3, 0.02, 0.0], [3.3, 0.08, 0.5]]",
-        std::env::var("GW_LOAD_WALL").map(|v| v != "0").unwrap_or(false),
+        std::env::var("GW_LOAD_WALL").map(|v| v != "0").unwrap_or(true),
     );
     let report = run_service(&StartOptions::file(cfg)).expect("the guidewire service runs");
     println!("{}", report.render());

@@ -93,9 +93,11 @@ pub struct WireTickBench {
 /// nodes, at most `iterations` Newton iterations a step (None: the
 /// configuration's), pressed onto the wall by `line_load` N/m, `ticks`
 /// ticks timed. With `follow_wall` the lumen is rebuilt from the reduced
-/// model's deformed wall (which the wire's loads move: the coupling
-/// docs/WIRE.md reports unstable), otherwise from the rest wall (the same
-/// rebuild cost).
+/// model's deformed wall as the service's publisher does (without the
+/// share of the deformation the wire's own loads caused; docs/WIRE.md
+/// "The wall under the wire"), otherwise from the rest wall (the same
+/// rebuild cost). With the configuration's `guidewire.load_wall` the
+/// wire's contact has the wall's compliance in series, as in the service.
 pub fn bench_wire_tick(
     config: &Path,
     nodes: usize,
@@ -136,6 +138,17 @@ pub fn bench_wire_tick(
     let mut first =
         crate::service::background::rest_model::<R>(rows, &k0, &p.dynamics, n).map_err(|e| arg(e.to_string()))?;
     first.compliance = p.compliance.as_ref().map(|c| c.0.clone());
+    let wall = InnerWall::from_mesh(mesh, &g.wall_set).map_err(|e| arg(e.to_string()))?;
+    // As the service: with `load_wall` the wire's contact has the wall's
+    // compliance in series.
+    let wall_compliance = if g.load_wall {
+        Some(
+            wall.normal_compliance(&first.dynamics, first.compliance.as_deref())
+                .ok_or_else(|| arg("the reduced stiffness is singular".into()))?,
+        )
+    } else {
+        None
+    };
     let index = std::sync::Arc::new(SurfaceIndex::new(mesh, &p.cfg.contact));
     let origin = match &p.cfg.device.frame {
         Some(f) => Vec3::from(f.offset_m),
@@ -172,8 +185,10 @@ pub fn bench_wire_tick(
     params
         .validate(Path::new("(bench wire --tick)"))
         .map_err(|e| arg(e.to_string()))?;
-    let wall = InnerWall::from_mesh(mesh, &g.wall_set).map_err(|e| arg(e.to_string()))?;
     let mut lumen = wall.lumen().map_err(|e| arg(e.to_string()))?;
+    if let Some(c) = &wall_compliance {
+        lumen.set_compliance(c).map_err(|e| arg(e.to_string()))?;
+    }
     let axis = Vec3::from(g.axis);
     let mut wire =
         Wire::new(&params, Vec3::from(g.access_point_m), axis, g.inserted_m).map_err(|e| arg(e.to_string()))?;
@@ -217,10 +232,12 @@ pub fn bench_wire_tick(
         let update = k % stream_every == 0;
         if update && follow_wall {
             // The publisher's part (another thread in the service): the
-            // deformed wall at the reduced model's state.
+            // deformed wall at the reduced model's state, without the dent
+            // of the wire's own loads (the wire's contact has the wall's
+            // compliance in series instead).
             let servo = tick.servo();
             for (v, &node) in verts.iter_mut().zip(wall.mesh_nodes()) {
-                *v = servo.node_position(node);
+                *v = servo.node_position_without_point_loads(node);
             }
         }
         let t0 = Instant::now();
