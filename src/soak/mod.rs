@@ -189,6 +189,9 @@ pub struct Check {
     pub passed: bool,
     /// The figures behind it.
     pub detail: String,
+    /// Not applicable to this configuration (neither passed nor failed;
+    /// `detail` says why).
+    pub skipped: bool,
 }
 
 /// The soak's result (`--json`).
@@ -275,7 +278,13 @@ impl SoakReport {
         for c in &self.checks {
             s += &format!(
                 "  [{}] {}: {}\n",
-                if c.passed { "ok" } else { "FAIL" },
+                if c.skipped {
+                    "skip"
+                } else if c.passed {
+                    "ok"
+                } else {
+                    "FAIL"
+                },
                 c.name,
                 c.detail
             );
@@ -378,6 +387,30 @@ fn rss_bytes() -> i64 {
 /// The configuration of a leg as TOML text: the scene made absolute (and
 /// rewritten at `youngs_pa` into `scratch` if given), the stream sent to
 /// `stream_port`, no OpenIGTLink server.
+/// Whether the configuration at `config` recomputes the basis in the
+/// background (`background.enabled` and `background.basis_refresh_s` > 0,
+/// their defaults true and 5 s): without it there is no basis failure to
+/// inject and no recomputation to wait for before measuring memory. An
+/// unreadable file counts as on (the leg reports the error itself).
+fn basis_refresh_on(config: &Path) -> bool {
+    let Some(v) = std::fs::read_to_string(config)
+        .ok()
+        .and_then(|t| t.parse::<toml::Table>().ok())
+    else {
+        return true;
+    };
+    let bg = v.get("background").and_then(|b| b.as_table());
+    let enabled = bg
+        .and_then(|b| b.get("enabled"))
+        .and_then(|e| e.as_bool())
+        .unwrap_or(true);
+    let every = bg
+        .and_then(|b| b.get("basis_refresh_s"))
+        .and_then(|e| e.as_float().or_else(|| e.as_integer().map(|i| i as f64)))
+        .unwrap_or(5.0);
+    enabled && every > 0.0
+}
+
 fn leg_config(config: &Path, youngs_pa: Option<f64>, stream_port: u16, scratch: &Path) -> Result<String, SoakError> {
     let bad = |path: &Path, what: String| SoakError::Config {
         path: path.to_path_buf(),
@@ -497,7 +530,11 @@ pub fn run_soak(opts: &SoakOptions) -> Result<SoakReport, SoakError> {
         seed: opts.seed,
         ..SoakReport::default()
     };
+    let refresh_on = basis_refresh_on(&opts.config);
     for k in FAULT_KINDS {
+        if k == "basis_failure" && !refresh_on {
+            continue;
+        }
         report.faults.insert(k.to_string(), FaultOutcome::default());
     }
     let mut rng = Rng::new(opts.seed);
@@ -513,6 +550,7 @@ pub fn run_soak(opts: &SoakOptions) -> Result<SoakReport, SoakError> {
                     name: format!("leg {name} ran to its end"),
                     passed: false,
                     detail: format!("thread {t}: {m}"),
+                    skipped: false,
                 });
             }
             Err(e) => {
@@ -534,6 +572,7 @@ fn finish(r: &mut SoakReport, legs_ok: bool) {
             name: name.into(),
             passed,
             detail,
+            skipped: false,
         })
     };
     add(
@@ -599,7 +638,15 @@ fn finish(r: &mut SoakReport, legs_ok: bool) {
             },
         );
     }
-    r.passed = checks.iter().all(|c| c.passed);
+    if !r.faults.contains_key("basis_failure") {
+        checks.push(Check {
+            name: "fault basis_failure: injected and recovered".into(),
+            passed: false,
+            detail: "not applicable: the configuration's basis refresh is off (background.basis_refresh_s = 0 or background.enabled = false)".into(),
+            skipped: true,
+        });
+    }
+    r.passed = checks.iter().all(|c| c.passed || c.skipped);
     r.checks = checks;
 }
 
@@ -615,6 +662,7 @@ fn run_leg(
     report: &mut SoakReport,
 ) -> Result<(), SoakError> {
     let mut rng = Rng::new(seed);
+    let refresh_on = basis_refresh_on(&opts.config);
     let receiver = UdpSocket::bind("127.0.0.1:0")?;
     let stream_port = receiver.local_addr()?.port();
     receiver.set_nonblocking(true)?;
@@ -775,7 +823,7 @@ fn run_leg(
             }
         }
         // The one-off basis failure: armed early; met at the next recomputation.
-        if !basis_fired && leg_index == 0 && now > 3.0 {
+        if !basis_fired && refresh_on && leg_index == 0 && now > 3.0 {
             basis_fired = true;
             faults.fail_next_basis.store(true, Ordering::Relaxed);
             pending.push(Pending {
@@ -985,7 +1033,7 @@ fn run_leg(
             if rss_trace.last().is_none_or(|&(t, _)| now - t >= 1.0) {
                 rss_trace.push((now, rss as f64 / 1048576.0));
             }
-            if now >= warmup_s && snap.bases_installed > 0 {
+            if now >= warmup_s && (snap.bases_installed > 0 || !refresh_on) {
                 let at = *rss_warm_at.get_or_insert(now + RSS_SETTLE_S);
                 if now >= at {
                     rss_after.push((now - at, rss));
@@ -1065,11 +1113,13 @@ fn run_leg(
         name: format!("leg {name}: every garbage datagram rejected by the bridge"),
         passed: garbage_rejected == garbage_sent,
         detail: format!("{garbage_sent} sent, {garbage_rejected} rejected"),
+        skipped: false,
     });
     report.checks.push(Check {
         name: format!("leg {name}: the allocator was installed (allocations are counted)"),
         passed: svc.allocator_installed,
         detail: format!("{}", svc.allocator_installed),
+        skipped: false,
     });
     report.legs.push(LegReport {
         name: name.into(),
@@ -1093,7 +1143,46 @@ fn run_leg(
 
 #[cfg(test)]
 mod tests {
-    use super::window_levels;
+    use super::{basis_refresh_on, finish, window_levels, FaultOutcome, SoakReport};
+
+    #[test]
+    fn basis_refresh_is_read_from_the_config_and_off_skips_its_fault() {
+        let dir = tempfile::tempdir().unwrap();
+        let write = |name: &str, text: &str| {
+            let p = dir.path().join(name);
+            std::fs::write(&p, text).unwrap();
+            p
+        };
+        assert!(basis_refresh_on(&write("a.toml", "scene = \"s.toml\"\n")));
+        assert!(basis_refresh_on(&write(
+            "b.toml",
+            "[background]\nbasis_refresh_s = 2\n"
+        )));
+        assert!(!basis_refresh_on(&write(
+            "c.toml",
+            "[background]\nbasis_refresh_s = 0.0\n"
+        )));
+        assert!(!basis_refresh_on(&write("d.toml", "[background]\nenabled = false\n")));
+        // Without the basis fault in the run, its check is a skip: the run
+        // passes on the others, and the skip does not count as passed.
+        let mut r = SoakReport {
+            rss_legs_measured: 1,
+            ..SoakReport::default()
+        };
+        r.faults.insert(
+            "silence".into(),
+            FaultOutcome {
+                injected: 1,
+                recovered: 1,
+                ..FaultOutcome::default()
+            },
+        );
+        finish(&mut r, true);
+        let skip = r.checks.iter().find(|c| c.name.contains("basis_failure")).unwrap();
+        assert!(skip.skipped && !skip.passed, "{skip:?}");
+        assert!(r.passed, "{:?}", r.checks);
+        assert!(r.render().contains("[skip] fault basis_failure"));
+    }
 
     #[test]
     fn window_levels_ignore_a_saw_tooth_and_a_spike_and_see_a_step() {
