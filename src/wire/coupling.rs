@@ -221,9 +221,18 @@ pub fn wall_loads(
             dropped += 1;
             continue;
         }
-        let Some((_, t)) = lumen.probe_triangle(c.point, 1e-3) else {
-            dropped += 1;
-            continue;
+        // The triangle the step found (the lumen has not moved since);
+        // a contact from elsewhere is probed again.
+        let t = if (c.triangle as usize) < lumen.triangles().len() {
+            c.triangle as usize
+        } else {
+            match lumen.probe_triangle(c.point, 1e-3) {
+                Some((_, t)) => t,
+                None => {
+                    dropped += 1;
+                    continue;
+                }
+            }
         };
         let w = lumen.barycentric(t, c.point);
         let tri = lumen.triangles()[t];
@@ -270,6 +279,7 @@ mod tests {
             friction: Vec3::new(0.1, 0.0, 0.0),
             penetration: 1e-5,
             wall_deflection: 0.0,
+            triangle: crate::wire::lumen::NO_TRIANGLE,
         };
         let mut out = heapless::Vec::new();
         assert_eq!(wall_loads(&wall, &lumen, &[c], &mut out), 0);
@@ -278,5 +288,12 @@ mod tests {
         let f10 = out.iter().find(|l| l.node == 10).unwrap().force;
         assert!((f10.z + 1.0).abs() < 1e-12, "{f10}");
         assert_eq!(wall.segment_at(wall.rest(), Vec3::new(1e-3, 0.0, 0.0)), Some("aorta"));
+        // With the triangle the step found: the same loads, no probe.
+        let mut known = heapless::Vec::new();
+        assert_eq!(
+            wall_loads(&wall, &lumen, &[WireContact { triangle: 0, ..c }], &mut known),
+            0
+        );
+        assert_eq!(known, out);
     }
 }

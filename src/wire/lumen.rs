@@ -23,7 +23,13 @@ pub struct WallHit {
     /// gives per newton pressed on it along `normal`; 0 for a rigid wall.
     /// The wire's contact puts it in series with its penalty.
     pub compliance: f64,
+    /// The triangle `point` lies on, for a [`TriangleLumen`] (an index into
+    /// its triangles); [`NO_TRIANGLE`] for the analytic walls.
+    pub triangle: u32,
 }
+
+/// [`WallHit::triangle`] of a wall that is not made of triangles.
+pub const NO_TRIANGLE: u32 = u32::MAX;
 
 /// A vessel lumen as seen by the wire's contact.
 pub trait Lumen {
@@ -204,6 +210,7 @@ fn tube_hit(p: Vec3, c: Vec3, a: f64, fallback: Vec3) -> WallHit {
         normal: -out,
         point: c + out * a,
         compliance: 0.0,
+        triangle: NO_TRIANGLE,
     }
 }
 
@@ -248,6 +255,7 @@ impl Lumen for StraightTube {
                     normal: -self.axis,
                     point: p + self.axis * d,
                     compliance: 0.0,
+                    triangle: NO_TRIANGLE,
                 });
             }
         }
@@ -740,6 +748,7 @@ impl TriangleLumen {
                 normal,
                 point: q,
                 compliance,
+                triangle: t as u32,
             },
             t,
         ))

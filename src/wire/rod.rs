@@ -63,6 +63,8 @@ pub struct WireContact {
     /// How far the contact pushes a compliant wall back (m, ≥ 0): its
     /// normal compliance times the normal force; 0 against a rigid wall.
     pub wall_deflection: f64,
+    /// The wall triangle touched ([`super::lumen::WallHit::triangle`]).
+    pub triangle: u32,
 }
 
 /// What a step did.
@@ -1226,6 +1228,7 @@ impl Wire {
                     friction,
                     penetration: lam / kc,
                     wall_deflection: lam * hit.compliance,
+                    triangle: hit.triangle,
                 });
             }
         }
