@@ -165,7 +165,10 @@ pub fn basis_thread<const R: usize>(
         let mut params = w.params;
         let injected = FaultSwitches::take(&faults.fail_next_basis);
         if injected {
-            params.max_iterations = 1;
+            // No iteration at all: it fails even from a warm start that is
+            // already converged (one iteration from the basis in use at an
+            // unchanged tangent would succeed).
+            params.max_iterations = 0;
         }
         let t = std::time::Instant::now();
         let basis = ModalBasis::compute(&crate::reduced::BasisSpec {
@@ -524,11 +527,16 @@ pub fn run<const R: usize>(mut bg: Background<R>, mut io: BackgroundIo<R>) -> Ba
                     .zip(&u_at_basis)
                     .map(|(a, b)| (a - b).norm())
                     .fold(0.0, f64::max);
-                if change >= bg.basis_policy.min_change_m && bg.solver.has_stiffness() {
+                if change >= bg.basis_policy.min_change_m {
                     if let Some((tx, _)) = io.basis.as_mut() {
-                        let job = BasisJob {
-                            tangent: bg.solver.last_stiffness().clone(),
-                        };
+                        // The step's tangent, or (a step that started in
+                        // equilibrium assembled none) one assembled here.
+                        let mut tangent = bg.solver.last_stiffness().clone();
+                        if !bg.solver.has_stiffness() {
+                            tangent.clear();
+                            bg.model.add_stiffness(&state.u, &mut tangent);
+                        }
+                        let job = BasisJob { tangent };
                         if tx.push(job).is_ok() {
                             in_flight = true;
                             last_request_ns = t1;

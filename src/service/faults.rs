@@ -22,7 +22,7 @@ pub struct FaultSwitches {
     /// non-finite, so the solver rejects the step and the state stays as it
     /// was).
     pub fail_next_step: AtomicBool,
-    /// The basis thread's next recomputation fails (it is allowed a single
+    /// The basis thread's next recomputation fails (it is allowed no
     /// subspace iteration, so it does not converge).
     pub fail_next_basis: AtomicBool,
     /// While set, the haptic loop takes no new model from the model ring

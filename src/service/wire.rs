@@ -7,8 +7,10 @@
 //!  haptic loop (1 kHz)                         wire thread (1/dt_s, +500 µs)
 //!  HubDrive::command(sample) ── hub ring ───▶  Wire::set_hub, Wire::step(inner wall)
 //!  hand force ◀── axial force (atomic) ──────  StepReport::hub_axial_force_n
-//!  Servo point loads, contact ring ◀─ loads ─  wall_loads (barycentric)
-//!  publisher: x = X + ū + Φ δq at the inner-wall vertices ── walls ──▶ TriangleLumen
+//!  Servo point loads (reduced only) ◀─ loads ─  wall_loads (barycentric)
+//!  publisher: x = X + ū + Φ (δq − δq_w) at the inner-wall vertices ── walls ──▶ TriangleLumen
+//!  (δq_w: the share of δq the wire's loads caused; the wire's contact has
+//!  the wall's compliance in series instead, docs/WIRE.md)
 //!  publisher ◀── polyline ring ─────────────  positions (stream)
 //! ```
 //!
