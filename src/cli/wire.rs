@@ -103,7 +103,10 @@ pub fn bench_wire_tick_cmd(
         ("wall loads → reduced model", &b.loads_us),
         ("haptic tick (contact, reduced step, QP)", &b.haptic_us),
         ("  of which the passivity filter", &b.qp_us),
-        ("lumen rebuild (60 Hz ticks only)", &b.lumen_us),
+        (
+            "lumen rebuild (60 Hz ticks only; the publisher's thread, not in the whole tick)",
+            &b.lumen_us,
+        ),
     ] {
         println!(
             "| {name} | {:.1} | {:.1} | {:.1} | {:.1} |",

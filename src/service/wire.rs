@@ -343,12 +343,12 @@ impl WireLink {
 /// What the wire thread needs.
 pub(super) struct WirePlan {
     pub wire: Wire,
-    pub lumen: TriangleLumen,
+    pub lumen: Box<TriangleLumen>,
     pub wall: Arc<InnerWall>,
     pub hub: rtrb::Consumer<HubMsg>,
     pub loads_out: rtrb::Producer<LoadMsg>,
-    pub walls_in: rtrb::Consumer<Vec<Vec3>>,
-    pub walls_back: rtrb::Producer<Vec<Vec3>>,
+    pub walls_in: rtrb::Consumer<Box<TriangleLumen>>,
+    pub walls_back: rtrb::Producer<Box<TriangleLumen>>,
     pub polyline: rtrb::Producer<PolylineMsg>,
     pub shared: Arc<WireShared>,
     pub stop: Arc<AtomicBool>,
@@ -395,27 +395,51 @@ pub(super) struct WireParts {
     pub publisher: PublisherWire,
 }
 
-/// The publisher's part: the inner-wall vertices it computes for the wire
-/// at the stream rate, and the polyline it streams.
+/// The publisher's part: the inner wall it computes for the wire at the
+/// stream rate — the vertices and the lumen's search grid, in one of the
+/// twin lumens that circulate publisher → wire → publisher (the wire thread
+/// only swaps it in) — and the polyline it streams.
 pub(super) struct PublisherWire {
     pub nodes: Vec<u32>,
     pub rest: Vec<Vec3>,
-    pub walls_out: rtrb::Producer<Vec<Vec3>>,
-    pub walls_free: rtrb::Consumer<Vec<Vec3>>,
+    pub walls_out: rtrb::Producer<Box<TriangleLumen>>,
+    pub walls_free: rtrb::Consumer<Box<TriangleLumen>>,
     pub polyline: rtrb::Consumer<PolylineMsg>,
     pub points: Vec<[f32; 3]>,
+    /// The vertices being computed, and those last sent.
+    pub verts: Vec<Vec3>,
+    pub last: Vec<Vec3>,
+    /// The twins' running bound on the wall's motion (m).
+    pub moved: f64,
+    /// A twin whose update failed (non-finite vertices), kept for the next.
+    pub spare: Option<Box<TriangleLumen>>,
 }
 
 impl PublisherWire {
     /// Sends the wall at the current state (`position(mesh node, rest)`)
-    /// to the wire thread if a buffer is free; takes the newest polyline.
+    /// to the wire thread, its grid rebuilt here, if a twin lumen is free;
+    /// takes the newest polyline.
     pub(super) fn update(&mut self, position: impl Fn(u32, Vec3) -> Vec3) {
-        if let Ok(mut buf) = self.walls_free.pop() {
+        let free = self.spare.take().or_else(|| self.walls_free.pop().ok());
+        if let Some(mut lumen) = free {
             for (k, (&i, &x)) in self.nodes.iter().zip(&self.rest).enumerate() {
-                buf[k] = position(i, x);
+                self.verts[k] = position(i, x);
             }
-            // Capacity equals the buffers in circulation: never full.
-            let _ = self.walls_out.push(buf);
+            let step = self
+                .verts
+                .iter()
+                .zip(&self.last)
+                .map(|(a, b)| (a - b).norm())
+                .fold(0.0, f64::max);
+            match lumen.update_twin(&self.verts, self.moved + step) {
+                Ok(()) => {
+                    self.moved += step;
+                    self.last.copy_from_slice(&self.verts);
+                    // Capacity equals the lumens in circulation: never full.
+                    let _ = self.walls_out.push(lumen);
+                }
+                Err(_) => self.spare = Some(lumen),
+            }
         }
         while let Ok(p) = self.polyline.pop() {
             self.points.clear();
@@ -461,13 +485,14 @@ pub(super) fn build<const R: usize>(
     WireShared::set(&shared.roll_bits, wire.roll());
     let (hub_tx, hub_rx) = rtrb::RingBuffer::<HubMsg>::new(64);
     let (loads_tx, loads_rx) = rtrb::RingBuffer::<LoadMsg>::new(4);
-    let (walls_tx, walls_rx) = rtrb::RingBuffer::<Vec<Vec3>>::new(3);
-    let (free_tx, free_rx_fill) = rtrb::RingBuffer::<Vec<Vec3>>::new(3);
+    let (walls_tx, walls_rx) = rtrb::RingBuffer::<Box<TriangleLumen>>::new(3);
+    let (free_tx, free_rx_fill) = rtrb::RingBuffer::<Box<TriangleLumen>>::new(3);
     let (poly_tx, poly_rx) = rtrb::RingBuffer::<PolylineMsg>::new(4);
-    // Three wall buffers circulate publisher → wire → publisher.
+    // Three twin lumens circulate publisher → wire → publisher: the
+    // publisher rebuilds their grids, the wire thread swaps them in.
     let mut free_tx = free_tx;
     for _ in 0..3 {
-        let _ = free_tx.push(wall.rest().to_vec());
+        let _ = free_tx.push(Box::new(lumen.twin()));
     }
     let period = (params.dt_s * 1e9).round() as Nanos;
     let wall = Arc::new(wall);
@@ -478,6 +503,10 @@ pub(super) fn build<const R: usize>(
         walls_free: free_rx_fill,
         polyline: poly_rx,
         points: Vec::with_capacity(MAX_POLYLINE),
+        verts: wall.rest().to_vec(),
+        last: lumen.vertices().to_vec(),
+        moved: lumen.moved(),
+        spare: None,
     };
     let link = WireLink {
         drive,
@@ -497,7 +526,7 @@ pub(super) fn build<const R: usize>(
     };
     let plan = WirePlan {
         wire,
-        lumen,
+        lumen: Box::new(lumen),
         wall,
         hub: hub_rx,
         loads_out: loads_tx,
@@ -582,6 +611,7 @@ pub(super) fn wire_thread(mut p: WirePlan) -> WireResult {
         if let Some(c) = cmd {
             p.wire.set_hub(c.inserted_m, c.roll_rad);
         }
+        // The newest wall the publisher built; the older ones go back.
         let mut wall = None;
         while let Ok(w) = p.walls_in.pop() {
             if let Some(old) = wall.replace(w) {
@@ -589,17 +619,16 @@ pub(super) fn wire_thread(mut p: WirePlan) -> WireResult {
             }
         }
         if let Some(w) = wall {
-            if p.lumen.update_vertices(&w).is_ok() {
-                res.wall_updates += 1;
-            }
-            let _ = p.walls_back.push(w);
+            let old = std::mem::replace(&mut p.lumen, w);
+            let _ = p.walls_back.push(old);
+            res.wall_updates += 1;
         }
         let poison = FaultSwitches::take(&p.faults.poison_wire);
         if poison {
             p.wire.poison_for_tests();
         }
         let t0 = clock::now_ns();
-        let step = p.wire.step(&p.lumen);
+        let step = p.wire.step(&*p.lumen);
         res.step_us.record((clock::now_ns() - t0) as f64 * 1e-3);
         res.steps += 1;
         let reset_asked = p.shared.reset_request.swap(false, Ordering::AcqRel);

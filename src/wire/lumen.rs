@@ -559,6 +559,49 @@ impl TriangleLumen {
         &self.compliance
     }
 
+    /// A copy that shares this lumen's identity, so the wire's probe caches
+    /// stay valid across twins: one producer updates a pool of twins with
+    /// [`TriangleLumen::update_twin`] off the wire's thread and the wire
+    /// swaps in the newest, instead of rebuilding the grid itself.
+    /// Allocates (once, at setup).
+    pub fn twin(&self) -> TriangleLumen {
+        let mut t = self.clone();
+        t.stamp = self.stamp;
+        t
+    }
+
+    /// The bound on how far the wall has moved, summed over the updates
+    /// (m): what [`TriangleLumen::update_twin`]'s `moved` continues.
+    pub fn moved(&self) -> f64 {
+        self.moved
+    }
+
+    /// Moves the vertices of a twin ([`TriangleLumen::twin`]) and rebuilds
+    /// its grid. `moved` continues the twins' common bound on the wall's
+    /// motion: the `moved` of the twins' last update plus the largest
+    /// vertex displacement since it (the producer keeps both), and never
+    /// less than this twin's own. Allocates nothing.
+    pub fn update_twin(&mut self, vertices: &[Vec3], moved: f64) -> Result<(), LumenError> {
+        if vertices.len() != self.verts.len() {
+            return Err(LumenError::Update(format!(
+                "{} vertices given, the surface has {}",
+                vertices.len(),
+                self.verts.len()
+            )));
+        }
+        check_finite(vertices)?;
+        if !(moved.is_finite() && moved >= self.moved) {
+            return Err(LumenError::Update(format!(
+                "motion bound {moved} m below this twin's {} m",
+                self.moved
+            )));
+        }
+        self.moved = moved;
+        self.verts.copy_from_slice(vertices);
+        self.rebuild();
+        Ok(())
+    }
+
     /// Moves the vertices (same count as at construction) and rebuilds the
     /// grid. Allocates nothing.
     pub fn update_vertices(&mut self, vertices: &[Vec3]) -> Result<(), LumenError> {
@@ -1011,6 +1054,65 @@ mod tests {
         }
         assert!(hits > 2000, "{hits} hits");
         assert!(kept > 10000, "{kept} cached queries");
+    }
+
+    #[test]
+    fn a_pool_of_twins_updated_in_turn_keeps_the_caches_exact_and_in_use() {
+        // The service's pattern: a producer updates three twins in turn with
+        // the wall's running motion bound; the consumer swaps in the newest.
+        // Cached probes on whichever twin is current equal the grid probe,
+        // and most still come from the kept candidates.
+        let (v, t) = tube_mesh(5e-3, 0.05, 32, 20);
+        let first = TriangleLumen::new(&v, &t).unwrap();
+        let mut pool: Vec<TriangleLumen> = (0..3).map(|_| first.twin()).collect();
+        let mut current = first;
+        let mut last = v.clone();
+        let mut moved = 0.0;
+        let mut s = 5u64;
+        let mut rnd = || {
+            s = s.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+            ((s >> 11) as f64 / (1u64 << 53) as f64) - 0.5
+        };
+        let range = 1.335e-3;
+        let mut caches = [ProbeCache::default(); 6];
+        let mut pts: Vec<Vec3> = (0..6)
+            .map(|k| Vec3::new(0.006 + 0.006 * k as f64, 4.0e-3 - 0.7e-3 * k as f64, 0.0))
+            .collect();
+        let (mut kept, mut swaps) = (0, 0);
+        for it in 0..3000 {
+            if it % 17 == 16 {
+                // The producer: breathe the wall by up to 30 µm (1 mm every
+                // 600 iterations), into the next free twin.
+                let f = if it % 600 == 594 { 0.8 } else { 1.0 + 0.006 * rnd() };
+                let new: Vec<Vec3> = v.iter().map(|p| Vec3::new(p.x, p.y * f, p.z * f)).collect();
+                moved += new.iter().zip(&last).map(|(a, b)| (a - b).norm()).fold(0.0, f64::max);
+                last.copy_from_slice(&new);
+                let mut next = pool.remove(0);
+                next.update_twin(&new, moved).unwrap();
+                // The consumer swaps it in and hands the old one back.
+                pool.push(std::mem::replace(&mut current, next));
+                swaps += 1;
+            }
+            for (k, p) in pts.iter_mut().enumerate() {
+                *p += Vec3::new(rnd(), rnd(), rnd()) * 0.1e-3;
+                p.x = p.x.clamp(0.002, 0.048);
+                let rho = (p.y * p.y + p.z * p.z).sqrt();
+                if rho > 6e-3 {
+                    *p *= 6e-3 / rho;
+                }
+                let before = (caches[k].stamp, caches[k].centre);
+                let a = current.probe_triangle(*p, range);
+                let b = current.probe_triangle_cached(*p, range, &mut caches[k]);
+                assert_eq!(a, b, "iteration {it}, point {k} at {p:?}");
+                kept += (before == (caches[k].stamp, caches[k].centre) && !caches[k].is_empty()) as usize;
+            }
+        }
+        assert!(swaps > 150);
+        assert!(kept > 6000, "{kept} cached queries");
+        // A motion bound that goes back is refused.
+        let mut t0 = current.twin();
+        assert!(t0.update_twin(&last, current.moved() - 1e-3).is_err());
+        assert!(t0.update_twin(&last[1..], current.moved()).is_err());
     }
 
     #[test]
