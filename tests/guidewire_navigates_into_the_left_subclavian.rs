@@ -4,8 +4,8 @@
 //! back toward the left subclavian's ostium and advances into the branch,
 //! with the wall loaded by the wire's contacts (`load_wall = true`). The run
 //! ends with the tip in the left subclavian, no penetration beyond 0.2 mm,
-//! no reset (no non-finite step), the wall dented under the wire but by
-//! less than the wire's own give into it, and no system allocation after
+//! no reset (no non-finite step), the wall dented under the wire as much
+//! as the wire's contacts gave into it, and no system allocation after
 //! start. Runs RT threads: run it alone (`cargo test --release --test
 //! guidewire_navigates_into_the_left_subclavian -- --nocapture`).
 
@@ -40,14 +40,17 @@ fn the_scripted_run_ends_with_the_tip_in_the_left_subclavian() {
         w.wall_dent_max_m > 0.0,
         "the reduced model moved under the wire's loads"
     );
-    // The reduced model's dent is its share of the give the wire's contact
-    // assumed (the rest is the residual compliance the modes lack), never
-    // more (with margin for the dynamics' overshoot).
+    // The dent the stream shows (the reduced model's share plus the
+    // residual compliance's) is the give the wire's contacts assumed: not
+    // much less, and at most what the contacts' gives add up to when they
+    // press the same patch (each contact's series compliance is its own;
+    // the wall couples them), with 20 % for the modes' dynamics.
+    let (dent, give) = (w.wall_dent_max_m, w.wall_deflection_max_m);
+    assert!(dent >= 0.5 * give, "dent {dent} m vs give {give} m");
     assert!(
-        w.wall_dent_max_m <= 1.5 * w.wall_deflection_max_m,
-        "dent {} m vs give {} m",
-        w.wall_dent_max_m,
-        w.wall_deflection_max_m
+        dent <= 1.2 * w.contacts_max as f64 * give,
+        "dent {dent} m vs give {give} m at {} contacts",
+        w.contacts_max
     );
     assert!(report.allocator_installed);
     assert_eq!(w.allocations_after_start, 0, "wire thread allocations");

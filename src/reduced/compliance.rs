@@ -404,6 +404,18 @@ impl LocalCompliance {
         self.cols[lo..hi].binary_search(&j).ok().map(|p| &self.blocks[lo + p])
     }
 
+    /// The stored blocks of row i: (j, ΔW_ij) for every j kept near i
+    /// (none for a node outside the table). Allocates nothing.
+    pub fn row(&self, i: u32) -> impl Iterator<Item = (u32, &Mat3)> {
+        let i = i as usize;
+        let (lo, hi) = if i + 1 < self.offsets.len() {
+            (self.offsets[i] as usize, self.offsets[i + 1] as usize)
+        } else {
+            (0, 0)
+        };
+        self.cols[lo..hi].iter().copied().zip(&self.blocks[lo..hi])
+    }
+
     /// Stored blocks.
     pub fn num_blocks(&self) -> usize {
         self.blocks.len()

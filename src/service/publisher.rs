@@ -82,6 +82,8 @@ pub(super) fn publisher_thread<const R: usize>(mut p: PublisherPlan<R>) -> Publi
     let mut errors = 0u64;
     let mut first_error = None;
     let mut wire_dent_max_m: f64 = 0.0;
+    let mut dent = vec![Vec3::zeros(); p.rows.len()];
+    let mut dent_touched: Vec<u32> = Vec::new();
     while !p.stop.load(Ordering::Relaxed) {
         while let Ok(o) = p.offsets.pop() {
             offsets.push_back(o);
@@ -115,6 +117,15 @@ pub(super) fn publisher_thread<const R: usize>(mut p: PublisherPlan<R>) -> Publi
             Some((_, o, r)) => (Some(o.clone()), r.clone()),
             None => (None, p.rows.clone()),
         };
+        // The wall's residual dent under the wire's newest loads (the
+        // reduced model's share is in δq).
+        for &i in &dent_touched {
+            dent[i as usize] = Vec3::zeros();
+        }
+        dent_touched.clear();
+        if let Some(w) = p.wire.as_ref() {
+            w.add_residual_dent(&mut dent, &mut dent_touched);
+        }
         for (k, &node) in topo.node_ids.iter().enumerate() {
             let i = node as usize;
             let rest = Vec3::from(topo.rest_positions[k].map(f64::from));
@@ -123,7 +134,7 @@ pub(super) fn publisher_thread<const R: usize>(mut p: PublisherPlan<R>) -> Publi
                 .and_then(|o| o.get(i).copied())
                 .unwrap_or_else(Vec3::zeros);
             let d = rows.get(i).map(|row| row * s.q).unwrap_or_else(Vec3::zeros);
-            let x = rest + ubar + d;
+            let x = rest + ubar + d + dent.get(i).copied().unwrap_or_else(Vec3::zeros);
             positions[k] = [x.x as f32, x.y as f32, x.z as f32];
         }
         if let Some(w) = p.wire.as_mut() {
@@ -135,10 +146,11 @@ pub(super) fn publisher_thread<const R: usize>(mut p: PublisherPlan<R>) -> Publi
                 let q = s.q - s.q_loads;
                 rest + ubar + rows.get(i as usize).map(|row| row * q).unwrap_or_else(Vec3::zeros)
             });
-            if s.q_loads.iter().any(|&v| v != 0.0) {
+            if s.q_loads.iter().any(|&v| v != 0.0) || !dent_touched.is_empty() {
                 for &i in &w.nodes {
+                    let residual = dent.get(i as usize).copied().unwrap_or_else(Vec3::zeros);
                     if let Some(row) = rows.get(i as usize) {
-                        wire_dent_max_m = wire_dent_max_m.max((row * s.q_loads).norm());
+                        wire_dent_max_m = wire_dent_max_m.max((row * s.q_loads + residual).norm());
                     }
                 }
             }

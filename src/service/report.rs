@@ -142,8 +142,9 @@ pub struct WireReport {
     /// Largest give of the wall under one contact (m): compliance × normal
     /// force, what the wire's contact took as the wall's share.
     pub wall_deflection_max_m: f64,
-    /// Largest displacement of an inner-wall vertex in the reduced model
-    /// under the wire's loads (m), as the stream shows it.
+    /// Largest displacement of an inner-wall vertex under the wire's loads
+    /// as the stream shows it (m): the reduced model's share plus the
+    /// residual compliance's.
     pub wall_dent_max_m: f64,
 }
 
@@ -508,7 +509,7 @@ impl Report {
                 w.cpu.map(|c| c.to_string()).unwrap_or_else(|| "not pinned".into()),
                 if w.load_wall {
                     format!(
-                        "    wall under the wire: compliance p50 {:.3} max {:.3} mm/N, give max {:.3} mm, reduced model's dent max {:.3} mm\n",
+                        "    wall under the wire: compliance p50 {:.3} max {:.3} mm/N, give max {:.3} mm, dent on the stream max {:.3} mm\n",
                         w.wall_compliance_p50_m_per_n * 1e3,
                         w.wall_compliance_max_m_per_n * 1e3,
                         w.wall_deflection_max_m * 1e3,

@@ -248,6 +248,8 @@ pub(super) struct LoadMsg {
 #[derive(Debug, Clone)]
 pub(super) struct PolylineMsg {
     points: heapless::Vec<[f32; 3], MAX_POLYLINE>,
+    /// The wall loads of the step it was taken at (for the stream's dent).
+    loads: heapless::Vec<WallLoad, MAX_WALL_LOADS>,
 }
 
 /// The loop's side: the hub drive, the rings to and from the wire thread.
@@ -413,6 +415,11 @@ pub(super) struct PublisherWire {
     pub moved: f64,
     /// A twin whose update failed (non-finite vertices), kept for the next.
     pub spare: Option<Box<TriangleLumen>>,
+    /// The residual compliance of contact anywhere (None: the reduced
+    /// model alone) and the newest wall loads: the stream shows the wall's
+    /// residual dent under the wire too ([`PublisherWire::add_residual_dent`]).
+    pub residual: Option<Arc<crate::reduced::compliance::LocalCompliance>>,
+    pub loads: Vec<WallLoad>,
 }
 
 impl PublisherWire {
@@ -444,6 +451,30 @@ impl PublisherWire {
         while let Ok(p) = self.polyline.pop() {
             self.points.clear();
             self.points.extend_from_slice(&p.points);
+            self.loads.clear();
+            self.loads.extend_from_slice(&p.loads);
+        }
+    }
+
+    /// Adds to `dent` (one entry per mesh node) the residual compliance's
+    /// share of the wall's displacement under the wire's newest loads,
+    /// Σ_j ΔW_ij f_j (ΔW_ij = ΔW_jiᵀ, from row j of the table), and lists the
+    /// nodes it touched in `touched` (the caller zeroes them again). The
+    /// reduced model's share is in δq already; together they are the dent
+    /// the wire's contact assumed (its series compliance). Display only.
+    pub(super) fn add_residual_dent(&self, dent: &mut [Vec3], touched: &mut Vec<u32>) {
+        let Some(table) = self.residual.as_ref() else {
+            return;
+        };
+        for l in &self.loads {
+            for (i, block) in table.row(l.node) {
+                if let Some(d) = dent.get_mut(i as usize) {
+                    if *d == Vec3::zeros() {
+                        touched.push(i);
+                    }
+                    *d += block.tr_mul(&l.force);
+                }
+            }
         }
     }
 }
@@ -507,6 +538,8 @@ pub(super) fn build<const R: usize>(
         last: lumen.vertices().to_vec(),
         moved: lumen.moved(),
         spare: None,
+        residual: if g.load_wall { vessel.compliance.clone() } else { None },
+        loads: Vec::with_capacity(MAX_WALL_LOADS),
     };
     let link = WireLink {
         drive,
@@ -591,6 +624,7 @@ pub(super) fn wire_thread(mut p: WirePlan) -> WireResult {
     };
     let mut poly = PolylineMsg {
         points: heapless::Vec::new(),
+        loads: heapless::Vec::new(),
     };
     let radius = 0.5 * p.wire.params().diameter_m;
     let diameter = 2.0 * radius;
@@ -680,6 +714,7 @@ pub(super) fn wire_thread(mut p: WirePlan) -> WireResult {
                     let _ = poly.points.push([x.x as f32, x.y as f32, x.z as f32]);
                 }
             }
+            poly.loads.clone_from(&msg.loads);
             let _ = p.polyline.push(poly.clone());
         }
         // Re-phase after an overrun instead of bursting.
