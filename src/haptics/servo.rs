@@ -274,6 +274,18 @@ fn eval_contact<const R: usize>(
 
 /// Steps `m` under its contact; returns the tool force and whether all was
 /// finite.
+/// Σ Φᵢᵀ fᵢ of point loads (mesh node, force) on `d`'s rows; a node
+/// outside the basis is skipped. Allocates nothing.
+fn project_point_loads<const R: usize>(d: &ReducedDynamics<R>, loads: &[(u32, Vec3)]) -> SVector<f64, R> {
+    let mut f = SVector::<f64, R>::zeros();
+    for (i, fi) in loads {
+        if let Some(rows) = d.rows_at(*i) {
+            f += rows.tr_mul(fi);
+        }
+    }
+    f
+}
+
 fn step_model<const R: usize>(
     m: &mut LoopModel<R>,
     c: &ContactOutput<R>,
@@ -281,15 +293,9 @@ fn step_model<const R: usize>(
     part: Option<&mut ReducedPart<R>>,
     counters: &mut ServoCounters,
 ) -> (Vec3, bool) {
-    let mut f = c.reduced_force - m.f_bar;
-    // Point loads of other instruments (the guidewire inside): Σ Φᵢᵀ fᵢ.
-    let mut f_loads = SVector::<f64, R>::zeros();
-    for (i, fi) in loads {
-        if let Some(rows) = m.dynamics.rows_at(*i) {
-            f_loads += rows.tr_mul(fi);
-        }
-    }
-    f += f_loads;
+    // Point loads of other instruments (the guidewire inside).
+    let f_loads = project_point_loads(&m.dynamics, loads);
+    let f = c.reduced_force - m.f_bar + f_loads;
     // The hand feels the tool sphere only (extra spheres are other contact
     // points of the instrument).
     let desired = c.sphere_forces.first().copied().unwrap_or(c.tool_force);
@@ -440,12 +446,8 @@ impl<const R: usize> Servo<R> {
                 );
                 let c = &self.fade_contact;
                 let k = new.dynamics.stiffness() + c.reduced_stiffness;
-                let mut r = c.reduced_force - new.f_bar - new.dynamics.stiffness() * q;
-                for (i, fi) in self.point_loads.iter() {
-                    if let Some(rows) = new.dynamics.rows_at(*i) {
-                        r += rows.tr_mul(fi);
-                    }
-                }
+                let r = c.reduced_force - new.f_bar - new.dynamics.stiffness() * q
+                    + project_point_loads(&new.dynamics, &self.point_loads);
                 if let Some(step) = k.cholesky().map(|ch| ch.solve(&r)) {
                     if step.iter().all(|v| v.is_finite()) {
                         q += step;
