@@ -437,23 +437,8 @@ impl<const R: usize> ReducedDynamics<R> {
     /// this step and `false` is returned.
     pub fn step_with_contact(&mut self, f: &SVector<f64, R>, k_c: &SMatrix<f64, R, R>) -> bool {
         let h = self.dt;
-        let mut a = self.a;
-        for i in 0..self.r {
-            for j in 0..self.r {
-                a[(i, j)] += h * h * k_c[(i, j)];
-            }
-        }
         let mut rhs = self.rhs(f);
-        let ok = match Cholesky::new(a) {
-            Some(chol) => {
-                chol.solve_mut(&mut rhs);
-                true
-            }
-            None => {
-                self.system.solve_mut(&mut rhs);
-                false
-            }
-        };
+        let ok = self.solve_with_contact(k_c, &mut rhs, None);
         self.qd = rhs;
         self.q += self.qd * h;
         self.update_history();
@@ -475,26 +460,9 @@ impl<const R: usize> ReducedDynamics<R> {
         f_part: &SVector<f64, R>,
     ) -> bool {
         let h = self.dt;
-        let mut a = self.a;
-        for i in 0..self.r {
-            for j in 0..self.r {
-                a[(i, j)] += h * h * k_c[(i, j)];
-            }
-        }
         let mut rhs = self.rhs(f);
         let mut rhs_part = self.rhs_of(&part.q, &part.qd, &part.gamma, f_part);
-        let ok = match Cholesky::new(a) {
-            Some(chol) => {
-                chol.solve_mut(&mut rhs);
-                chol.solve_mut(&mut rhs_part);
-                true
-            }
-            None => {
-                self.system.solve_mut(&mut rhs);
-                self.system.solve_mut(&mut rhs_part);
-                false
-            }
-        };
+        let ok = self.solve_with_contact(k_c, &mut rhs, Some(&mut rhs_part));
         self.qd = rhs;
         self.q += self.qd * h;
         self.update_history();
@@ -503,6 +471,41 @@ impl<const R: usize> ReducedDynamics<R> {
         let q = part.q;
         self.update_history_of(&q, &mut part.gamma);
         ok
+    }
+
+    /// Solves the step's system with the contact stiffness `k_c` added,
+    /// (A + h² k_c) x = rhs, in place for `rhs` and `extra`, factored once
+    /// on the stack; false (and the system without `k_c`) if that is not
+    /// positive definite.
+    fn solve_with_contact(
+        &self,
+        k_c: &SMatrix<f64, R, R>,
+        rhs: &mut SVector<f64, R>,
+        extra: Option<&mut SVector<f64, R>>,
+    ) -> bool {
+        let h = self.dt;
+        let mut a = self.a;
+        for i in 0..self.r {
+            for j in 0..self.r {
+                a[(i, j)] += h * h * k_c[(i, j)];
+            }
+        }
+        match Cholesky::new(a) {
+            Some(chol) => {
+                chol.solve_mut(rhs);
+                if let Some(x) = extra {
+                    chol.solve_mut(x);
+                }
+                true
+            }
+            None => {
+                self.system.solve_mut(rhs);
+                if let Some(x) = extra {
+                    self.system.solve_mut(x);
+                }
+                false
+            }
+        }
     }
 
     /// The three rows of Φ at `node` (None if the node is not in the mesh).
