@@ -11,6 +11,34 @@ pub type Vec3 = Vector3<f64>;
 /// A 3×3 f64 matrix (tensors, tangent blocks).
 pub type Mat3 = Matrix3<f64>;
 
+/// The largest distance between matching points of `a` and `b` (m; 0 for
+/// empty slices; extra points of the longer one are ignored): how far a
+/// point set moved between two states. Allocates nothing.
+pub fn max_distance(a: &[Vec3], b: &[Vec3]) -> f64 {
+    a.iter().zip(b).map(|(p, q)| (p - q).norm()).fold(0.0, f64::max)
+}
+
+/// Area-weighted unit normal at each of `points` over `triangles` (indices
+/// into `points`; a triangle's normal follows its winding), zero at points
+/// no triangle uses.
+pub fn vertex_normals(points: &[Vec3], triangles: &[[u32; 3]]) -> Vec<Vec3> {
+    let mut n = vec![Vec3::zeros(); points.len()];
+    for t in triangles {
+        let [a, b, c] = t.map(|i| points[i as usize]);
+        let w = (b - a).cross(&(c - a));
+        for &i in t {
+            n[i as usize] += w;
+        }
+    }
+    for v in &mut n {
+        let l = v.norm();
+        if l > 0.0 {
+            *v /= l;
+        }
+    }
+    n
+}
+
 /// The closest point to `p` on triangle (a, b, c) (Ericson, *Real-Time
 /// Collision Detection*, 5.1.5).
 pub fn closest_on_triangle(p: Vec3, a: Vec3, b: Vec3, c: Vec3) -> Vec3 {

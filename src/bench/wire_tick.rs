@@ -249,11 +249,7 @@ pub fn bench_wire_tick(
         // apart: it is not the RT threads' work); the wire swaps it in.
         let mut rebuild_us = 0.0;
         if update {
-            let step = verts
-                .iter()
-                .zip(&last_verts)
-                .map(|(a, b)| (a - b).norm())
-                .fold(0.0, f64::max);
+            let step = crate::math::max_distance(&verts, &last_verts);
             let tr = Instant::now();
             twin.update_twin(&verts, moved + step)
                 .map_err(|e| fail(k, e.to_string()))?;

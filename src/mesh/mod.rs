@@ -440,21 +440,7 @@ impl TetMesh {
     /// Area-weighted outward unit normal at each node of the surface (zero for
     /// interior nodes).
     pub fn surface_vertex_normals(&self) -> Vec<Vec3> {
-        let mut nrm = vec![Vec3::zeros(); self.rest.len()];
-        for t in &self.surface {
-            let [a, b, c] = t.map(|i| self.rest[i as usize]);
-            let w = (b - a).cross(&(c - a));
-            for &i in t {
-                nrm[i as usize] += w;
-            }
-        }
-        for v in &mut nrm {
-            let l = v.norm();
-            if l > 0.0 {
-                *v /= l;
-            }
-        }
-        nrm
+        crate::math::vertex_normals(&self.rest, &self.surface)
     }
     /// Returns a copy of this mesh with rest positions scaled by `s` (e.g.
     /// 1e-3 to turn millimetres into metres). Node sets are kept.

@@ -521,12 +521,7 @@ pub fn run<const R: usize>(mut bg: Background<R>, mut io: BackgroundIo<R>) -> Ba
         if rep.ok() && !in_flight && bg.basis_policy.every_s > 0.0 {
             let due = (t1 - last_request_ns) as f64 * 1e-9 >= bg.basis_policy.every_s;
             if due {
-                let change = state
-                    .u
-                    .iter()
-                    .zip(&u_at_basis)
-                    .map(|(a, b)| (a - b).norm())
-                    .fold(0.0, f64::max);
+                let change = crate::math::max_distance(&state.u, &u_at_basis);
                 if change >= bg.basis_policy.min_change_m {
                     if let Some((tx, _)) = io.basis.as_mut() {
                         // The step's tangent, or (a step that started in

@@ -432,12 +432,7 @@ impl PublisherWire {
             for (k, (&i, &x)) in self.nodes.iter().zip(&self.rest).enumerate() {
                 self.verts[k] = position(i, x);
             }
-            let step = self
-                .verts
-                .iter()
-                .zip(&self.last)
-                .map(|(a, b)| (a - b).norm())
-                .fold(0.0, f64::max);
+            let step = crate::math::max_distance(&self.verts, &self.last);
             match lumen.update_twin(&self.verts, self.moved + step) {
                 Ok(()) => {
                     self.moved += step;

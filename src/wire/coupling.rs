@@ -112,19 +112,7 @@ impl InnerWall {
     /// Unit normal of each wall vertex at rest, into the lumen: the
     /// area-weighted mean of its triangles' normals.
     pub fn vertex_normals(&self) -> Vec<Vec3> {
-        let mut n = vec![Vec3::zeros(); self.rest.len()];
-        for t in &self.triangles {
-            let [a, b, c] = t.map(|i| self.rest[i as usize]);
-            let area2 = (b - a).cross(&(c - a));
-            for &i in t {
-                n[i as usize] += area2;
-            }
-        }
-        for v in n.iter_mut() {
-            let len = v.norm();
-            *v = if len > 0.0 { *v / len } else { Vec3::zeros() };
-        }
-        n
+        crate::math::vertex_normals(&self.rest, &self.triangles)
     }
 
     /// The wall's normal compliance at each vertex (m/N): how far the
