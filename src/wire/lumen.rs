@@ -955,15 +955,47 @@ mod tests {
         (v, t)
     }
 
+    /// Uniform numbers in [−0.5, 0.5) from a fixed seed (a 64-bit LCG).
+    fn uniform(seed: u64) -> impl FnMut() -> f64 {
+        let mut s = seed;
+        move || {
+            s = s.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+            ((s >> 11) as f64 / (1u64 << 53) as f64) - 0.5
+        }
+    }
+
+    /// Moves `p` by `d`, keeps it inside the test tube (x in 2–48 mm, within
+    /// 6 mm of the axis), probes it through `cache` and through the grid and
+    /// asserts they agree (`at`: iteration and point, for the message).
+    /// Returns whether a wall was hit and whether the cache's kept
+    /// candidates answered (no rebuild).
+    fn wander_and_probe(
+        lum: &TriangleLumen,
+        p: &mut Vec3,
+        d: Vec3,
+        range: f64,
+        cache: &mut ProbeCache,
+        at: (usize, usize),
+    ) -> (bool, bool) {
+        *p += d;
+        p.x = p.x.clamp(0.002, 0.048);
+        let rho = (p.y * p.y + p.z * p.z).sqrt();
+        if rho > 6e-3 {
+            *p *= 6e-3 / rho;
+        }
+        let before = (cache.stamp, cache.centre);
+        let a = lum.probe_triangle(*p, range);
+        let b = lum.probe_triangle_cached(*p, range, cache);
+        assert_eq!(a, b, "iteration {}, point {} at {p:?}", at.0, at.1);
+        let kept = before == (cache.stamp, cache.centre) && !cache.is_empty();
+        (a.is_some(), kept)
+    }
+
     #[test]
     fn triangle_lumen_matches_brute_force_and_the_tube() {
         let (v, t) = tube_mesh(5e-3, 0.05, 32, 20);
         let mut lum = TriangleLumen::new(&v, &t).unwrap();
-        let mut s = 7u64;
-        let mut rnd = || {
-            s = s.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
-            ((s >> 11) as f64 / (1u64 << 53) as f64) - 0.5
-        };
+        let mut rnd = uniform(7);
         for pass in 0..2 {
             let a = if pass == 0 { 5e-3 } else { 4e-3 };
             for _ in 0..300 {
@@ -1009,11 +1041,7 @@ mod tests {
     fn cached_probe_matches_the_grid_probe() {
         let (v, t) = tube_mesh(5e-3, 0.05, 32, 20);
         let mut lum = TriangleLumen::new(&v, &t).unwrap();
-        let mut s = 11u64;
-        let mut rnd = || {
-            s = s.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
-            ((s >> 11) as f64 / (1u64 << 53) as f64) - 0.5
-        };
+        let mut rnd = uniform(11);
         let range = 1.335e-3;
         let mut caches = [ProbeCache::default(); 8];
         let mut pts: Vec<Vec3> = (0..8)
@@ -1036,19 +1064,10 @@ mod tests {
             }
             for (k, p) in pts.iter_mut().enumerate() {
                 let step = if it % 97 == k { 4e-3 } else { 0.1e-3 };
-                *p += Vec3::new(rnd(), rnd(), rnd()) * step;
-                p.x = p.x.clamp(0.002, 0.048);
-                let rho = (p.y * p.y + p.z * p.z).sqrt();
-                if rho > 6e-3 {
-                    *p *= 6e-3 / rho;
-                }
-                let before = (caches[k].stamp, caches[k].centre);
-                let a = lum.probe_triangle(*p, range);
-                let b = lum.probe_triangle_cached(*p, range, &mut caches[k]);
-                assert_eq!(a, b, "iteration {it}, point {k} at {p:?}");
-                hits += a.is_some() as usize;
-                // Answered from the kept candidates, without a rebuild.
-                kept += (before == (caches[k].stamp, caches[k].centre) && !caches[k].is_empty()) as usize;
+                let d = Vec3::new(rnd(), rnd(), rnd()) * step;
+                let (hit, from_cache) = wander_and_probe(&lum, p, d, range, &mut caches[k], (it, k));
+                hits += hit as usize;
+                kept += from_cache as usize;
                 assert!(caches[k].len() <= PROBE_CACHE_CAP);
             }
         }
@@ -1068,11 +1087,7 @@ mod tests {
         let mut current = first;
         let mut last = v.clone();
         let mut moved = 0.0;
-        let mut s = 5u64;
-        let mut rnd = || {
-            s = s.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
-            ((s >> 11) as f64 / (1u64 << 53) as f64) - 0.5
-        };
+        let mut rnd = uniform(5);
         let range = 1.335e-3;
         let mut caches = [ProbeCache::default(); 6];
         let mut pts: Vec<Vec3> = (0..6)
@@ -1094,17 +1109,8 @@ mod tests {
                 swaps += 1;
             }
             for (k, p) in pts.iter_mut().enumerate() {
-                *p += Vec3::new(rnd(), rnd(), rnd()) * 0.1e-3;
-                p.x = p.x.clamp(0.002, 0.048);
-                let rho = (p.y * p.y + p.z * p.z).sqrt();
-                if rho > 6e-3 {
-                    *p *= 6e-3 / rho;
-                }
-                let before = (caches[k].stamp, caches[k].centre);
-                let a = current.probe_triangle(*p, range);
-                let b = current.probe_triangle_cached(*p, range, &mut caches[k]);
-                assert_eq!(a, b, "iteration {it}, point {k} at {p:?}");
-                kept += (before == (caches[k].stamp, caches[k].centre) && !caches[k].is_empty()) as usize;
+                let d = Vec3::new(rnd(), rnd(), rnd()) * 0.1e-3;
+                kept += wander_and_probe(&current, p, d, range, &mut caches[k], (it, k)).1 as usize;
             }
         }
         assert!(swaps > 150);
