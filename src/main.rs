@@ -274,6 +274,9 @@ enum BenchCmd {
         /// Newton iterations per step at most (the wire's `newton_iterations`; with --tick, default: the configuration's).
         #[arg(long)]
         iterations: Option<usize>,
+        /// With --tick: evaluations of the wire's potential per step at most (the wire's `max_evaluations`; default: the configuration's).
+        #[arg(long)]
+        evaluations: Option<usize>,
         /// Time the whole tick instead: the wire (default 128 nodes) in the branched arch's lumen, its wall loads on the reduced model, the reduced step and the passivity QP, in one thread.
         #[arg(long)]
         tick: bool,
@@ -492,6 +495,7 @@ fn main() -> ExitCode {
                 nodes,
                 steps,
                 iterations,
+                evaluations,
                 tick,
                 config,
                 line_load,
@@ -501,11 +505,14 @@ fn main() -> ExitCode {
                 if tick {
                     cli::wire::bench_wire_tick_cmd(
                         &config.unwrap_or_else(cli::wire::default_guidewire_config),
-                        nodes.unwrap_or(128),
-                        steps,
-                        iterations,
-                        line_load,
-                        follow_wall,
+                        &nvtmm::bench::wire_tick::WireTickOptions {
+                            nodes: nodes.unwrap_or(128),
+                            ticks: steps,
+                            iterations,
+                            evaluations,
+                            line_load,
+                            follow_wall,
+                        },
                         json,
                     )
                 } else {

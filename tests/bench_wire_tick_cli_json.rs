@@ -2,7 +2,8 @@
 //! service's scene (`rt-config/guidewire.toml`: the branched arch and its
 //! cached basis) and prints the JSON keys scripts depend on; the wire got
 //! through the script without a reset and every part was timed. No timing
-//! thresholds (the machine is shared). The first run on a fresh checkout
+//! thresholds (the machine is shared). An evaluation budget of 12 bounds
+//! every step's evaluations. The first run on a fresh checkout
 //! meshes the arch and computes its basis (minutes; cached after).
 
 use std::process::Command;
@@ -11,7 +12,18 @@ use std::process::Command;
 fn bench_wire_tick_json_has_the_contract_keys_and_no_resets() {
     let out = Command::new(env!("CARGO_BIN_EXE_nvtmm"))
         .current_dir(env!("CARGO_MANIFEST_DIR"))
-        .args(["bench", "wire", "--tick", "--nodes", "64", "--steps", "200", "--json"])
+        .args([
+            "bench",
+            "wire",
+            "--tick",
+            "--nodes",
+            "64",
+            "--steps",
+            "200",
+            "--evaluations",
+            "12",
+            "--json",
+        ])
         .output()
         .unwrap();
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
@@ -22,8 +34,13 @@ fn bench_wire_tick_json_has_the_contract_keys_and_no_resets() {
     assert_eq!(
         keys,
         [
+            "budget_spent",
             "contacts_max",
             "contacts_mean",
+            "evaluations_max",
+            "evaluations_max_allowed",
+            "evaluations_mean",
+            "evaluations_p999",
             "follow_wall",
             "haptic_us",
             "inserted_mm",
@@ -48,6 +65,11 @@ fn bench_wire_tick_json_has_the_contract_keys_and_no_resets() {
     assert_eq!(obj["ticks"], 200);
     assert_eq!(obj["resets"], 0);
     assert_eq!(obj["follow_wall"], false);
+    // The budget bounds every step's evaluations.
+    assert_eq!(obj["evaluations_max_allowed"], 12);
+    let most = obj["evaluations_max"].as_u64().unwrap();
+    assert!((3..=12).contains(&most), "{most} evaluations");
+    assert!(obj["evaluations_p999"].as_u64().unwrap() <= most);
     let nodes = obj["nodes"].as_u64().unwrap();
     assert!((50..=64).contains(&nodes), "{nodes} nodes");
     assert!(obj["inserted_mm"].as_f64().unwrap() > 150.0);

@@ -48,6 +48,10 @@ fn a_short_guidewire_run_reports_finite_wire_keys_and_allocates_nothing() {
     assert!(w.max_penetration_m < 0.2e-3, "penetration {} m", w.max_penetration_m);
     assert!(w.wall_updates > 0, "the wall followed the reduced model");
     assert_eq!(w.resets, 0);
+    // The default budget never binds: no step was cut short, and the most
+    // a step took is counted.
+    assert!(w.evaluations_max >= 3, "{} evaluations", w.evaluations_max);
+    assert_eq!(w.budget_spent_steps, 0);
     assert!(report.allocator_installed);
     assert_eq!(w.allocations_after_start, 0, "wire thread allocations");
     assert_eq!(report.allocations_after_start, 0, "loop + device + wire allocations");
@@ -61,6 +65,8 @@ fn a_short_guidewire_run_reports_finite_wire_keys_and_allocates_nothing() {
         "max_penetration_m",
         "axial_force_max_n",
         "step_us",
+        "evaluations_max",
+        "budget_spent_steps",
         "resets",
     ] {
         assert!(json["wire"].get(k).is_some(), "wire.{k} missing");

@@ -22,7 +22,7 @@ fn defaults_are_valid() {
 #[test]
 fn impossible_values_name_the_key_and_the_range() {
     let path = Path::new("rt-config/guidewire.toml");
-    let cases: [(&str, &str, &str); 9] = [
+    let cases: [(&str, &str, &str); 10] = [
         (
             "youngs_modulus_pa = -5.0",
             "youngs_modulus_pa",
@@ -32,6 +32,7 @@ fn impossible_values_name_the_key_and_the_range() {
         ("poisson_ratio = 0.7", "poisson_ratio", "[0, 0.5]"),
         ("friction = -0.1", "friction", "[0, 2]"),
         ("max_nodes = 2", "max_nodes", "4..=4096"),
+        ("max_evaluations = 2", "max_evaluations", "3..=10000"),
         ("density_kg_m3 = nan", "density_kg_m3", "[1, 30000] kg/m³"),
         ("tip_stiffness_factor = 0.0", "tip_stiffness_factor", "[0.0001, 10]"),
         ("dt_s = 1.0", "dt_s", "[0.000001, 0.01] s"),

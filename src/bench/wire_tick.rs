@@ -54,6 +54,17 @@ pub struct WireTickBench {
     pub iterations_max: usize,
     /// Mean Newton iterations per step.
     pub iterations_mean: f64,
+    /// Evaluations a step allowed (the wire's `max_evaluations`).
+    pub evaluations_max_allowed: usize,
+    /// Mean evaluations of the wire's incremental potential per step
+    /// (assemblies, line-search trials, the final reactions').
+    pub evaluations_mean: f64,
+    /// The 99.9th percentile and the largest evaluations in a step.
+    pub evaluations_p999: usize,
+    /// See `evaluations_p999`.
+    pub evaluations_max: usize,
+    /// Steps that ended because they spent their evaluation budget.
+    pub budget_spent: usize,
     /// Line load pressing the wire onto the wall (N/m).
     pub line_load_n_per_m: f64,
     /// Ticks timed.
@@ -91,23 +102,42 @@ pub struct WireTickBench {
     pub lumen_us: Percentiles,
 }
 
+/// What [`bench_wire_tick`] runs.
+#[derive(Debug, Clone, Copy)]
+pub struct WireTickOptions {
+    /// Wire nodes.
+    pub nodes: usize,
+    /// Ticks timed.
+    pub ticks: usize,
+    /// Newton iterations a step at most (None: the configuration's).
+    pub iterations: Option<usize>,
+    /// Evaluations a step at most (the wire's `max_evaluations`; None: the
+    /// configuration's).
+    pub evaluations: Option<usize>,
+    /// Sideways load pressing the wire onto the wall (N/m).
+    pub line_load: f64,
+    /// Rebuild the lumen from the reduced model's deformed wall.
+    pub follow_wall: bool,
+}
+
 /// Runs it on the service configuration at `config`: a wire of `nodes`
-/// nodes, at most `iterations` Newton iterations a step (None: the
-/// configuration's), pressed onto the wall by `line_load` N/m, `ticks`
-/// ticks timed. With `follow_wall` the lumen is rebuilt from the reduced
+/// nodes, at most `iterations` Newton iterations and `evaluations`
+/// evaluations a step (None: the configuration's), pressed onto the wall
+/// by `line_load` N/m, `ticks` ticks timed. With `follow_wall` the lumen is rebuilt from the reduced
 /// model's deformed wall as the service's publisher does (without the
 /// share of the deformation the wire's own loads caused; docs/WIRE.md
 /// "The wall under the wire"), otherwise from the rest wall (the same
 /// rebuild cost). With the configuration's `guidewire.load_wall` the
 /// wire's contact has the wall's compliance in series, as in the service.
-pub fn bench_wire_tick(
-    config: &Path,
-    nodes: usize,
-    ticks: usize,
-    iterations: Option<usize>,
-    line_load: f64,
-    follow_wall: bool,
-) -> Result<WireTickBench, super::BenchError> {
+pub fn bench_wire_tick(config: &Path, o: &WireTickOptions) -> Result<WireTickBench, super::BenchError> {
+    let WireTickOptions {
+        nodes,
+        ticks,
+        iterations,
+        evaluations,
+        line_load,
+        follow_wall,
+    } = *o;
     let arg = super::BenchError::Arg;
     if !(16..=4096).contains(&nodes) {
         return Err(arg(format!("--nodes {nodes}: must be in 16..=4096")));
@@ -182,6 +212,7 @@ pub fn bench_wire_tick(
         max_nodes: nodes,
         segment_length_m: seg,
         newton_iterations: iterations.unwrap_or(wp.newton_iterations),
+        max_evaluations: evaluations.unwrap_or(wp.max_evaluations),
         ..wp.clone()
     };
     params
@@ -225,6 +256,8 @@ pub fn bench_wire_tick(
         Vec::with_capacity(cap),
         Vec::with_capacity(cap),
     );
+    let mut evals = Vec::with_capacity(ticks);
+    let mut budget_spent = 0usize;
     let (mut iters, mut contacts, mut contacts_max, mut loads_max, mut qp_solved, mut resets) =
         (0usize, 0usize, 0usize, 0usize, 0usize, 0usize);
     let mut deepest: f64 = 0.0;
@@ -312,6 +345,8 @@ pub fn bench_wire_tick(
             loads_max = loads_max.max(point_loads.len());
             if let Ok(r) = &rep {
                 iters += r.iterations;
+                evals.push(r.evaluations);
+                budget_spent += r.budget_spent as usize;
                 deepest = deepest.max(r.max_penetration_m);
             }
         }
@@ -322,6 +357,17 @@ pub fn bench_wire_tick(
         inserted_mm: wire.inserted() * 1e3,
         iterations_max: params.newton_iterations,
         iterations_mean: iters as f64 / ticks as f64,
+        evaluations_max_allowed: params.max_evaluations,
+        evaluations_mean: evals.iter().sum::<usize>() as f64 / ticks as f64,
+        evaluations_p999: {
+            evals.sort_unstable();
+            evals
+                .get((evals.len() * 999 / 1000).min(evals.len().saturating_sub(1)))
+                .copied()
+                .unwrap_or(0)
+        },
+        evaluations_max: evals.iter().copied().max().unwrap_or(0),
+        budget_spent,
         line_load_n_per_m: line_load,
         ticks,
         contacts_mean: contacts as f64 / ticks as f64,

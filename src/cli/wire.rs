@@ -1,7 +1,7 @@
 //! `nvtmm bench wire …`: the guidewire's step time against its node count.
 
 use nvtmm::bench::wire::bench_wire;
-use nvtmm::bench::wire_tick::bench_wire_tick;
+use nvtmm::bench::wire_tick::{bench_wire_tick, WireTickOptions};
 use std::path::{Path, PathBuf};
 
 /// `rt-config/guidewire.toml` in the working directory if it is there,
@@ -59,31 +59,28 @@ pub fn bench_wire_cmd(nodes: Option<usize>, steps: usize, iterations: usize, jso
 }
 
 /// `nvtmm bench wire --tick [--config C] [--nodes N] [--steps S]
-/// [--iterations K] [--line-load F] [--follow-wall] [--json]`: the whole guidewire tick in
+/// [--iterations K] [--evaluations E] [--line-load F] [--follow-wall] [--json]`: the whole guidewire tick in
 /// the branched arch, and its parts.
-pub fn bench_wire_tick_cmd(
-    config: &Path,
-    nodes: usize,
-    ticks: usize,
-    iterations: Option<usize>,
-    line_load: f64,
-    follow_wall: bool,
-    json: bool,
-) -> Result<()> {
-    let b = bench_wire_tick(config, nodes, ticks, iterations, line_load, follow_wall)?;
+pub fn bench_wire_tick_cmd(config: &Path, o: &WireTickOptions, json: bool) -> Result<()> {
+    let b = bench_wire_tick(config, o)?;
     if json {
         println!("{}", serde_json::to_string_pretty(&b)?);
         return Ok(());
     }
     println!(
         "{} nodes ({:.2} mm segments, {:.1} mm inserted), {} Newton iterations at most ({:.2} mean), \
-         line load {} N/m: contacts {:.1} mean, {} max; {} point loads at most; QP solved on {} of {} ticks; \
+         evaluations a step {:.2} mean, {} p99.9, {} max ({} allowed, {} steps spent them), line load {} N/m: contacts {:.1} mean, {} max; {} point loads at most; QP solved on {} of {} ticks; \
          {} lumen rebuilds ({}); {} resets; deepest {:.3} mm",
         b.nodes,
         b.segment_mm,
         b.inserted_mm,
         b.iterations_max,
         b.iterations_mean,
+        b.evaluations_mean,
+        b.evaluations_p999,
+        b.evaluations_max,
+        b.evaluations_max_allowed,
+        b.budget_spent,
         b.line_load_n_per_m,
         b.contacts_mean,
         b.contacts_max,

@@ -1,6 +1,6 @@
 //! The guidewire's speed-for-accuracy knobs (the wire rows of `nvtmm
-//! experiment trade`): segment length, Newton iterations per step, contact
-//! stiffness and the friction model, each against a converged reference of
+//! experiment trade`): segment length, Newton iterations per step, the
+//! evaluation budget per step, contact stiffness and the friction model, each against a converged reference of
 //! the same insertion.
 //!
 //! The scenario: the default wire (0.035", nitinol, soft angled tip) pushed
@@ -31,6 +31,9 @@ pub struct WireTradeRow {
     pub contacts_max: usize,
     /// Active nodes at the end.
     pub nodes: usize,
+    /// Most evaluations of the wire's potential in one step (what the
+    /// step's worst case costs; `max_evaluations` bounds it).
+    pub evaluations_max: usize,
 }
 
 /// What one run recorded.
@@ -40,6 +43,7 @@ struct Run {
     us: f64,
     contacts_max: usize,
     nodes: usize,
+    evaluations_max: usize,
 }
 
 /// The tube of the scenario.
@@ -64,13 +68,14 @@ fn run(p: &WireParams, seconds: f64) -> Result<Run, String> {
     let steps = (seconds / p.dt_s).round() as usize;
     let every = (0.01 / p.dt_s).round().max(1.0) as usize;
     let (mut tips, mut hub, mut us) = (Vec::new(), Vec::new(), Vec::with_capacity(steps));
-    let mut contacts_max = 0;
+    let (mut contacts_max, mut evaluations_max) = (0, 0);
     for k in 1..=steps {
         w.set_hub(0.02 + 0.05 * k as f64 * p.dt_s, 0.0);
         let t0 = Instant::now();
         let r = w.step(&lumen).map_err(|e| format!("step {k}: {e:?}"))?;
         us.push(t0.elapsed().as_secs_f64() * 1e6);
         contacts_max = contacts_max.max(r.contacts);
+        evaluations_max = evaluations_max.max(r.evaluations);
         if k % every == 0 {
             tips.push(w.tip());
             hub.push(r.hub_axial_force_n);
@@ -83,6 +88,7 @@ fn run(p: &WireParams, seconds: f64) -> Result<Run, String> {
         us: us.get(us.len() / 2).copied().unwrap_or(0.0),
         contacts_max,
         nodes: w.positions().len(),
+        evaluations_max,
     })
 }
 
@@ -120,6 +126,7 @@ pub fn rows(quick: bool) -> Result<Vec<WireTradeRow>, String> {
             hub_force_error: if mean_ref > 0.0 { diff / mean_ref } else { f64::NAN },
             contacts_max: r.contacts_max,
             nodes: r.nodes,
+            evaluations_max: r.evaluations_max,
         }
     };
     let mut out = vec![row("reference", "1.5 mm, 8 it., 1e6 N/m, μ 0.1".into(), &base)];
@@ -158,6 +165,16 @@ pub fn rows(quick: bool) -> Result<Vec<WireTradeRow>, String> {
             },
         )?;
     }
+    for e in [8, 16] {
+        add(
+            "max_evaluations",
+            e.to_string(),
+            WireParams {
+                max_evaluations: e,
+                ..reference.clone()
+            },
+        )?;
+    }
     add(
         "friction",
         "none (μ 0)".into(),
@@ -175,18 +192,35 @@ pub fn rows(quick: bool) -> Result<Vec<WireTradeRow>, String> {
             ..reference.clone()
         },
     )?;
+    add(
+        "shipped + max_evaluations",
+        "3 mm, 2 it., 12 evaluations".into(),
+        WireParams {
+            segment_length_m: 3e-3,
+            newton_iterations: 2,
+            max_evaluations: 12,
+            ..reference.clone()
+        },
+    )?;
     Ok(out)
 }
 
 /// The rows as a Markdown table.
 pub fn markdown(rows: &[WireTradeRow]) -> String {
     let mut s = String::from(
-        "| wire knob | value | µs per step (p50) | tip error (mm, max) | hub force error (mean, rel.) | contacts max | nodes |\n|---|---|---|---|---|---|---|\n",
+        "| wire knob | value | µs per step (p50) | tip error (mm, max) | hub force error (mean, rel.) | contacts max | nodes | evaluations a step (max) |\n|---|---|---|---|---|---|---|---|\n",
     );
     for r in rows {
         s += &format!(
-            "| {} | {} | {:.0} | {:.3} | {:.3} | {} | {} |\n",
-            r.knob, r.value, r.us_per_step, r.tip_error_mm, r.hub_force_error, r.contacts_max, r.nodes
+            "| {} | {} | {:.0} | {:.3} | {:.3} | {} | {} | {} |\n",
+            r.knob,
+            r.value,
+            r.us_per_step,
+            r.tip_error_mm,
+            r.hub_force_error,
+            r.contacts_max,
+            r.nodes,
+            r.evaluations_max
         );
     }
     s

@@ -115,6 +115,11 @@ pub struct WireReport {
     pub steps: u64,
     /// Most Newton iterations in one step.
     pub iterations_max: usize,
+    /// Most evaluations of the wire's potential in one step (at most the
+    /// wire's `max_evaluations`).
+    pub evaluations_max: usize,
+    /// Steps that ended because they spent `max_evaluations`.
+    pub budget_spent_steps: u64,
     /// Times the wire went back to its last good state (a non-finite step,
     /// a node deeper than the diameter in the wall, or a stalled thread);
     /// each ramps the hand's force to zero.
@@ -489,7 +494,7 @@ impl Report {
         s += &format!("  ring overflows: {}\n", rings.join(", "));
         if let Some(w) = &self.wire {
             s += &format!(
-                "  wire: {} nodes, {:.1} mm inserted (most {:.1}), tip in {}; step (µs) {} over {} steps ({} Newton it. at most), \
+                "  wire: {} nodes, {:.1} mm inserted (most {:.1}), tip in {}; step (µs) {} over {} steps ({} Newton it., {} evaluations at most; {} spent the budget), \
                  contacts p50 {:.0} max {}, deepest {:.3} mm, axial force max {:.3} N, {} resets, {} stalls, thread {} on CPU {}\n\
                  {}",
                 w.nodes,
@@ -499,6 +504,8 @@ impl Report {
                 p(&w.step_us),
                 w.steps,
                 w.iterations_max,
+                w.evaluations_max,
+                w.budget_spent_steps,
                 w.contacts_p50,
                 w.contacts_max,
                 w.max_penetration_m * 1e3,

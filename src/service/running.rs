@@ -129,6 +129,8 @@ impl<const R: usize> RunningService for Running<R> {
                 step_us: steps,
                 steps: w.steps,
                 iterations_max: w.iterations_max,
+                evaluations_max: w.evaluations_max,
+                budget_spent_steps: w.budget_spent,
                 resets: w.resets,
                 stalls: lr.wire_stalls,
                 wall_updates: w.wall_updates,

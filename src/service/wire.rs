@@ -378,6 +378,8 @@ pub(super) struct WireResult {
     pub max_penetration_m: f64,
     pub axial_force_max_n: f64,
     pub iterations_max: usize,
+    pub evaluations_max: usize,
+    pub budget_spent: u64,
     pub allocations: u64,
     pub wall_updates: u64,
     pub loads_ring_full: u64,
@@ -595,6 +597,8 @@ pub(super) fn wire_thread(mut p: WirePlan) -> WireResult {
         max_penetration_m: 0.0,
         axial_force_max_n: 0.0,
         iterations_max: 0,
+        evaluations_max: 0,
+        budget_spent: 0,
         allocations: 0,
         wall_updates: 0,
         loads_ring_full: 0,
@@ -671,6 +675,8 @@ pub(super) fn wire_thread(mut p: WirePlan) -> WireResult {
                     res.deflection_max = res.deflection_max.max(c.wall_deflection);
                 }
                 res.iterations_max = res.iterations_max.max(rep.iterations);
+                res.evaluations_max = res.evaluations_max.max(rep.evaluations);
+                res.budget_spent += rep.budget_spent as u64;
                 WireShared::set(&p.shared.axial_bits, rep.hub_axial_force_n);
                 since_good += 1;
                 if since_good >= p.good_every && rep.max_penetration_m < 0.5 * radius {

@@ -73,6 +73,12 @@ pub struct WireParams {
     pub dt_s: f64,
     /// Newton iterations per step at most.
     pub newton_iterations: usize,
+    /// Evaluations of the incremental potential per step at most (Newton
+    /// assemblies, line-search trials and the reactions' evaluation): the
+    /// step's cost is about this many evaluations at worst, whatever the
+    /// contacts do. A step that spends it ends at its last accepted
+    /// iterate (still lower in energy than where it began).
+    pub max_evaluations: usize,
     /// How the stylus drives the hub (the `[drive]` table, `[wire.drive]`
     /// in a service file).
     pub drive: DriveParams,
@@ -97,6 +103,7 @@ impl Default for WireParams {
             drag_n_s_per_m2: 1e-3,
             dt_s: 1e-3,
             newton_iterations: 3,
+            max_evaluations: 1000,
             drive: DriveParams::default(),
         }
     }
@@ -152,6 +159,7 @@ impl WireParams {
         c.f64_in("drag_n_s_per_m2", self.drag_n_s_per_m2, 0.0, 1e3, "N·s/m²")?;
         c.f64_in("dt_s", self.dt_s, 1e-6, 0.01, "s")?;
         c.int_in("newton_iterations", self.newton_iterations, 1, 100)?;
+        c.int_in("max_evaluations", self.max_evaluations, 3, 10_000)?;
         self.drive.validate(path, "drive.")?;
         Ok(())
     }

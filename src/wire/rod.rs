@@ -93,6 +93,14 @@ pub struct StepReport {
     pub residual_n: f64,
     /// Material fed in (positive) or withdrawn at the hub this step (m).
     pub fed_m: f64,
+    /// Evaluations of the incremental potential this step (Newton
+    /// iterations' assemblies plus line-search trials plus the final
+    /// reactions'): what the step's cost scales with; at most the wire's
+    /// `max_evaluations`.
+    pub evaluations: usize,
+    /// The step stopped because its evaluation budget (`max_evaluations`)
+    /// was spent, not because it converged or ran its iterations.
+    pub budget_spent: bool,
 }
 
 /// The state that [`Wire::save_good_state`] keeps.
@@ -694,11 +702,18 @@ impl Wire {
             if it >= self.p.newton_iterations && self.eval_pen < 0.25 * r_w {
                 break;
             }
+            // Room for this iteration's assembly, one trial and the
+            // reactions' evaluation at the end?
+            if have != Have::Hessian && rep.evaluations + 3 > self.p.max_evaluations {
+                rep.budget_spent = true;
+                break;
+            }
             let e0 = if have == Have::Hessian {
                 e_cur
             } else {
                 // Re-based frames at an evaluated iterate are its frames:
                 // no geometry to redo.
+                rep.evaluations += 1;
                 self.eval_at(lumen, have == Have::Nothing, true, true)
             };
             have = Have::Hessian;
@@ -743,6 +758,11 @@ impl Wire {
             let mut alpha = scale;
             let mut accepted = false;
             for trial in 0..12 {
+                // Keep one evaluation for the reactions.
+                if rep.evaluations + 2 > self.p.max_evaluations {
+                    rep.budget_spent = true;
+                    break;
+                }
                 for i in 0..n {
                     let d = Vec3::new(self.dx[4 * i], self.dx[4 * i + 1], self.dx[4 * i + 2]);
                     self.xt[i] = self.s.x[i] + d * alpha;
@@ -750,6 +770,7 @@ impl Wire {
                 }
                 let want = if trial == 0 { first } else { Have::Geometry };
                 let e1 = self.eval_at(lumen, true, want >= Have::Gradient, want == Have::Hessian);
+                rep.evaluations += 1;
                 have = want;
                 e_cur = e1;
                 if e1.is_finite() && e1 <= e0 + 1e-4 * (alpha / scale) * slope.min(0.0) + 1e-12 * e0.abs() {
@@ -797,6 +818,7 @@ impl Wire {
         }
         // Final geometry, reactions and contacts at the accepted state.
         if have < Have::Gradient {
+            rep.evaluations += 1;
             self.eval_at(lumen, have == Have::Nothing, true, false);
         }
         self.reactions();
@@ -1351,5 +1373,42 @@ mod tests {
             }
         }
         assert!(worst < 1e-4 * scale, "worst {worst:e} of {scale:e}");
+    }
+    /// A budget of evaluations bounds every step's, the step says when it
+    /// ran out and leaves a finite wire; a budget never reached changes
+    /// nothing.
+    #[test]
+    fn the_evaluation_budget_bounds_every_step() {
+        let run = |budget: usize| {
+            let p = WireParams {
+                segment_length_m: 2e-3,
+                max_nodes: 40,
+                max_evaluations: budget,
+                ..WireParams::default()
+            };
+            let mut w = Wire::new(&p, Vec3::zeros(), Vec3::x(), 0.03).unwrap();
+            let tube = StraightTube::new(Vec3::new(-0.01, 0.0, 0.0), Vec3::x(), 0.2, 1.5e-3, false).unwrap();
+            w.set_line_load(Vec3::new(0.0, 3.0, 0.0));
+            let (mut most, mut spent) = (0, 0);
+            for k in 0..300 {
+                w.set_hub(0.03 + 1e-4 * k as f64, 0.002 * k as f64);
+                let r = w.step(&tube).unwrap();
+                assert!(r.evaluations <= budget, "{} > {budget}", r.evaluations);
+                most = most.max(r.evaluations);
+                spent += r.budget_spent as usize;
+                assert!(w.is_finite());
+            }
+            (most, spent, w.tip())
+        };
+        let (free_most, free_spent, free_tip) = run(1000);
+        assert_eq!(free_spent, 0);
+        assert!(
+            free_most > 4,
+            "the wire needed only {free_most} evaluations: no test of the budget"
+        );
+        let (most, spent, _) = run(4);
+        assert!(most <= 4 && spent > 0, "most {most}, spent {spent}");
+        let (_, _, tip) = run(free_most);
+        assert_eq!(tip, free_tip, "a budget never reached changed the run");
     }
 }
