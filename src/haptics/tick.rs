@@ -59,6 +59,8 @@ pub struct HapticTick<const R: usize> {
     servo: Servo<R>,
     filter: PassivityFilter,
     v_prev: Vec3,
+    /// The last sample's sequence number (None before the first).
+    last_seq: Option<u64>,
     rt_granted: bool,
     external: Vec3,
 }
@@ -70,6 +72,7 @@ impl<const R: usize> HapticTick<R> {
             servo,
             filter,
             v_prev: Vec3::zeros(),
+            last_seq: None,
             rt_granted: false,
             external: Vec3::zeros(),
         }
@@ -110,19 +113,24 @@ impl<const R: usize> HapticTick<R> {
             .unwrap_or((Vec3::zeros(), Vec3::zeros()));
         let q0 = clock::now_ns();
         // A rejected pose (a jump no hand makes) is not a motion of the
-        // port, and a tick without a sample has no position: the observer
-        // counts neither the jump to it nor the one back (the watchdog is
-        // ramping the force down meanwhile).
-        let bad_pose = out.flags & flags::BAD_POSE != 0 || input.sample.is_none();
-        if bad_pose {
-            self.filter.restart_observer();
+        // port, a tick without a sample has no position, and the same
+        // sample again (a silent device: the loop hands the tick the last
+        // one it has) says nothing of the motion since: the observer counts
+        // neither the jump to such a sample nor the one back, and charges
+        // the held force's work at the last measured velocity instead
+        // (`PassivityFilter::skip_sample`; the watchdog ramps the force
+        // down meanwhile).
+        let seq = input.sample.map(|s| s.seq);
+        let repeated = seq.is_some() && seq == self.last_seq;
+        if seq.is_some() {
+            self.last_seq = seq;
+        }
+        if out.flags & flags::BAD_POSE != 0 || input.sample.is_none() || repeated {
+            self.filter.skip_sample();
         }
         let v_pred = predict_velocity(v, self.v_prev);
         self.v_prev = v;
         let fo = self.filter.filter(out.desired, x, v_pred);
-        if bad_pose {
-            self.filter.restart_observer();
-        }
         let filtered = fo.force;
         let qp_solved = !matches!(fo.status, QpStatus::Interior | QpStatus::NotRun);
         let qp_us = (clock::now_ns() - q0) as f64 * 1e-3;

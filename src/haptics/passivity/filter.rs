@@ -108,6 +108,11 @@ pub struct PassivityStats {
     pub credit_j: f64,
     /// Energy thrown away at the tank's top (J).
     pub spilled_j: f64,
+    /// Energy charged for the intervals the observer could not see (a
+    /// repeated, rejected or missing sample at either end): what the held
+    /// force delivers at the last measured velocity, `T v·F + T²‖F‖²/2m`,
+    /// when positive; never credited (J).
+    pub unobserved_j: f64,
     /// Lowest tank level seen (J).
     pub tank_low_j: f64,
 }
@@ -132,6 +137,7 @@ impl PassivityStats {
             absorbed_j: 0.0,
             credit_j: 0.0,
             spilled_j: 0.0,
+            unobserved_j: 0.0,
             tank_low_j: tank,
         }
     }
@@ -256,6 +262,13 @@ pub struct PassivityFilter {
     f_prev: Vec3,
     x_prev: Vec3,
     have_prev: bool,
+    /// The last fresh sample's velocity (for unobserved intervals).
+    v_last: Vec3,
+    /// The coming call's sample is not a fresh measurement.
+    skip: bool,
+    /// The last call's sample was not one: the interval that follows it
+    /// has no observed start.
+    gap: bool,
     tank: f64,
     theta: f64,
     stats: PassivityStats,
@@ -340,6 +353,9 @@ impl PassivityFilter {
             f_prev: Vec3::zeros(),
             x_prev: Vec3::zeros(),
             have_prev: false,
+            v_last: Vec3::zeros(),
+            skip: false,
+            gap: false,
             theta: 0.0,
             #[cfg(test)]
             inject_failure: false,
@@ -391,14 +407,20 @@ impl PassivityFilter {
         self.have_prev = false;
     }
 
-    /// Restarts the energy observer without touching the force or the
-    /// tank: the next call to [`PassivityFilter::filter`] does not count
-    /// the motion from the last position. For a sample the watchdog
-    /// rejected (a pose jump no hand makes): the jump is not a motion the
-    /// port made, and counting it would credit the tank with energy that
-    /// never came in (or charge it with a debt).
-    pub fn restart_observer(&mut self) {
-        self.have_prev = false;
+    /// Tells the filter that the sample of the coming call to
+    /// [`PassivityFilter::filter`] is not a fresh measurement of the port:
+    /// a sample the watchdog rejected (a pose jump no hand makes), the same
+    /// sample again (the device fell silent), or none. The observer then
+    /// does not count the motion to or from it (a jump is not a motion the
+    /// port made); it charges the tank, for the interval that just ended
+    /// and for the one after, what the held force delivers at the last
+    /// measured velocity (`T v·F + T²‖F‖²/2m` when positive, never a
+    /// credit; [`PassivityStats::unobserved_j`]). While nothing is
+    /// observed the force still pushes the moving stylus (the watchdog
+    /// takes a few milliseconds to notice a silent device and ramp the
+    /// force down): not counting it handed that energy out for free.
+    pub fn skip_sample(&mut self) {
+        self.skip = true;
     }
 
     /// Tells the filter the force actually commanded after its output (the
@@ -434,8 +456,9 @@ impl PassivityFilter {
         let p = &self.params;
         let (dt, delta) = (p.dt_s, p.rate_n_per_tick);
         let x_ok = x.iter().chain(v.iter()).all(|c| c.is_finite());
+        let fresh = x_ok && !std::mem::take(&mut self.skip);
         // Energy observer for the interval that just ended (F_prev was held).
-        if x_ok && self.have_prev {
+        if fresh && self.have_prev {
             let dx = x - self.x_prev;
             let delivered = self.f_prev.dot(&dx);
             let credit = p.damping_credit_ns_per_m * dx.norm_squared() / dt;
@@ -451,10 +474,19 @@ impl PassivityFilter {
             }
             self.tank = e.min(p.tank_max_j);
             self.stats.tank_low_j = self.stats.tank_low_j.min(self.tank);
+        } else if !fresh || self.gap {
+            // Unobserved (see `skip_sample`): charge the prediction.
+            let f = self.f_prev;
+            let est = (dt * f.dot(&self.v_last) + dt * dt * f.norm_squared() / (2.0 * p.stylus_mass_kg)).max(0.0);
+            self.stats.unobserved_j += est;
+            self.tank -= est;
+            self.stats.tank_low_j = self.stats.tank_low_j.min(self.tank);
         }
-        self.have_prev = x_ok;
-        if x_ok {
+        self.gap = !fresh;
+        self.have_prev = fresh;
+        if fresh {
             self.x_prev = x;
+            self.v_last = v;
         }
         // The thermal state sees the force held during the last interval.
         self.theta += (dt / p.thermal_tau_s).min(1.0) * (self.f_prev.norm_squared() - self.theta);
@@ -979,18 +1011,69 @@ mod tests {
             rng = rng.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
             (rng >> 11) as f64 / (1u64 << 53) as f64 - 0.5
         };
-        for _ in 0..500 {
+        for k in 0..500 {
             let v = Vec3::new(next(), next(), next()) * 0.2;
             x += v * p.dt_s;
+            // Now and then a sample that is not fresh: charged, not observed.
+            if k % 7 == 3 {
+                flt.skip_sample();
+            }
             flt.filter(Vec3::new(next(), next(), next()) * 4.0, x, v);
         }
         let s = flt.stats();
-        let want = p.tank_initial_j - s.delivered_j + s.absorbed_j + s.credit_j - s.spilled_j;
+        assert!(s.unobserved_j > 0.0);
+        let want = p.tank_initial_j - s.delivered_j + s.absorbed_j + s.credit_j - s.spilled_j - s.unobserved_j;
         assert!((flt.tank_j() - want).abs() < 1e-12, "{} vs {want}", flt.tank_j());
         assert!(s.delivered_j > 0.0 && s.absorbed_j > 0.0 && s.credit_j > 0.0);
         assert_eq!(s.fallbacks(), 0);
         assert_eq!(s.iter_hist.iter().sum::<u64>(), s.solves);
         assert!(s.iter_p99() >= s.iter_quantile(0.5) && s.iter_p99() > 0);
+    }
+
+    /// A skipped sample charges the interval before it and the one after
+    /// with what the held force delivers at the last fresh velocity, and
+    /// the jump to the skipped pose and back is not counted.
+    #[test]
+    fn skipped_samples_charge_the_held_force_at_the_last_velocity() {
+        let p = PassivityParams {
+            tank_initial_j: 0.04,
+            tank_max_j: 0.05,
+            damping_credit_ns_per_m: 0.0,
+            ..params()
+        };
+        let dt = p.dt_s;
+        let mut flt = PassivityFilter::new(&p).unwrap();
+        let v = Vec3::new(0.1, 0.0, 0.0);
+        let f = Vec3::new(1.0, 0.0, 0.0);
+        let mut x = Vec3::zeros();
+        flt.filter(f, x, v);
+        flt.set_commanded(f);
+        x += v * dt;
+        let t0 = flt.tank_j();
+        // A wild pose 1 m away, not fresh.
+        flt.skip_sample();
+        flt.filter(f, x + Vec3::new(1.0, 0.0, 0.0), v);
+        flt.set_commanded(f);
+        let per = dt * f.dot(&v) + dt * dt * f.norm_squared() / (2.0 * p.stylus_mass_kg);
+        assert!(
+            (t0 - per - flt.tank_j()).abs() < 1e-15,
+            "{} vs {}",
+            t0 - per,
+            flt.tank_j()
+        );
+        x += v * dt;
+        // Back to a fresh sample: the interval from the skipped one is charged too.
+        flt.filter(f, x, v);
+        assert!((t0 - 2.0 * per - flt.tank_j()).abs() < 1e-15);
+        let s = flt.stats();
+        assert!((s.unobserved_j - 2.0 * per).abs() < 1e-15);
+        assert_eq!(s.delivered_j, 0.0, "the jump was not counted");
+        // Moving away from the force: nothing charged, nothing credited.
+        flt.set_commanded(-f);
+        let t1 = flt.tank_j();
+        flt.skip_sample();
+        flt.filter(f, x, v);
+        assert_eq!(flt.tank_j(), t1);
     }
 
     #[test]

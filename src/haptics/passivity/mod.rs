@@ -85,8 +85,19 @@
 //! `E_min`: the QP predicts with `v_k`, the hold delivers along the real
 //! path, and clamping a small overshoot below `E_min` would forgive it. A
 //! tank below `E_min` is a debt; the energy ball's budget is 0 until it is
-//! repaid. So, at every tick, exactly:
-//! `delivered − absorbed = E_0 − E + credit − (thrown away at E_max)`.
+//! repaid.
+//!
+//! An interval the observer cannot see — its start or end sample is a
+//! pose the watchdog rejected, the same sample again (a silent device), or
+//! none — is not measured: the jump to such a pose is no motion of the
+//! port. It is charged instead with what the held force delivers at the
+//! last measured velocity, `T v·F + T²‖F‖²/(2m)` when positive, never
+//! credited (`unobserved`). Before 2026-11-27 these intervals were left
+//! out: while the watchdog noticed a silent device and ramped the force
+//! down, the force went on pushing the moving stylus for free (the soak's
+//! faults added ~12 mJ to its worst window that way). So, at every tick,
+//! exactly:
+//! `delivered − absorbed + unobserved = E_0 − E + credit − (thrown away at E_max)`.
 //! A watchdog reset ([`PassivityFilter::reset`]) zeroes the force and
 //! restarts the observer but keeps the tank's level, debt included: a
 //! fault never hands out a fresh tank.
