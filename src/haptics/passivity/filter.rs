@@ -260,6 +260,9 @@ pub struct PassivityFilter {
     b: Vec<f64>,
     // State.
     f_prev: Vec3,
+    /// The force held before `f_prev` (the device still held it for the
+    /// first `hold_delay_ticks` of the last interval).
+    f_prev2: Vec3,
     x_prev: Vec3,
     have_prev: bool,
     /// The last fresh sample's velocity (for unobserved intervals).
@@ -351,6 +354,7 @@ impl PassivityFilter {
             q,
             b,
             f_prev: Vec3::zeros(),
+            f_prev2: Vec3::zeros(),
             x_prev: Vec3::zeros(),
             have_prev: false,
             v_last: Vec3::zeros(),
@@ -457,10 +461,15 @@ impl PassivityFilter {
         let (dt, delta) = (p.dt_s, p.rate_n_per_tick);
         let x_ok = x.iter().chain(v.iter()).all(|c| c.is_finite());
         let fresh = x_ok && !std::mem::take(&mut self.skip);
-        // Energy observer for the interval that just ended (F_prev was held).
+        // The force the device held over the interval that just ended:
+        // F_prev, and the one before it for the first `hold_delay_ticks`.
+        let phi = p.hold_delay_ticks;
+        let held = self.f_prev2 * phi + self.f_prev * (1.0 - phi);
+        self.f_prev2 = self.f_prev;
+        // Energy observer for that interval.
         if fresh && self.have_prev {
             let dx = x - self.x_prev;
-            let delivered = self.f_prev.dot(&dx);
+            let delivered = held.dot(&dx);
             let credit = p.damping_credit_ns_per_m * dx.norm_squared() / dt;
             if delivered > 0.0 {
                 self.stats.delivered_j += delivered;
@@ -476,7 +485,7 @@ impl PassivityFilter {
             self.stats.tank_low_j = self.stats.tank_low_j.min(self.tank);
         } else if !fresh || self.gap {
             // Unobserved (see `skip_sample`): charge the prediction.
-            let f = self.f_prev;
+            let f = held;
             let est = (dt * f.dot(&self.v_last) + dt * dt * f.norm_squared() / (2.0 * p.stylus_mass_kg)).max(0.0);
             self.stats.unobserved_j += est;
             self.tank -= est;
@@ -1074,6 +1083,39 @@ mod tests {
         flt.skip_sample();
         flt.filter(f, x, v);
         assert_eq!(flt.tank_j(), t1);
+    }
+
+    /// With the force landing half a tick after its pose, the observer
+    /// counts half of each interval at the force before.
+    #[test]
+    fn a_delayed_hold_counts_the_force_before_for_its_share() {
+        let p = PassivityParams {
+            hold_delay_ticks: 0.5,
+            damping_credit_ns_per_m: 0.0,
+            ..params()
+        };
+        let mut flt = PassivityFilter::new(&p).unwrap();
+        let dx = Vec3::new(1e-4, 0.0, 0.0);
+        let (f1, f2) = (Vec3::new(1.0, 0.0, 0.0), Vec3::new(0.2, 0.0, 0.0));
+        flt.filter(f1, Vec3::zeros(), Vec3::zeros());
+        flt.set_commanded(f1);
+        flt.filter(f2, dx, Vec3::zeros());
+        flt.set_commanded(f2);
+        // First interval: half nothing (before the first force), half f1.
+        assert!((flt.stats().delivered_j - 0.5 * f1.dot(&dx)).abs() < 1e-15);
+        flt.filter(f2, dx * 2.0, Vec3::zeros());
+        // Second: half f1, half f2.
+        let want = 0.5 * f1.dot(&dx) + 0.5 * (f1 + f2).dot(&dx);
+        assert!(
+            (flt.stats().delivered_j - want).abs() < 1e-15,
+            "{} vs {want}",
+            flt.stats().delivered_j
+        );
+        let bad = PassivityParams {
+            hold_delay_ticks: 1.5,
+            ..params()
+        };
+        assert!(PassivityFilter::new(&bad).is_err());
     }
 
     #[test]
