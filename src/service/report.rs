@@ -33,6 +33,10 @@ pub struct QpReport {
     pub observed_out_j: f64,
     /// Energy the filter's observer counted as put in by the hand (J).
     pub observed_in_j: f64,
+    /// Energy the observer charged for intervals it could not see (a
+    /// rejected pose, a repeated sample, none: the held force's work at the
+    /// last measured velocity; J).
+    pub unobserved_j: f64,
     /// Ticks whose model force was inside every bound and went out as it
     /// was, without a solve (the shortcut).
     pub shortcuts: u64,
@@ -394,7 +398,7 @@ impl Report {
         } else {
             s += &format!(
                 "  QP: {} solves ({} ticks inside every bound took the shortcut), active norm {} rate {} energy {}, \
-                 iters p99 {}, solve p50 {:.1} µs p99 {:.1} µs, {} fallbacks, tank low {:.4} J; observer: in {:.4} J, out {:.4} J\n",
+                 iters p99 {}, solve p50 {:.1} µs p99 {:.1} µs, {} fallbacks, tank low {:.4} J; observer: in {:.4} J, out {:.4} J, unobserved {:.4} J\n",
                 q.solves,
                 q.shortcuts,
                 q.active_norm,
@@ -406,7 +410,8 @@ impl Report {
                 q.fallbacks,
                 q.tank_low_j,
                 q.observed_in_j,
-                q.observed_out_j
+                q.observed_out_j,
+                q.unobserved_j
             );
         }
         let b = &self.background;

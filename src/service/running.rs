@@ -246,6 +246,7 @@ impl<const R: usize> RunningService for Running<R> {
                 tank_low_j: qp.tank_low_j,
                 observed_out_j: qp.delivered_j,
                 observed_in_j: qp.absorbed_j,
+                unobserved_j: qp.unobserved_j,
                 shortcuts: qp.interior,
             },
             energy_in_j: energy_in,

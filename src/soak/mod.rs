@@ -176,8 +176,31 @@ pub struct LegReport {
     pub garbage_sent: u64,
     /// See `garbage_sent`.
     pub garbage_rejected: u64,
+    /// The port's energy over the leg (J): what the device really
+    /// exchanged with the hand, and what the passivity filter's observer
+    /// counted (docs/PASSIVITY.md "The energy observer and tank"); an
+    /// observer that counts less delivered than the device lets the window
+    /// check fail.
+    pub port: PortEnergyLeg,
     /// The service's text report of the leg.
     pub service_report: String,
+}
+
+/// A leg's port energy, the device's and the observer's (J).
+#[derive(Debug, Clone, Copy, Default, PartialEq, serde::Serialize)]
+pub struct PortEnergyLeg {
+    /// Put in by the hand, as the device measured it (its sub-step motion).
+    pub device_in_j: f64,
+    /// Delivered to the hand, as the device measured it.
+    pub device_out_j: f64,
+    /// Put in by the hand, as the observer counted it.
+    pub observer_in_j: f64,
+    /// Delivered to the hand, as the observer counted it.
+    pub observer_out_j: f64,
+    /// Charged by the observer for intervals it could not see.
+    pub unobserved_j: f64,
+    /// The tank's lowest level (below the reserve is a debt).
+    pub tank_low_j: f64,
 }
 
 /// One check and whether it held.
@@ -258,6 +281,11 @@ impl SoakReport {
                 l.hand.strikes,
                 l.hand.long_presses,
                 l.hand.slides
+            );
+            let e = &l.port;
+            s += &format!(
+                "    port energy: device in {:.4} J, out {:.4} J; observer in {:.4} J, out {:.4} J, unobserved {:.4} J; tank low {:.4} J\n",
+                e.device_in_j, e.device_out_j, e.observer_in_j, e.observer_out_j, e.unobserved_j, e.tank_low_j
             );
         }
         s += "  faults (injected / recovered, worst time to zero force, worst recovery):\n";
@@ -1136,6 +1164,14 @@ fn run_leg(
         rss_trace_mb: rss_trace,
         garbage_sent,
         garbage_rejected,
+        port: PortEnergyLeg {
+            device_in_j: svc.energy_in_j,
+            device_out_j: svc.energy_out_j,
+            observer_in_j: svc.qp.observed_in_j,
+            observer_out_j: svc.qp.observed_out_j,
+            unobserved_j: svc.qp.unobserved_j,
+            tank_low_j: svc.qp.tank_low_j,
+        },
         service_report: svc.render(),
     });
     Ok(())
@@ -1143,7 +1179,7 @@ fn run_leg(
 
 #[cfg(test)]
 mod tests {
-    use super::{basis_refresh_on, finish, window_levels, FaultOutcome, SoakReport};
+    use super::{basis_refresh_on, finish, window_levels, FaultOutcome, LegReport, PortEnergyLeg, SoakReport};
 
     #[test]
     fn basis_refresh_is_read_from_the_config_and_off_skips_its_fault() {
@@ -1182,6 +1218,31 @@ mod tests {
         assert!(skip.skipped && !skip.passed, "{skip:?}");
         assert!(r.passed, "{:?}", r.checks);
         assert!(r.render().contains("[skip] fault basis_failure"));
+    }
+
+    /// Each leg's line shows the port's energy as the device measured it
+    /// beside what the observer counted.
+    #[test]
+    fn a_leg_shows_the_device_and_the_observer_energy() {
+        let r = SoakReport {
+            legs: vec![LegReport {
+                name: "stiff".into(),
+                port: PortEnergyLeg {
+                    device_in_j: 0.25,
+                    device_out_j: 0.5,
+                    observer_in_j: 0.125,
+                    observer_out_j: 0.375,
+                    unobserved_j: 0.0625,
+                    tank_low_j: -0.03125,
+                },
+                ..LegReport::default()
+            }],
+            ..SoakReport::default()
+        };
+        assert!(r.render().contains(
+            "port energy: device in 0.2500 J, out 0.5000 J; observer in 0.1250 J, out 0.3750 J, \
+             unobserved 0.0625 J; tank low -0.0312 J"
+        ));
     }
 
     #[test]
