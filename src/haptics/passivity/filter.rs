@@ -486,7 +486,7 @@ impl PassivityFilter {
         } else if !fresh || self.gap {
             // Unobserved (see `skip_sample`): charge the prediction.
             let f = held;
-            let est = (dt * f.dot(&self.v_last) + dt * dt * f.norm_squared() / (2.0 * p.stylus_mass_kg)).max(0.0);
+            let est = super::predicted_work(f, self.v_last, p.stylus_mass_kg, dt).max(0.0);
             self.stats.unobserved_j += est;
             self.tank -= est;
             self.stats.tank_low_j = self.stats.tank_low_j.min(self.tank);
@@ -885,7 +885,7 @@ mod tests {
                 // stylus mass moving at v: within the tank's budget.
                 let budget = (out.tank_j - p.tank_min_j).max(0.0);
                 let t = p.dt_s;
-                let work = t * v.dot(&out.force) + t * t * out.force.norm_squared() / (2.0 * p.stylus_mass_kg);
+                let work = crate::haptics::passivity::predicted_work(out.force, v, p.stylus_mass_kg, t);
                 prop_assert!(work <= budget + 1e-11, "work {work} budget {budget} {:?}", out);
             }
         }
@@ -1063,7 +1063,7 @@ mod tests {
         flt.skip_sample();
         flt.filter(f, x + Vec3::new(1.0, 0.0, 0.0), v);
         flt.set_commanded(f);
-        let per = dt * f.dot(&v) + dt * dt * f.norm_squared() / (2.0 * p.stylus_mass_kg);
+        let per = crate::haptics::passivity::predicted_work(f, v, p.stylus_mass_kg, dt);
         assert!(
             (t0 - per - flt.tank_j()).abs() < 1e-15,
             "{} vs {}",

@@ -139,6 +139,14 @@ pub const MAX_ITER_CAP: u32 = 100;
 /// Bins of [`PassivityStats::iter_hist`] (iteration counts 0..=`MAX_ITER_CAP`).
 pub const ITER_HIST_LEN: usize = MAX_ITER_CAP as usize + 1;
 
+/// The work a force `f` (N) held for `dt` (s) does on a stylus of mass
+/// `m` (kg) moving at `v` (m/s): `dt v·f + dt² ‖f‖² / (2m)`, the energy
+/// row's prediction (the energy ball is the set where it stays within the
+/// budget).
+pub fn predicted_work(f: Vec3, v: Vec3, m: f64, dt: f64) -> f64 {
+    dt * v.dot(&f) + dt * dt * f.norm_squared() / (2.0 * m)
+}
+
 /// The stylus velocity over the coming tick, for the energy row: the
 /// measured velocity extrapolated by its last change (constant
 /// acceleration). The force is held for the whole next period while a
