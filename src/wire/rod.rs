@@ -212,6 +212,11 @@ pub struct Wire {
     coef: Vec<Coef>,
     /// Per edge: 1 / its length at the trial state.
     inv_len: Vec<f64>,
+    /// Per edge: a twist angle near the trial's with its sine and cosine
+    /// (`sin_cos_near`).
+    th_near: Vec<(f64, f64, f64)>,
+    /// Per node: the same for the reference twist `rt0`.
+    rt_near: Vec<(f64, f64, f64)>,
 }
 
 /// The terms' coefficients at a node i and the edge j = i that leaves it,
@@ -300,7 +305,36 @@ fn rotate_sc(v: Vec3, axis: Vec3, s: f64, c: f64) -> Vec3 {
 
 /// Signed angle from `u` to `v` about `axis`.
 fn signed_angle(u: Vec3, v: Vec3, axis: Vec3) -> f64 {
-    u.cross(&v).dot(&axis).atan2(u.dot(&v))
+    let (y, x) = (u.cross(&v).dot(&axis), u.dot(&v));
+    // The geometry's angles (a reference twist's change within a step) are
+    // small: atan(t) by its series below |t| = 10⁻², whose first dropped
+    // term, t¹¹/11, is below 10⁻²³ (a tenth of an ulp of t).
+    if x > 0.0 && y.abs() < 1e-2 * x {
+        let t = y / x;
+        let t2 = t * t;
+        return t * (1.0 - t2 * (1.0 / 3.0 - t2 * (1.0 / 5.0 - t2 * (1.0 / 7.0 - t2 * (1.0 / 9.0)))));
+    }
+    y.atan2(x)
+}
+
+/// sin and cos of `theta` from those of a nearby `(angle, sin, cos)`
+/// (`near`), by the angle-sum formulas with the difference's series when it
+/// is below 10⁻² (first dropped terms δ⁹/9!, δ¹⁰/10!: below 10⁻²³); else
+/// computed anew, and `near` moves to `theta`. A wire's twists move by
+/// micro-radians between the geometry's evaluations.
+#[inline]
+fn sin_cos_near(theta: f64, near: &mut (f64, f64, f64)) -> (f64, f64) {
+    let d = theta - near.0;
+    if d.abs() < 1e-2 {
+        let d2 = d * d;
+        let sd = d * (1.0 - d2 / 6.0 * (1.0 - d2 / 20.0 * (1.0 - d2 / 42.0 * (1.0 - d2 / 72.0))));
+        let cd = 1.0 - d2 / 2.0 * (1.0 - d2 / 12.0 * (1.0 - d2 / 30.0 * (1.0 - d2 / 56.0)));
+        let (s0, c0) = (near.1, near.2);
+        return (s0 * cd + c0 * sd, c0 * cd - s0 * sd);
+    }
+    let (s, c) = theta.sin_cos();
+    *near = (theta, s, c);
+    (s, c)
 }
 
 fn outer(a: &Vec3, b: &Vec3) -> Mat3 {
@@ -363,6 +397,8 @@ impl Wire {
             hits: vec![None; cap],
             coef: vec![Coef::default(); cap],
             inv_len: vec![0.0; cap],
+            th_near: vec![(0.0, 0.0, 1.0); cap],
+            rt_near: vec![(0.0, 0.0, 1.0); cap],
         };
         w.lay_straight(inserted_m);
         w.save_good_state();
@@ -618,7 +654,7 @@ impl Wire {
             self.th0[i] = self.s.theta[i];
             self.d10[i] = self.s.d1[i];
             self.rt0[i] = self.s.ref_twist[i];
-            self.rt0_sc[i] = self.rt0[i].sin_cos();
+            self.rt0_sc[i] = sin_cos_near(self.rt0[i], &mut self.rt_near[i]);
             self.xt[i] = self.s.x[i];
             self.tht[i] = self.s.theta[i];
         }
@@ -821,7 +857,7 @@ impl Wire {
                 self.d10[i] = self.d1c[i];
                 self.t0[i] = self.tan[i];
                 self.rt0[i] = self.rt[i];
-                self.rt0_sc[i] = self.rt0[i].sin_cos();
+                self.rt0_sc[i] = sin_cos_near(self.rt0[i], &mut self.rt_near[i]);
             }
             rep.last_update = alpha * mx.max(mt);
             if alpha * mx < 1e-10 && alpha * mt < 1e-8 {
@@ -1042,7 +1078,7 @@ impl Wire {
             self.tan[j] = e * il;
             self.d1c[j] = transport(self.d10[j], self.t0[j], self.tan[j]);
             let d2 = self.tan[j].cross(&self.d1c[j]);
-            let (sn, cs) = self.tht[j].sin_cos();
+            let (sn, cs) = sin_cos_near(self.tht[j], &mut self.th_near[j]);
             self.m1[j] = self.d1c[j] * cs + d2 * sn;
             self.m2[j] = -self.d1c[j] * sn + d2 * cs;
         }
@@ -1378,7 +1414,7 @@ impl Wire {
                 self.d10[i] = self.d1c[i];
                 self.t0[i] = self.tan[i];
                 self.rt0[i] = self.rt[i];
-                self.rt0_sc[i] = self.rt0[i].sin_cos();
+                self.rt0_sc[i] = sin_cos_near(self.rt0[i], &mut self.rt_near[i]);
             }
         }
         let e = self.eval(lumen, true);
@@ -1412,6 +1448,33 @@ impl Wire {
 mod tests {
     use super::*;
     use crate::wire::lumen::StraightTube;
+
+    /// The geometry's fast angles agree with the library's to a few ulps:
+    /// the series branches (small angles) and the fall-backs.
+    #[test]
+    fn series_angles_match_the_library() {
+        let mut near = (0.3, 0.3f64.sin(), 0.3f64.cos());
+        for k in 0..4000 {
+            let theta = 0.3 + (k as f64 - 2000.0) * 1e-5 * (1.0 + (k as f64).sin());
+            let (s, c) = sin_cos_near(theta, &mut near);
+            assert!(
+                (s - theta.sin()).abs() < 4e-16 && (c - theta.cos()).abs() < 4e-16,
+                "θ = {theta}"
+            );
+        }
+        let axis = Vec3::z();
+        for k in 0..4000 {
+            let a = (k as f64 - 2000.0) * 1e-5 + if k % 7 == 0 { 2.5 } else { 0.0 };
+            let u = Vec3::new(1.3, 0.0, 0.2);
+            let v = Vec3::new(0.7 * a.cos(), 0.7 * a.sin(), -0.4);
+            let want = u.cross(&v).dot(&axis).atan2(u.dot(&v));
+            let got = signed_angle(u, v, axis);
+            assert!(
+                (got - want).abs() <= 4e-16 * want.abs().max(1e-300),
+                "{got} against {want}"
+            );
+        }
+    }
 
     /// The assembled gradient is that of the energy (central differences),
     /// on a bent, twisted, pre-shaped wire touching a tube wall with friction.
