@@ -6,34 +6,11 @@ mod common;
 
 use common::counting::count_allocations;
 use nvtmm::math::Vec3;
+use nvtmm::wire::lumen::tube_wall;
 use nvtmm::wire::{CurvedTube, CurvedTubeShape, Lumen, StraightTube, TriangleLumen, Wire, WireParams};
 
 #[global_allocator]
 static GLOBAL: common::counting::Counting = common::counting::Counting;
-
-/// A triangulated tube of radius `a` along x (normals inward).
-fn tube_mesh(a: f64, len: f64, nr: usize, nl: usize) -> (Vec<Vec3>, Vec<[u32; 3]>) {
-    let mut v = Vec::new();
-    for l in 0..=nl {
-        for r in 0..nr {
-            let phi = r as f64 / nr as f64 * std::f64::consts::TAU;
-            v.push(Vec3::new(
-                -0.01 + len * l as f64 / nl as f64,
-                a * phi.cos(),
-                a * phi.sin(),
-            ));
-        }
-    }
-    let mut t = Vec::new();
-    for l in 0..nl {
-        for r in 0..nr {
-            let i = |l: usize, r: usize| (l * nr + r % nr) as u32;
-            t.push([i(l, r), i(l + 1, r), i(l, r + 1)]);
-            t.push([i(l, r + 1), i(l + 1, r), i(l + 1, r + 1)]);
-        }
-    }
-    (v, t)
-}
 
 #[test]
 fn wire_step_allocates_nothing() {
@@ -54,7 +31,7 @@ fn wire_step_allocates_nothing() {
         radius: 3e-3,
     })
     .expect("tube");
-    let (verts, tris) = tube_mesh(2.5e-3, 0.2, 16, 60);
+    let (verts, tris) = tube_wall(-0.01, 0.2, 2.5e-3, 16, 60, 0.0);
     let mut mesh = TriangleLumen::new(&verts, &tris).expect("surface");
     let mut moved = verts.clone();
 

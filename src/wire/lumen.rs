@@ -929,6 +929,43 @@ impl Lumen for TriangleLumen {
     }
 }
 
+/// The inner wall of a straight tube along x as triangles wound inward
+/// (normals into the lumen, as [`TriangleLumen::new`] takes them): a
+/// regular polygon of `sides` vertices at `radius` from the axis, the first
+/// at the angle `phase` (radians, from +y toward +z), on `rings` + 1 rings
+/// from x = `x0` to `x0 + length`. With many sides it is a faceted circular
+/// tube; with few, a duct whose corners are ridges of the wall's distance.
+pub fn tube_wall(
+    x0: f64,
+    length: f64,
+    radius: f64,
+    sides: usize,
+    rings: usize,
+    phase: f64,
+) -> (Vec<Vec3>, Vec<[u32; 3]>) {
+    let mut v = Vec::with_capacity((rings + 1) * sides);
+    for l in 0..=rings {
+        for r in 0..sides {
+            let phi = phase + r as f64 / sides as f64 * std::f64::consts::TAU;
+            v.push(Vec3::new(
+                x0 + length * l as f64 / rings as f64,
+                radius * phi.cos(),
+                radius * phi.sin(),
+            ));
+        }
+    }
+    let mut t = Vec::with_capacity(2 * rings * sides);
+    for l in 0..rings {
+        for r in 0..sides {
+            let i = |l: usize, r: usize| (l * sides + r % sides) as u32;
+            // Inward normals: (b − a) × (c − a) toward the axis.
+            t.push([i(l, r), i(l + 1, r), i(l, r + 1)]);
+            t.push([i(l, r + 1), i(l + 1, r), i(l + 1, r + 1)]);
+        }
+    }
+    (v, t)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -936,23 +973,7 @@ mod tests {
     /// A closed-ring tube surface (radius a around the x axis from 0 to len),
     /// wound inward.
     fn tube_mesh(a: f64, len: f64, nr: usize, nl: usize) -> (Vec<Vec3>, Vec<[u32; 3]>) {
-        let mut v = Vec::new();
-        for l in 0..=nl {
-            for r in 0..nr {
-                let phi = r as f64 / nr as f64 * std::f64::consts::TAU;
-                v.push(Vec3::new(len * l as f64 / nl as f64, a * phi.cos(), a * phi.sin()));
-            }
-        }
-        let mut t = Vec::new();
-        for l in 0..nl {
-            for r in 0..nr {
-                let i = |l: usize, r: usize| (l * nr + r % nr) as u32;
-                // Inward normals: (b − a) × (c − a) toward the axis.
-                t.push([i(l, r), i(l + 1, r), i(l, r + 1)]);
-                t.push([i(l, r + 1), i(l + 1, r), i(l + 1, r + 1)]);
-            }
-        }
-        (v, t)
+        tube_wall(0.0, len, a, nr, nl, 0.0)
     }
 
     /// Uniform numbers in [−0.5, 0.5) from a fixed seed (a 64-bit LCG).

@@ -1631,29 +1631,10 @@ mod tests {
     /// not fall as the trial shortens, instead of halving twelve times.
     #[test]
     fn a_line_search_stops_at_a_kink_of_the_wall() {
-        use crate::wire::lumen::TriangleLumen;
+        use crate::wire::lumen::{tube_wall, TriangleLumen};
         // A hexagonal duct of circumradius 1.2 mm along x, wound inward,
         // with a corner straight below the axis (−y).
-        let (a, len, nl) = (1.2e-3, 0.2, 40);
-        let mut v = Vec::new();
-        for l in 0..=nl {
-            for r in 0..6 {
-                let phi = -std::f64::consts::FRAC_PI_2 + r as f64 * std::f64::consts::TAU / 6.0;
-                v.push(Vec3::new(
-                    -0.01 + len * l as f64 / nl as f64,
-                    a * phi.cos(),
-                    a * phi.sin(),
-                ));
-            }
-        }
-        let mut t = Vec::new();
-        for l in 0..nl {
-            for r in 0..6 {
-                let i = |l: usize, r: usize| (l * 6 + r % 6) as u32;
-                t.push([i(l, r), i(l + 1, r), i(l, r + 1)]);
-                t.push([i(l, r + 1), i(l + 1, r), i(l + 1, r + 1)]);
-            }
-        }
+        let (v, t) = tube_wall(-0.01, 0.2, 1.2e-3, 6, 40, -std::f64::consts::FRAC_PI_2);
         let duct = TriangleLumen::new(&v, &t).unwrap();
         let p = WireParams {
             segment_length_m: 2e-3,
