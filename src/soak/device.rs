@@ -90,6 +90,11 @@ pub struct DeviceChecks {
     pub energy_violations: AtomicU64,
     /// Largest net energy delivered over any window (J, f64 bits).
     pub max_window_energy_bits: AtomicU64,
+    /// Where that window starts and ends (s from the device's first read,
+    /// f64 bits).
+    pub max_window_from_bits: AtomicU64,
+    /// See `max_window_from_bits`.
+    pub max_window_to_bits: AtomicU64,
     /// Non-zero forces written later than the allowed delay into a fault.
     pub zero_violations: AtomicU64,
     /// Faults started, per [`DeviceFaultKind::ALL`] index.
@@ -131,6 +136,12 @@ impl DeviceChecks {
         f64_of(&self.max_window_energy_bits)
     }
 
+    /// Where the window of [`DeviceChecks::max_window_energy_j`] starts
+    /// and ends (s from the device's first read).
+    pub fn max_window_span_s(&self) -> (f64, f64) {
+        (f64_of(&self.max_window_from_bits), f64_of(&self.max_window_to_bits))
+    }
+
     /// Longest onset-to-zero time of a kind (ms).
     pub fn max_time_to_zero_ms(&self, kind: usize) -> f64 {
         f64_of(&self.max_time_to_zero_bits[kind])
@@ -170,6 +181,8 @@ pub struct SoakDevice {
     rng: u64,
     buf: [u8; 256],
     min_net_j: f64,
+    /// When `min_net_j` was reached (s from the first read).
+    min_net_at_s: f64,
     last_good: DeviceSample,
 }
 
@@ -213,6 +226,7 @@ impl SoakDevice {
             rng: seed | 1,
             buf: [0; 256],
             min_net_j: 0.0,
+            min_net_at_s: 0.0,
             last_good: DeviceSample::REST,
         }
     }
@@ -373,9 +387,23 @@ impl SoakDevice {
         }
         if let Some(e) = self.sim.port_energy() {
             let net = e.net_delivered_j();
-            self.min_net_j = self.min_net_j.min(net);
+            let t = self.now - self.t0.unwrap_or(self.now);
+            if net < self.min_net_j {
+                self.min_net_j = net;
+                self.min_net_at_s = t;
+            }
             let window = net - self.min_net_j;
-            store_max(&c.max_window_energy_bits, window.max(net));
+            // The net from the start counts as a window from the start.
+            let (worst, from) = if net >= window {
+                (net, 0.0)
+            } else {
+                (window, self.min_net_at_s)
+            };
+            if worst > c.max_window_energy_j() {
+                c.max_window_energy_bits.store(worst.to_bits(), Ordering::Relaxed);
+                c.max_window_from_bits.store(from.to_bits(), Ordering::Relaxed);
+                c.max_window_to_bits.store(t.to_bits(), Ordering::Relaxed);
+            }
             if net > self.limits.tank_initial_j + 1e-9 || window > self.limits.tank_max_j + 1e-9 {
                 c.energy_violations.fetch_add(1, Ordering::Relaxed);
             }

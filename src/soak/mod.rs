@@ -201,6 +201,11 @@ pub struct PortEnergyLeg {
     pub unobserved_j: f64,
     /// The tank's lowest level (below the reserve is a debt).
     pub tank_low_j: f64,
+    /// The most the device delivered net over any window of the leg (J).
+    pub worst_window_j: f64,
+    /// Where that window starts and ends (s from the leg's first device
+    /// read: compare with the faults' and the hand's times).
+    pub worst_window_s: (f64, f64),
 }
 
 /// One check and whether it held.
@@ -284,8 +289,16 @@ impl SoakReport {
             );
             let e = &l.port;
             s += &format!(
-                "    port energy: device in {:.4} J, out {:.4} J; observer in {:.4} J, out {:.4} J, unobserved {:.4} J; tank low {:.4} J\n",
-                e.device_in_j, e.device_out_j, e.observer_in_j, e.observer_out_j, e.unobserved_j, e.tank_low_j
+                "    port energy: device in {:.4} J, out {:.4} J; observer in {:.4} J, out {:.4} J, unobserved {:.4} J; tank low {:.4} J; worst window {:.4} J from {:.3} to {:.3} s\n",
+                e.device_in_j,
+                e.device_out_j,
+                e.observer_in_j,
+                e.observer_out_j,
+                e.unobserved_j,
+                e.tank_low_j,
+                e.worst_window_j,
+                e.worst_window_s.0,
+                e.worst_window_s.1
             );
         }
         s += "  faults (injected / recovered, worst time to zero force, worst recovery):\n";
@@ -1171,6 +1184,8 @@ fn run_leg(
             observer_out_j: svc.qp.observed_out_j,
             unobserved_j: svc.qp.unobserved_j,
             tank_low_j: svc.qp.tank_low_j,
+            worst_window_j: checks.max_window_energy_j(),
+            worst_window_s: checks.max_window_span_s(),
         },
         service_report: svc.render(),
     });
@@ -1234,6 +1249,8 @@ mod tests {
                     observer_out_j: 0.375,
                     unobserved_j: 0.0625,
                     tank_low_j: -0.03125,
+                    worst_window_j: 0.0551,
+                    worst_window_s: (12.5, 13.25),
                 },
                 ..LegReport::default()
             }],
@@ -1241,7 +1258,7 @@ mod tests {
         };
         assert!(r.render().contains(
             "port energy: device in 0.2500 J, out 0.5000 J; observer in 0.1250 J, out 0.3750 J, \
-             unobserved 0.0625 J; tank low -0.0312 J"
+             unobserved 0.0625 J; tank low -0.0312 J; worst window 0.0551 J from 12.500 to 13.250 s"
         ));
     }
 
