@@ -179,7 +179,9 @@ fn port_energy_is_zero_without_force_and_f_dx_with_a_constant_force() {
     let e = sim.port_energy().expect("the sim knows its port energy");
     assert_eq!((e.delivered_j, e.absorbed_j), (0.0, 0.0));
     // A constant force while the hand moves the stylus back and forth:
-    // net energy delivered = F·(x_end − x_start), to round-off.
+    // net energy delivered = F·(x_end − x_start), to round-off. The force
+    // is written every period, as the service does (a command older than
+    // the command timeout stops playing).
     let mut sim = started(TouchXSim::new(p, &script).expect("script"));
     sim.read(0.0).expect("read");
     let f = Vec3::new(1.0, -0.5, 0.25);
@@ -187,7 +189,9 @@ fn port_energy_is_zero_without_force_and_f_dx_with_a_constant_force() {
     let x0 = sim.state().position;
     for i in 1..800 {
         sim.read(i as f64 * DT).expect("read");
+        sim.write_force(f).expect("write");
     }
+    assert_eq!(sim.state().command_timeouts, 0);
     let x1 = sim.state().position;
     let e = sim.port_energy().expect("energy");
     let expect = f.dot(&(x1 - x0));

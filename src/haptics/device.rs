@@ -52,6 +52,20 @@ pub fn wrap_angle(a: f64) -> f64 {
     }
 }
 
+/// The force a device-side servo applies for the command `f` (N ×3, then
+/// the time it was written, s) at time `now_s`: the command, or zero once it
+/// is older than `timeout_s`. A stalled writer must not leave a force
+/// playing; a command with a non-finite time plays nothing, and one from a
+/// clock that went back keeps playing. Used by the OpenHaptics servo
+/// callback; the simulated Touch X counts the same age in sub-steps.
+pub fn live_command(f: [f64; 4], now_s: f64, timeout_s: f64) -> [f64; 3] {
+    if now_s - f[3] <= timeout_s {
+        [f[0], f[1], f[2]]
+    } else {
+        [0.0; 3]
+    }
+}
+
 impl DeviceSample {
     /// A sample at rest at the origin.
     pub const REST: DeviceSample = DeviceSample {
@@ -154,5 +168,21 @@ impl PortEnergy {
     /// Net energy delivered to the hand (J): `delivered_j − absorbed_j`.
     pub fn net_delivered_j(&self) -> f64 {
         self.delivered_j - self.absorbed_j
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_servo_stops_playing_a_stale_command() {
+        let f = [1.0, -2.0, 3.0, 10.0];
+        assert_eq!(live_command(f, 10.004, 0.01), [1.0, -2.0, 3.0]);
+        assert_eq!(live_command(f, 10.011, 0.01), [0.0; 3]);
+        // A clock that went back keeps the command.
+        assert_eq!(live_command(f, 9.0, 0.01), [1.0, -2.0, 3.0]);
+        // A command with a NaN time plays nothing.
+        assert_eq!(live_command([1.0, 1.0, 1.0, f64::NAN], 1.0, 0.01), [0.0; 3]);
     }
 }

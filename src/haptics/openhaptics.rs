@@ -10,8 +10,9 @@
 //!   `hdBeginFrame`, `hdGetDoublev(HD_CURRENT_POSITION)`,
 //!   `hdGetDoublev(HD_CURRENT_VELOCITY)`,
 //!   `hdGetDoublev(HD_CURRENT_GIMBAL_ANGLES)` (rad), `hdGetIntegerv(HD_CURRENT_BUTTONS)`,
-//!   `hdSetDoublev(HD_CURRENT_FORCE)` with the force last written,
-//!   `hdEndFrame`, then `hdGetError`. It publishes the pose through a
+//!   `hdSetDoublev(HD_CURRENT_FORCE)` with the force last written, or zero
+//!   if that force is older than the command timeout (a stalled service must
+//!   not leave a force playing), `hdEndFrame`, then `hdGetError`. It publishes the pose through a
 //!   seqlock of atomics and reads the force from another; no locks, no
 //!   allocation. A device error zeroes the commanded force and is reported by
 //!   the next `read`; a device-class error (HD_DEVICE_FAULT, HD_COMM_ERROR, ...)
@@ -35,7 +36,7 @@
 //! openhaptics`. Here, without the SDK, only `cargo check --features
 //! openhaptics` works (nothing is linked).
 
-use crate::haptics::device::{DeviceError, DeviceSample, HapticDevice};
+use crate::haptics::device::{live_command, DeviceError, DeviceSample, HapticDevice};
 use crate::haptics::frame::HD_LENGTH_M;
 use crate::math::Vec3;
 use std::ffi::{c_char, c_int, c_uint, c_ulong, c_ushort, c_void};
@@ -157,11 +158,13 @@ struct Shared {
     /// Pose: position (m) ×3, velocity (m/s) ×3, buttons, time (s), gimbal
     /// angles (rad) ×3.
     pose: SeqLock<11>,
-    /// Force (N) ×3.
-    force: SeqLock<3>,
+    /// Force (N) ×3, then the time it was written (s, [`crate::rt::clock`]).
+    force: SeqLock<4>,
     /// Last HD error code seen by the callback (0 = none).
     error: AtomicU32,
     running: AtomicBool,
+    /// A force older than this (s) is no longer applied.
+    command_timeout_s: f64,
 }
 
 /// The servo callback.
@@ -179,7 +182,10 @@ unsafe extern "C" fn servo(user: *mut c_void) -> HdCallbackCode {
     let mut gimbal = [0.0f64; 3];
     let mut buttons: c_int = 0;
     let f = if sh.running.load(Ordering::Acquire) && sh.error.load(Ordering::Relaxed) == HD_SUCCESS {
-        sh.force.read(4).map_or([0.0; 3], |(f, _)| f)
+        let now = crate::rt::clock::now_s();
+        sh.force
+            .read(4)
+            .map_or([0.0; 3], |(f, _)| live_command(f, now, sh.command_timeout_s))
     } else {
         [0.0; 3]
     };
@@ -249,8 +255,10 @@ pub struct OpenHapticsDevice {
 }
 
 impl OpenHapticsDevice {
-    /// A device not yet opened; reads older than `max_age_s` are stale.
-    pub fn new(max_age_s: f64) -> OpenHapticsDevice {
+    /// A device not yet opened; reads older than `max_age_s` are stale, and
+    /// the servo callback stops applying a force written more than
+    /// `command_timeout_s` ago.
+    pub fn new(max_age_s: f64, command_timeout_s: f64) -> OpenHapticsDevice {
         OpenHapticsDevice {
             shared: Box::new(Shared {
                 handle: AtomicU32::new(HD_INVALID_HANDLE),
@@ -258,6 +266,7 @@ impl OpenHapticsDevice {
                 force: SeqLock::new(),
                 error: AtomicU32::new(HD_SUCCESS),
                 running: AtomicBool::new(false),
+                command_timeout_s,
             }),
             handle: None,
             sched: None,
@@ -302,7 +311,7 @@ impl HapticDevice for OpenHapticsDevice {
         self.max_force_n = if fmax.is_finite() && fmax > 0.0 { fmax } else { 0.0 };
         self.max_continuous_force_n = if fcont.is_finite() && fcont > 0.0 { fcont } else { 0.0 };
         self.shared.handle.store(h, Ordering::Relaxed);
-        self.shared.force.write(&[0.0; 3]);
+        self.shared.force.write(&[0.0; 4]);
         self.shared.error.store(HD_SUCCESS, Ordering::Relaxed);
         self.shared.running.store(true, Ordering::Release);
         let user = &*self.shared as *const Shared as *mut c_void;
@@ -359,7 +368,7 @@ impl HapticDevice for OpenHapticsDevice {
             return Err(DeviceError::Start(0));
         }
         if !force.iter().all(|c| c.is_finite()) {
-            self.shared.force.write(&[0.0; 3]);
+            self.shared.force.write(&[0.0; 4]);
             return Err(DeviceError::BadData);
         }
         let n = force.norm();
@@ -368,12 +377,12 @@ impl HapticDevice for OpenHapticsDevice {
         } else {
             force
         };
-        self.shared.force.write(&[f.x, f.y, f.z]);
+        self.shared.force.write(&[f.x, f.y, f.z, crate::rt::clock::now_s()]);
         Ok(f)
     }
 
     fn stop(&mut self) {
-        self.shared.force.write(&[0.0; 3]);
+        self.shared.force.write(&[0.0; 4]);
         self.shared.running.store(false, Ordering::Release);
         if let Some(s) = self.sched.take() {
             // SAFETY: stops the scheduler thread (no more callbacks after it

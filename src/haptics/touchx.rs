@@ -30,6 +30,13 @@
 //!   zero without one): the Touch X renders no torque, so nothing pushes
 //!   back on them. Reported quantized to `gimbal_resolution_rad` and wrapped
 //!   to (−π, π], as an absolute angle sensor reads a continuous roll.
+//! - **Command timeout.** Like a device-side servo that stops playing a
+//!   stale command, a force written more than the command timeout ago
+//!   (device time; [`TouchXSim::set_command_timeout`], default
+//!   [`DEFAULT_COMMAND_TIMEOUT_S`]) is no longer applied: the sub-steps
+//!   after it run with zero force until the next write, and each lapse is
+//!   counted. It covers a stalled host, which the service's own watchdog
+//!   cannot (the service is what stalled).
 //! - **Fault injection** for watchdog tests: [`TouchXSim::inject_silence`]
 //!   (reads fail with [`DeviceError::Stale`] over a time window, the stylus
 //!   keeps moving) and [`TouchXSim::inject_non_finite`] (one sample with a
@@ -45,6 +52,10 @@ use crate::config::{load_toml, parse_toml, Checker, ConfigError};
 use crate::haptics::device::{wrap_angle, DeviceError, DeviceSample, HapticDevice, PortEnergy};
 use crate::math::Vec3;
 use std::path::Path;
+
+/// Default age (s) after which a force command stops being applied: ten
+/// periods of the 1 kHz loop.
+pub const DEFAULT_COMMAND_TIMEOUT_S: f64 = 0.010;
 
 /// The simulated device's parameters, as in `rt-config/touchx.toml` (SI
 /// units). [`Default`] holds the file's shipped values.
@@ -410,6 +421,9 @@ pub struct TouchXState {
     pub thermal_limits: u64,
     /// Reads whose gap exceeded `max_catchup_s` (time was skipped).
     pub catchup_skips: u64,
+    /// Times a force command outlived the command timeout and the device
+    /// stopped applying it.
+    pub command_timeouts: u64,
 }
 
 /// The simulated Touch X. See the module documentation for the model.
@@ -429,6 +443,12 @@ pub struct TouchXSim {
     x: Vec3,
     v: Vec3,
     force: Vec3,
+    /// Sub-step count `n` when `force` was written.
+    force_at_n: u64,
+    /// Sub-steps a command stays applied (from the command timeout).
+    command_steps: u64,
+    /// Whether `force` has lapsed (counted once per lapse).
+    lapsed: bool,
     hand_force: Vec3,
     mean_f2: f64,
     // Reported (driver-side) state.
@@ -442,6 +462,7 @@ pub struct TouchXSim {
     peak_clamps: u64,
     thermal_limits: u64,
     catchup_skips: u64,
+    command_timeouts: u64,
     // Fault injection.
     silent_from_s: f64,
     silent_until_s: f64,
@@ -455,7 +476,7 @@ impl TouchXSim {
     pub fn new(params: TouchXParams, waypoints: &[Waypoint]) -> Result<TouchXSim, ScriptError> {
         let script = HandScript::new(waypoints, &params)?;
         let x0 = script.points()[0].position;
-        Ok(TouchXSim {
+        let mut sim = TouchXSim {
             half: params.half_extent(),
             dt: 1.0 / params.substep_hz,
             p: params,
@@ -468,6 +489,9 @@ impl TouchXSim {
             x: x0,
             v: Vec3::zeros(),
             force: Vec3::zeros(),
+            force_at_n: 0,
+            command_steps: 0,
+            lapsed: false,
             hand_force: Vec3::zeros(),
             mean_f2: 0.0,
             last_q: Vec3::zeros(),
@@ -479,10 +503,26 @@ impl TouchXSim {
             peak_clamps: 0,
             thermal_limits: 0,
             catchup_skips: 0,
+            command_timeouts: 0,
             silent_from_s: f64::INFINITY,
             silent_until_s: f64::NEG_INFINITY,
             nan_at_s: None,
-        })
+        };
+        sim.set_command_timeout(DEFAULT_COMMAND_TIMEOUT_S);
+        Ok(sim)
+    }
+
+    /// Sets how long (s, device time) a written force keeps being applied
+    /// without a newer one; a non-finite or non-positive value falls back to
+    /// [`DEFAULT_COMMAND_TIMEOUT_S`]. The service passes
+    /// `watchdog.command_timeout_ms`.
+    pub fn set_command_timeout(&mut self, timeout_s: f64) {
+        let t = if timeout_s.is_finite() && timeout_s > 0.0 {
+            timeout_s
+        } else {
+            DEFAULT_COMMAND_TIMEOUT_S
+        };
+        self.command_steps = (t / self.dt).round().max(1.0).min(u64::MAX as f64) as u64;
     }
 
     /// A hand that holds the tip still at `position`.
@@ -500,7 +540,7 @@ impl TouchXSim {
         TouchXState {
             position: self.x,
             velocity: self.v,
-            applied_force: self.force,
+            applied_force: self.applied(),
             hand_force: self.hand_force,
             gimbal_rad: self.gimbal_rad,
             rms_force_n: self.mean_f2.sqrt(),
@@ -510,6 +550,7 @@ impl TouchXSim {
             peak_clamps: self.peak_clamps,
             thermal_limits: self.thermal_limits,
             catchup_skips: self.catchup_skips,
+            command_timeouts: self.command_timeouts,
         }
     }
 
@@ -561,9 +602,24 @@ impl TouchXSim {
         }
     }
 
+    /// The force being applied: the last command, or zero once it is older
+    /// than the command timeout.
+    fn applied(&self) -> Vec3 {
+        if self.n.saturating_sub(self.force_at_n) > self.command_steps {
+            Vec3::zeros()
+        } else {
+            self.force
+        }
+    }
+
     /// One semi-implicit Euler sub-step at script time `t` (the step's end).
     fn substep(&mut self, t: f64) {
         let dt = self.dt;
+        let force = self.applied();
+        if force != self.force && !self.lapsed {
+            self.lapsed = true;
+            self.command_timeouts += 1;
+        }
         let m = self.p.apparent_mass_kg;
         let (xt, vt) = self.script.target(t);
         let hand = (xt - self.x) * self.p.hand_stiffness_n_per_m + (vt - self.v) * self.p.hand_damping_ns_per_m;
@@ -571,7 +627,7 @@ impl TouchXSim {
         // Smooth forces first, then viscous friction implicitly, then
         // Coulomb friction as an impulse that may stop the tip but never
         // reverses it (stick when it can hold the tip).
-        let v_free = (self.v * m + (self.force + hand) * dt) / (m + self.p.viscous_damping_ns_per_m * dt);
+        let v_free = (self.v * m + (force + hand) * dt) / (m + self.p.viscous_damping_ns_per_m * dt);
         let stop_impulse = self.p.coulomb_friction_n * dt / m;
         let speed = v_free.norm();
         let v_new = if speed <= stop_impulse {
@@ -594,7 +650,7 @@ impl TouchXSim {
             self.workspace_stops += 1;
         }
         // Port energy with the true sub-step motion: F·Δx.
-        let w = self.force.dot(&(x_new - self.x));
+        let w = force.dot(&(x_new - self.x));
         if w > 0.0 {
             self.energy.delivered_j += w;
         } else {
@@ -605,7 +661,7 @@ impl TouchXSim {
         // Thermal model: first-order filtered mean of |F|², exact
         // discretisation of ṡ = (|F|² − s)/τ over dt.
         let a = 1.0 - (-dt / self.p.thermal_tau_s).exp();
-        self.mean_f2 += a * (self.force.norm_squared() - self.mean_f2);
+        self.mean_f2 += a * (force.norm_squared() - self.mean_f2);
     }
 
     /// Advances the dynamics to caller time `now_s` (whole sub-steps).
@@ -720,6 +776,8 @@ impl HapticDevice for TouchXSim {
             }
         }
         self.force = f;
+        self.force_at_n = self.n;
+        self.lapsed = false;
         Ok(f)
     }
 
@@ -793,5 +851,48 @@ mod tests {
         TouchXParams::default()
             .validate(Path::new("default"))
             .expect("defaults are valid");
+    }
+
+    /// Holds a 2 N push for 5 ms, then the host stalls for 300 ms (one read
+    /// after the leap, no write): the delivered energy and the applied force
+    /// with the command timeout `timeout_s`.
+    fn stall(timeout_s: f64) -> (f64, TouchXState) {
+        let mut d = TouchXSim::holding(TouchXParams::default(), Vec3::zeros()).expect("sim");
+        d.set_command_timeout(timeout_s);
+        d.start().expect("start");
+        let f = Vec3::new(2.0, 0.0, 0.0);
+        for k in 0..=5 {
+            d.read(k as f64 * 1e-3).expect("read");
+            d.write_force(f).expect("write");
+        }
+        d.read(0.305).expect("read after the stall");
+        (d.port_energy().expect("energy").delivered_j, d.state())
+    }
+
+    #[test]
+    fn a_stalled_host_leaves_no_force_playing() {
+        let (e_held, held) = stall(1.0);
+        let (e_cut, cut) = stall(DEFAULT_COMMAND_TIMEOUT_S);
+        assert_eq!(held.command_timeouts, 0);
+        assert_eq!(held.applied_force, Vec3::new(2.0, 0.0, 0.0));
+        assert_eq!(cut.command_timeouts, 1);
+        assert_eq!(cut.applied_force, Vec3::zeros());
+        // The catch-up integrates the last 100 ms of the leap: with the force
+        // held it keeps pushing against the hand; cut, it pushed for 10 ms at
+        // most, all before the stall's catch-up.
+        assert!(e_cut < 0.25 * e_held, "cut {e_cut} J, held {e_held} J");
+        assert!(e_cut > 0.0);
+        // A new command plays again, and a lapse is counted once.
+        let mut d = TouchXSim::holding(TouchXParams::default(), Vec3::zeros()).expect("sim");
+        d.start().expect("start");
+        d.read(0.0).expect("read");
+        d.write_force(Vec3::new(0.5, 0.0, 0.0)).expect("write");
+        d.read(0.05).expect("read");
+        d.read(0.06).expect("read");
+        assert_eq!(d.state().command_timeouts, 1);
+        d.write_force(Vec3::new(0.5, 0.0, 0.0)).expect("write");
+        d.read(0.061).expect("read");
+        assert_eq!(d.state().applied_force, Vec3::new(0.5, 0.0, 0.0));
+        assert_eq!(d.state().command_timeouts, 1);
     }
 }

@@ -205,6 +205,11 @@ pub struct WatchdogConfig {
     pub max_speed_m_s: f64,
     /// Farthest plausible stylus position from the device origin (m).
     pub max_reach_m: f64,
+    /// The device side stops applying a force command older than this
+    /// (ms): the OpenHaptics servo callback and the simulated Touch X zero
+    /// the output until a newer command arrives. It guards against a stalled
+    /// service, which the watchdog above cannot (it runs in the service).
+    pub command_timeout_ms: f64,
 }
 
 impl Default for WatchdogConfig {
@@ -218,6 +223,7 @@ impl Default for WatchdogConfig {
             model_max_age_ms: 3000.0,
             max_speed_m_s: 5.0,
             max_reach_m: 0.25,
+            command_timeout_ms: 10.0,
         }
     }
 }
@@ -378,6 +384,7 @@ impl ServiceConfig {
         )?;
         c.f64_in("watchdog.max_speed_m_s", w.max_speed_m_s, 0.1, 100.0, "m/s")?;
         c.f64_in("watchdog.max_reach_m", w.max_reach_m, 0.01, 10.0, "m")?;
+        c.f64_in("watchdog.command_timeout_ms", w.command_timeout_ms, 2.0, 1_000.0, "ms")?;
         let b = &self.background;
         c.f64_in("background.dt", b.dt, 1e-4, 0.1, "s")?;
         c.f64_in("background.dt_max", b.dt_max, b.dt, 1.0, "s (at least background.dt)")?;

@@ -173,6 +173,7 @@ pub fn make_device(
     seconds: f64,
 ) -> Result<Box<dyn HapticDevice>, ServiceError> {
     let origin = Vec3::from(cfg.device.origin_m);
+    let command_timeout_s = cfg.watchdog.command_timeout_ms * 1e-3;
     match cfg.device.backend {
         Backend::TouchxSim => {
             use crate::haptics::touchx::{TouchXParams, TouchXSim, Waypoint};
@@ -184,6 +185,7 @@ pub fn make_device(
                 let mut dev = TouchXSim::new(params, &pts).map_err(|e| ServiceError::Device(e.to_string()))?;
                 dev.set_gimbal_script(&gimbal)
                     .map_err(|e| ServiceError::Device(e.to_string()))?;
+                dev.set_command_timeout(command_timeout_s);
                 return Ok(Box::new(dev));
             }
             let (_, p, n, t) = press_target(mesh, scene);
@@ -194,7 +196,8 @@ pub fn make_device(
                     position: x - origin,
                 })
                 .collect();
-            let dev = TouchXSim::new(params, &pts).map_err(|e| ServiceError::Device(e.to_string()))?;
+            let mut dev = TouchXSim::new(params, &pts).map_err(|e| ServiceError::Device(e.to_string()))?;
+            dev.set_command_timeout(command_timeout_s);
             Ok(Box::new(dev))
         }
         Backend::Udp => {
@@ -202,18 +205,21 @@ pub fn make_device(
             let params = UdpParams::load(&cfg.resolve(&cfg.device.udp))?;
             Ok(Box::new(UdpDevice::new(params)))
         }
-        Backend::Openhaptics => open_openhaptics(),
+        Backend::Openhaptics => open_openhaptics(command_timeout_s),
     }
 }
 
 #[cfg(feature = "openhaptics")]
-fn open_openhaptics() -> Result<Box<dyn HapticDevice>, ServiceError> {
+fn open_openhaptics(command_timeout_s: f64) -> Result<Box<dyn HapticDevice>, ServiceError> {
     // Samples older than the device watchdog's limit count as stale.
-    Ok(Box::new(crate::haptics::openhaptics::OpenHapticsDevice::new(0.005)))
+    Ok(Box::new(crate::haptics::openhaptics::OpenHapticsDevice::new(
+        0.005,
+        command_timeout_s,
+    )))
 }
 
 #[cfg(not(feature = "openhaptics"))]
-fn open_openhaptics() -> Result<Box<dyn HapticDevice>, ServiceError> {
+fn open_openhaptics(_command_timeout_s: f64) -> Result<Box<dyn HapticDevice>, ServiceError> {
     Err(ServiceError::Device(
         "this build has no OpenHaptics backend; rebuild with --features openhaptics on a box with the SDK".into(),
     ))

@@ -779,8 +779,9 @@ fn run_leg(
             if let Ok(mut l) = limits_out.lock() {
                 *l = Some((limits, recover_s));
             }
-            let sim = crate::haptics::touchx::TouchXSim::new(params, &pts)
+            let mut sim = crate::haptics::touchx::TouchXSim::new(params, &pts)
                 .map_err(|e| ServiceError::Device(e.to_string()))?;
+            sim.set_command_timeout(w.command_timeout_ms * 1e-3);
             Ok(Box::new(SoakDevice::new(
                 sim,
                 UdpDevice::new(udp),
