@@ -65,6 +65,7 @@ fn press(speed: f64) -> (f64, f64, f64, f64) {
         ramp_down_s: 10e-3,
         ramp_in_s: 0.0,
         swap_blend_s: 0.02,
+        command_timeout_s: nvtmm::haptics::device::DEFAULT_COMMAND_TIMEOUT_S,
     };
     let servo = Servo::new(first, index, sp, 0.0);
     let qp = PassivityParams::default();

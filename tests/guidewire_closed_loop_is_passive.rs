@@ -114,6 +114,7 @@ fn run(script: &[(f64, f64, f64, f64)], params: &PassivityParams, wire: &WirePar
         ramp_down_s: 10e-3,
         ramp_in_s: 0.0,
         swap_blend_s: 0.02,
+        command_timeout_s: nvtmm::haptics::device::DEFAULT_COMMAND_TIMEOUT_S,
     };
     let servo = Servo::new(first, index, sp, 0.0);
     let mut tick = HapticTick::new(servo, PassivityFilter::new(params).unwrap());

@@ -83,6 +83,7 @@ fn servo(p: &Plate) -> Servo<R> {
         ramp_down_s: 10e-3,
         ramp_in_s: 0.05,
         swap_blend_s: 0.02,
+        command_timeout_s: nvtmm::haptics::device::DEFAULT_COMMAND_TIMEOUT_S,
     };
     Servo::new(m, index, params, 0.0)
 }

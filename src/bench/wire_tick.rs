@@ -200,6 +200,7 @@ pub fn bench_wire_tick(config: &Path, o: &WireTickOptions) -> Result<WireTickBen
         ramp_down_s: w.ramp_down_ms * 1e-3,
         ramp_in_s: w.ramp_in_s,
         swap_blend_s: p.cfg.servo.swap_blend_ms * 1e-3,
+        command_timeout_s: w.command_timeout_ms * 1e-3,
     };
     let filter = PassivityFilter::new(&p.passivity).map_err(|e| arg(e.to_string()))?;
     let mut tick = HapticTick::new(Servo::new(first, index, sp, 0.0), filter);

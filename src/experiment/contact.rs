@@ -339,6 +339,7 @@ impl Setup {
             ramp_down_s: 0.01,
             ramp_in_s: 0.0,
             swap_blend_s: 0.0,
+            command_timeout_s: crate::haptics::device::DEFAULT_COMMAND_TIMEOUT_S,
         };
         Ok(Setup {
             mesh: owned,

@@ -52,6 +52,10 @@ pub fn wrap_angle(a: f64) -> f64 {
     }
 }
 
+/// Default age (s) after which a device side stops applying a force
+/// command (`watchdog.command_timeout_ms`): ten periods of the 1 kHz loop.
+pub const DEFAULT_COMMAND_TIMEOUT_S: f64 = 0.010;
+
 /// The force a device-side servo applies for the command `f` (N ×3, then
 /// the time it was written, s) at time `now_s`: the command, or zero once it
 /// is older than `timeout_s`. A stalled writer must not leave a force

@@ -73,6 +73,11 @@ pub struct ServoParams {
     /// Cross-fade time of a model swap (s): both models run and the output
     /// force blends from the old to the new one over this time (0: switch).
     pub swap_blend_s: f64,
+    /// The device side's command timeout (s, `watchdog.command_timeout_ms`;
+    /// [`crate::haptics::device::DEFAULT_COMMAND_TIMEOUT_S`]): over a gap
+    /// between samples longer than this the device may have dropped the
+    /// held force, so the energy observer gives no credit for it.
+    pub command_timeout_s: f64,
 }
 
 /// Status bits of a tick (also the stream's flags).
@@ -560,6 +565,11 @@ impl<const R: usize> Servo<R> {
     /// The contact of the last tick.
     pub fn contact(&self) -> &ContactOutput<R> {
         &self.contact
+    }
+
+    /// The settings it was built with.
+    pub fn params(&self) -> &ServoParams {
+        &self.params
     }
 
     /// Counters so far.

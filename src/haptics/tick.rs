@@ -61,6 +61,9 @@ pub struct HapticTick<const R: usize> {
     v_prev: Vec3,
     /// The last sample's sequence number (None before the first).
     last_seq: Option<u64>,
+    /// The last tick's time and the last sample's device time (s).
+    last_now_s: f64,
+    last_sample_s: f64,
     rt_granted: bool,
     external: Vec3,
 }
@@ -73,6 +76,8 @@ impl<const R: usize> HapticTick<R> {
             filter,
             v_prev: Vec3::zeros(),
             last_seq: None,
+            last_now_s: f64::NAN,
+            last_sample_s: f64::NAN,
             rt_granted: false,
             external: Vec3::zeros(),
         }
@@ -127,6 +132,19 @@ impl<const R: usize> HapticTick<R> {
         }
         if out.flags & flags::BAD_POSE != 0 || input.sample.is_none() || repeated {
             self.filter.skip_sample();
+        }
+        // A tick or a sample that came more than the device's command
+        // timeout after the last one: the device may have dropped the held
+        // force meanwhile (`PassivityFilter::withhold_credit`). A NaN time
+        // (the first tick) compares false.
+        let timeout = self.servo.params().command_timeout_s;
+        let sample_s = input.sample.map_or(f64::NAN, |s| s.time_s);
+        if input.now_s - self.last_now_s > timeout || sample_s - self.last_sample_s > timeout {
+            self.filter.withhold_credit();
+        }
+        self.last_now_s = input.now_s;
+        if !repeated && sample_s.is_finite() {
+            self.last_sample_s = sample_s;
         }
         let v_pred = predict_velocity(v, self.v_prev);
         self.v_prev = v;

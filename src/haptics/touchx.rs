@@ -49,13 +49,10 @@
 //! `docs/DEVICE.md`.
 
 use crate::config::{load_toml, parse_toml, Checker, ConfigError};
+pub use crate::haptics::device::DEFAULT_COMMAND_TIMEOUT_S;
 use crate::haptics::device::{wrap_angle, DeviceError, DeviceSample, HapticDevice, PortEnergy};
 use crate::math::Vec3;
 use std::path::Path;
-
-/// Default age (s) after which a force command stops being applied: ten
-/// periods of the 1 kHz loop.
-pub const DEFAULT_COMMAND_TIMEOUT_S: f64 = 0.010;
 
 /// The simulated device's parameters, as in `rt-config/touchx.toml` (SI
 /// units). [`Default`] holds the file's shipped values.

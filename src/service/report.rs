@@ -37,6 +37,10 @@ pub struct QpReport {
     /// rejected pose, a repeated sample, none: the held force's work at the
     /// last measured velocity; J).
     pub unobserved_j: f64,
+    /// Energy the port absorbed over intervals longer than the device's
+    /// command timeout (a stalled host, a clock leap), not credited to the
+    /// tank: the device may have dropped the force there (J).
+    pub uncredited_j: f64,
     /// Ticks whose model force was inside every bound and went out as it
     /// was, without a solve (the shortcut).
     pub shortcuts: u64,
@@ -398,7 +402,7 @@ impl Report {
         } else {
             s += &format!(
                 "  QP: {} solves ({} ticks inside every bound took the shortcut), active norm {} rate {} energy {}, \
-                 iters p99 {}, solve p50 {:.1} µs p99 {:.1} µs, {} fallbacks, tank low {:.4} J; observer: in {:.4} J, out {:.4} J, unobserved {:.4} J\n",
+                 iters p99 {}, solve p50 {:.1} µs p99 {:.1} µs, {} fallbacks, tank low {:.4} J; observer: in {:.4} J, out {:.4} J, unobserved {:.4} J, uncredited {:.4} J\n",
                 q.solves,
                 q.shortcuts,
                 q.active_norm,
@@ -411,7 +415,8 @@ impl Report {
                 q.tank_low_j,
                 q.observed_in_j,
                 q.observed_out_j,
-                q.unobserved_j
+                q.unobserved_j,
+                q.uncredited_j
             );
         }
         let b = &self.background;

@@ -247,6 +247,7 @@ impl<const R: usize> RunningService for Running<R> {
                 observed_out_j: qp.delivered_j,
                 observed_in_j: qp.absorbed_j,
                 unobserved_j: qp.unobserved_j,
+                uncredited_j: qp.uncredited_j,
                 shortcuts: qp.interior,
             },
             energy_in_j: energy_in,
@@ -375,6 +376,7 @@ pub(super) fn start_with<const R: usize>(p: Prepared) -> Result<Running<R>, Serv
         ramp_down_s: w.ramp_down_ms * 1e-3,
         ramp_in_s: w.ramp_in_s,
         swap_blend_s: cfg.servo.swap_blend_ms * 1e-3,
+        command_timeout_s: w.command_timeout_ms * 1e-3,
     };
     let filter = PassivityFilter::new(&passivity)?;
     let rings = cfg.rings;

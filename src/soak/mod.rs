@@ -182,8 +182,34 @@ pub struct LegReport {
     /// observer that counts less delivered than the device lets the window
     /// check fail.
     pub port: PortEnergyLeg,
+    /// The faults this leg injected, in order (s from the leg's first
+    /// device read).
+    pub planned_faults: Vec<PlannedFault>,
     /// The service's text report of the leg.
     pub service_report: String,
+}
+
+/// One fault of a leg's schedule.
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct PlannedFault {
+    /// The fault's name, as in the report's fault table.
+    pub kind: String,
+    /// Onset (s from the leg's first device read).
+    pub at_s: f64,
+    /// Duration (s; 0 for a fault that is one event).
+    pub duration_s: f64,
+}
+
+impl LegReport {
+    /// The planned faults whose span, with the watchdog's recovery after
+    /// it (`recover_s`), overlaps the leg's worst energy window.
+    pub fn faults_in_worst_window(&self, recover_s: f64) -> Vec<&PlannedFault> {
+        let (a, b) = self.port.worst_window_s;
+        self.planned_faults
+            .iter()
+            .filter(|f| f.at_s <= b && f.at_s + f.duration_s + recover_s >= a)
+            .collect()
+    }
 }
 
 /// A leg's port energy, the device's and the observer's (J).
@@ -199,6 +225,9 @@ pub struct PortEnergyLeg {
     pub observer_out_j: f64,
     /// Charged by the observer for intervals it could not see.
     pub unobserved_j: f64,
+    /// Absorbed over intervals longer than the device's command timeout,
+    /// which the observer did not credit.
+    pub uncredited_j: f64,
     /// The tank's lowest level (below the reserve is a debt).
     pub tank_low_j: f64,
     /// The most the device delivered net over any window of the leg (J).
@@ -289,17 +318,26 @@ impl SoakReport {
             );
             let e = &l.port;
             s += &format!(
-                "    port energy: device in {:.4} J, out {:.4} J; observer in {:.4} J, out {:.4} J, unobserved {:.4} J; tank low {:.4} J; worst window {:.4} J from {:.3} to {:.3} s\n",
+                "    port energy: device in {:.4} J, out {:.4} J; observer in {:.4} J, out {:.4} J, unobserved {:.4} J, uncredited {:.4} J; tank low {:.4} J; worst window {:.4} J from {:.3} to {:.3} s\n",
                 e.device_in_j,
                 e.device_out_j,
                 e.observer_in_j,
                 e.observer_out_j,
                 e.unobserved_j,
+                e.uncredited_j,
                 e.tank_low_j,
                 e.worst_window_j,
                 e.worst_window_s.0,
                 e.worst_window_s.1
             );
+            let near = l.faults_in_worst_window(WINDOW_FAULT_RECOVER_S);
+            if !near.is_empty() {
+                let list: Vec<String> = near
+                    .iter()
+                    .map(|f| format!("{} at {:.3} s for {:.3} s", f.kind, f.at_s, f.duration_s))
+                    .collect();
+                s += &format!("      faults in or just before that window: {}\n", list.join(", "));
+            }
         }
         s += "  faults (injected / recovered, worst time to zero force, worst recovery):\n";
         for (k, f) in &self.faults {
@@ -335,6 +373,10 @@ impl SoakReport {
 }
 
 /// A scheduled fault (seconds after the device's first read).
+/// How long after a fault's end the port line still names it beside the
+/// worst energy window (s): the watchdog's ramp-in and hold.
+const WINDOW_FAULT_RECOVER_S: f64 = 1.0;
+
 #[derive(Debug, Clone, Copy, PartialEq)]
 struct Planned {
     kind: &'static str,
@@ -1184,10 +1226,19 @@ fn run_leg(
             observer_in_j: svc.qp.observed_in_j,
             observer_out_j: svc.qp.observed_out_j,
             unobserved_j: svc.qp.unobserved_j,
+            uncredited_j: svc.qp.uncredited_j,
             tank_low_j: svc.qp.tank_low_j,
             worst_window_j: checks.max_window_energy_j(),
             worst_window_s: checks.max_window_span_s(),
         },
+        planned_faults: plan
+            .iter()
+            .map(|p| PlannedFault {
+                kind: p.kind.into(),
+                at_s: p.at_s,
+                duration_s: p.dur_s,
+            })
+            .collect(),
         service_report: svc.render(),
     });
     Ok(())
@@ -1249,6 +1300,7 @@ mod tests {
                     observer_in_j: 0.125,
                     observer_out_j: 0.375,
                     unobserved_j: 0.0625,
+                    uncredited_j: 0.5,
                     tank_low_j: -0.03125,
                     worst_window_j: 0.0551,
                     worst_window_s: (12.5, 13.25),
@@ -1259,7 +1311,7 @@ mod tests {
         };
         assert!(r.render().contains(
             "port energy: device in 0.2500 J, out 0.5000 J; observer in 0.1250 J, out 0.3750 J, \
-             unobserved 0.0625 J; tank low -0.0312 J; worst window 0.0551 J from 12.500 to 13.250 s"
+             unobserved 0.0625 J, uncredited 0.5000 J; tank low -0.0312 J; worst window 0.0551 J from 12.500 to 13.250 s"
         ));
     }
 

@@ -113,6 +113,11 @@ pub struct PassivityStats {
     /// force delivers at the last measured velocity, `T v·F + T²‖F‖²/2m`,
     /// when positive; never credited (J).
     pub unobserved_j: f64,
+    /// Energy the port absorbed over intervals too long for the held force
+    /// to be known (a stalled host: the device may have dropped it), not
+    /// credited to the tank (J; [`PassivityFilter::withhold_credit`]; the
+    /// damping credit is not given there either, and not counted here).
+    pub uncredited_j: f64,
     /// Lowest tank level seen (J).
     pub tank_low_j: f64,
 }
@@ -138,6 +143,7 @@ impl PassivityStats {
             credit_j: 0.0,
             spilled_j: 0.0,
             unobserved_j: 0.0,
+            uncredited_j: 0.0,
             tank_low_j: tank,
         }
     }
@@ -269,6 +275,9 @@ pub struct PassivityFilter {
     v_last: Vec3,
     /// The coming call's sample is not a fresh measurement.
     skip: bool,
+    /// The coming call's interval is too long for the held force to be
+    /// known (the device may have dropped it): no credit for it.
+    withhold: bool,
     /// The last call's sample was not one: the interval that follows it
     /// has no observed start.
     gap: bool,
@@ -359,6 +368,7 @@ impl PassivityFilter {
             have_prev: false,
             v_last: Vec3::zeros(),
             skip: false,
+            withhold: false,
             gap: false,
             theta: 0.0,
             #[cfg(test)]
@@ -427,6 +437,19 @@ impl PassivityFilter {
         self.skip = true;
     }
 
+    /// The interval ending with the coming call's sample lasted longer than
+    /// the device side's command timeout (a stalled host, a clock leap):
+    /// the device may have stopped applying the held force somewhere in
+    /// it, so what the observer measures there is no evidence of energy
+    /// absorbed. Work delivered over it is charged as usual; work absorbed
+    /// is counted in [`PassivityStats::uncredited_j`], not credited, and
+    /// the damping credit is not given. Before this, a 300 ms clock leap
+    /// in the guidewire soak credited the tank with the hand's pull against
+    /// a force the device had already dropped.
+    pub fn withhold_credit(&mut self) {
+        self.withhold = true;
+    }
+
     /// Tells the filter the force actually commanded after its output (the
     /// watchdog may scale it down): that force is held until the next tick,
     /// so the energy observer and the rate row use it. A non-finite force
@@ -461,6 +484,7 @@ impl PassivityFilter {
         let (dt, delta) = (p.dt_s, p.rate_n_per_tick);
         let x_ok = x.iter().chain(v.iter()).all(|c| c.is_finite());
         let fresh = x_ok && !std::mem::take(&mut self.skip);
+        let withhold = std::mem::take(&mut self.withhold);
         // The force the device held over the interval that just ended:
         // F_prev, and the one before it for the first `hold_delay_ticks`.
         let phi = p.hold_delay_ticks;
@@ -469,12 +493,17 @@ impl PassivityFilter {
         // Energy observer for that interval.
         if fresh && self.have_prev {
             let dx = x - self.x_prev;
-            let delivered = held.dot(&dx);
-            let credit = p.damping_credit_ns_per_m * dx.norm_squared() / dt;
+            let mut delivered = held.dot(&dx);
+            let mut credit = p.damping_credit_ns_per_m * dx.norm_squared() / dt;
             if delivered > 0.0 {
                 self.stats.delivered_j += delivered;
             } else {
                 self.stats.absorbed_j -= delivered;
+            }
+            if withhold {
+                self.stats.uncredited_j -= delivered.min(0.0);
+                delivered = delivered.max(0.0);
+                credit = 0.0;
             }
             self.stats.credit_j += credit;
             let e = self.tank - delivered + credit;
@@ -1027,16 +1056,71 @@ mod tests {
             if k % 7 == 3 {
                 flt.skip_sample();
             }
+            // And now and then an interval too long to credit.
+            if k % 11 == 5 {
+                flt.withhold_credit();
+            }
             flt.filter(Vec3::new(next(), next(), next()) * 4.0, x, v);
         }
         let s = flt.stats();
-        assert!(s.unobserved_j > 0.0);
-        let want = p.tank_initial_j - s.delivered_j + s.absorbed_j + s.credit_j - s.spilled_j - s.unobserved_j;
+        assert!(s.unobserved_j > 0.0 && s.uncredited_j > 0.0);
+        let want = p.tank_initial_j - s.delivered_j + s.absorbed_j + s.credit_j
+            - s.spilled_j
+            - s.unobserved_j
+            - s.uncredited_j;
         assert!((flt.tank_j() - want).abs() < 1e-12, "{} vs {want}", flt.tank_j());
         assert!(s.delivered_j > 0.0 && s.absorbed_j > 0.0 && s.credit_j > 0.0);
         assert_eq!(s.fallbacks(), 0);
         assert_eq!(s.iter_hist.iter().sum::<u64>(), s.solves);
         assert!(s.iter_p99() >= s.iter_quantile(0.5) && s.iter_p99() > 0);
+    }
+
+    /// Over an interval the device may not have held the force through (a
+    /// stalled host), the hand's pull against the force is no credit, and
+    /// the work the force delivered is still charged.
+    #[test]
+    fn a_withheld_interval_charges_but_never_credits() {
+        let p = PassivityParams {
+            tank_initial_j: 0.02,
+            tank_max_j: 0.05,
+            damping_credit_ns_per_m: 0.01,
+            ..params()
+        };
+        let f = Vec3::new(1.0, 0.0, 0.0);
+        let run = |withhold: bool, dx: f64| {
+            let mut flt = PassivityFilter::new(&p).unwrap();
+            flt.filter(f, Vec3::zeros(), Vec3::zeros());
+            flt.set_commanded(f);
+            if withhold {
+                flt.withhold_credit();
+            }
+            // The hand moved the stylus by dx along x over the interval.
+            flt.filter(f, Vec3::new(dx, 0.0, 0.0), Vec3::zeros());
+            (flt.tank_j(), flt.stats().uncredited_j, flt.stats().credit_j)
+        };
+        // Pulled 10 mm against 1 N: 10 mJ (and the damping credit) into the tank...
+        let (credited, none, credit) = run(false, -0.01);
+        assert!((credited - (0.02 + 0.01 + credit)).abs() < 1e-12 && credit > 0.0);
+        assert_eq!(none, 0.0);
+        // ...but nothing over a withheld interval, counted as uncredited.
+        let (held, uncredited, no_credit) = run(true, -0.01);
+        assert_eq!(held, 0.02);
+        assert!((uncredited - 0.01).abs() < 1e-12);
+        assert_eq!(no_credit, 0.0);
+        // Pushed 10 mm along 1 N: charged either way.
+        let (along, _, c) = run(false, 0.01);
+        assert!((run(true, 0.01).0 - (along - c)).abs() < 1e-12);
+        assert!((run(true, 0.01).0 - 0.01).abs() < 1e-12);
+        // The flag is for one interval only.
+        let mut flt = PassivityFilter::new(&p).unwrap();
+        flt.filter(f, Vec3::zeros(), Vec3::zeros());
+        flt.set_commanded(f);
+        flt.withhold_credit();
+        flt.filter(f, Vec3::zeros(), Vec3::zeros());
+        flt.set_commanded(f);
+        let t = flt.tank_j();
+        flt.filter(f, Vec3::new(-0.01, 0.0, 0.0), Vec3::zeros());
+        assert!(flt.tank_j() > t + 0.0099);
     }
 
     /// A skipped sample charges the interval before it and the one after
