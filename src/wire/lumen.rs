@@ -61,8 +61,14 @@ pub const PROBE_CACHE_CAP: usize = 48;
 /// within r of p is among them then (triangle inequality), and a point
 /// with none of them within r is on the centre's side of the wall, which
 /// was the lumen's side (the centre's nearest wall was farther than the
-/// distance moved). Otherwise the cache is rebuilt around p. Fixed size:
-/// nothing allocates.
+/// distance moved). A centre beyond the wall by at most r / 2 (a wire
+/// pressed into a compliant wall, which gives: its nodes sit beyond the
+/// undented wall) serves too: the nearest wall of a query it covers is
+/// then within r / 2 + r / 2 = r, so that wall is among the candidates and
+/// the None case cannot arise. Deeper centres are left to the grid.
+/// Otherwise the cache is rebuilt around p. Either way the result is the
+/// grid probe's, bit for bit (`cached_probe_matches_the_grid_probe`).
+/// Fixed size: nothing allocates.
 #[derive(Debug, Clone, Copy)]
 pub struct ProbeCache {
     /// Which lumen instance built it (0: empty).
@@ -71,9 +77,13 @@ pub struct ProbeCache {
     reach: f64,
     /// The lumen's accumulated wall motion when it was built.
     moved: f64,
-    /// False when the centre was beyond the wall or the candidates did not
-    /// fit: queries then search the grid.
+    /// False when the centre lay more than half the range beyond the wall
+    /// or the candidates did not fit: queries then search the grid.
     usable: bool,
+    /// How far the centre lay beyond the wall (m; 0 on the lumen's side):
+    /// a query is served only if its nearest wall is sure to lie within
+    /// its range (`depth` + its offset ≤ range, whatever the range).
+    depth: f64,
     /// A lower bound on the centre's distance to every candidate when it
     /// was built (its nearest wall's distance, or `reach` if none was
     /// within it): a query farther than its range from all of them needs
@@ -91,6 +101,7 @@ impl Default for ProbeCache {
             reach: 0.0,
             moved: 0.0,
             usable: false,
+            depth: 0.0,
             clear: 0.0,
             len: 0,
             tris: [0; PROBE_CACHE_CAP],
@@ -839,7 +850,7 @@ impl TriangleLumen {
             return false;
         }
         let off = (p - cache.centre).norm() + (self.moved - cache.moved);
-        off <= 0.5 * range && off + range <= cache.reach
+        off <= 0.5 * range && off + range <= cache.reach && cache.depth + off <= range
     }
 
     /// Rebuilds `cache` around `c` for queries of `range`: every triangle
@@ -852,12 +863,15 @@ impl TriangleLumen {
         cache.reach = reach;
         cache.moved = self.moved;
         cache.len = 0;
-        // The centre must be on the lumen's side: a centre beyond the wall
-        // (or with no wall in reach but seen beyond it) is left to the grid.
+        // A centre on the lumen's side, or beyond the wall by at most half
+        // the range (a wire pressed into a compliant wall, which gives: the
+        // nearest wall of every query it serves then lies within the
+        // range; see ProbeCache). Deeper centres are left to the grid.
         (cache.usable, cache.clear) = match self.probe_triangle(c, reach) {
             None => (true, reach),
-            Some((h, _)) => (h.distance > 0.0, h.distance),
+            Some((h, _)) => (h.distance >= -0.5 * range, h.distance),
         };
+        cache.depth = (-cache.clear).max(0.0);
         if !cache.usable {
             return;
         }
@@ -1094,6 +1108,35 @@ mod tests {
         }
         assert!(hits > 2000, "{hits} hits");
         assert!(kept > 10000, "{kept} cached queries");
+    }
+
+    /// Nodes of a wire pressed into a compliant wall sit beyond the
+    /// undented wall by a fraction of a millimetre: their caches serve them
+    /// (the nearest wall is within range), and the result is the grid's.
+    #[test]
+    fn a_cache_beyond_the_wall_serves_and_matches_the_grid_probe() {
+        let (v, t) = tube_mesh(5e-3, 0.05, 32, 20);
+        let lum = TriangleLumen::new(&v, &t).unwrap();
+        let mut rnd = uniform(3);
+        let range = 1.335e-3;
+        let mut caches = [ProbeCache::default(); 6];
+        let mut kept = 0;
+        for it in 0..2000 {
+            for (k, cache) in caches.iter_mut().enumerate() {
+                // 0.05–0.6 mm beyond the 5 mm wall, wandering along it.
+                let phi = 0.3 * k as f64 + 1e-3 * it as f64 + 0.02 * rnd();
+                let rho = 5.05e-3 + 0.55e-3 * (rnd() + 0.5);
+                let mut p = Vec3::new(
+                    0.01 + 0.004 * k as f64 + 1e-5 * it as f64,
+                    rho * phi.cos(),
+                    rho * phi.sin(),
+                );
+                let hit = wander_and_probe(&lum, &mut p, Vec3::zeros(), range, cache, (it, k));
+                assert!(hit.0, "beyond the wall is always a hit");
+                kept += hit.1 as usize;
+            }
+        }
+        assert!(kept > 6000, "{kept} of 12000 queries from kept candidates");
     }
 
     #[test]
