@@ -181,8 +181,10 @@ unsafe extern "C" fn servo(user: *mut c_void) -> HdCallbackCode {
     let mut vel = [0.0f64; 3];
     let mut gimbal = [0.0f64; 3];
     let mut buttons: c_int = 0;
+    // One clock read a frame: the commands' age and the pose's time (the
+    // frame's state is sampled at hdBeginFrame, just after).
+    let now = crate::rt::clock::now_s();
     let f = if sh.running.load(Ordering::Acquire) && sh.error.load(Ordering::Relaxed) == HD_SUCCESS {
-        let now = crate::rt::clock::now_s();
         sh.force
             .read(4)
             .map_or([0.0; 3], |(f, _)| live_command(f, now, sh.command_timeout_s))
@@ -204,7 +206,7 @@ unsafe extern "C" fn servo(user: *mut c_void) -> HdCallbackCode {
     }
     // SAFETY: plain call, no pointers.
     let err = unsafe { hdGetError() };
-    let t = crate::rt::clock::now_s();
+    let t = now;
     // mm -> m, mm/s -> m/s: the only unit conversion in the service (the
     // gimbal angles are already in rad).
     let mm = HD_LENGTH_M;
