@@ -1136,7 +1136,7 @@ mod tests {
                 kept += hit.1 as usize;
             }
         }
-        assert!(kept > 6000, "{kept} of 12000 queries from kept candidates");
+        assert!(kept > 10000, "{kept} of 12000 queries from kept candidates");
     }
 
     #[test]
