@@ -22,7 +22,7 @@
 
 use crate::haptics::device::{DeviceError, DeviceSample, HapticDevice, PortEnergy};
 use crate::haptics::touchx::TouchXSim;
-use crate::haptics::udp::{encode_pose, PoseDatagram, UdpDevice, POSE_LEN};
+use crate::haptics::udp::{encode_pose_v2, PoseDatagram, UdpDevice, POSE_LEN_V2};
 use crate::math::Vec3;
 use std::net::{SocketAddr, UdpSocket};
 use std::sync::atomic::{AtomicU64, Ordering};
@@ -310,23 +310,28 @@ impl SoakDevice {
             buttons: s.buttons,
             status: 0,
             error_code: 0,
-            gimbal_rad: [0.0; 3],
+            gimbal_rad: s.gimbal_rad,
         };
-        if nan {
+        // Every other non-finite pose has its roll, not its position, NaN
+        // (the bridge must reject either).
+        if nan && self.seq % 2 == 0 {
             d.position[0] = f64::NAN;
+        } else if nan {
+            d.gimbal_rad[2] = f64::NAN;
         }
-        let valid = encode_pose(&d);
+        // Version 2: the gimbal angles ride along (a guidewire's roll).
+        let valid = encode_pose_v2(&d);
         if garbage {
             let n = 1 + (self.rand() % 4) as usize;
             for _ in 0..n {
                 let kind = self.rand() % 6;
                 let len = match kind {
-                    0 => (self.rand() % POSE_LEN as u64) as usize,
-                    1 => POSE_LEN + 1 + (self.rand() % 100) as usize,
-                    _ => POSE_LEN,
+                    0 => (self.rand() % POSE_LEN_V2 as u64) as usize,
+                    1 => POSE_LEN_V2 + 1 + (self.rand() % 100) as usize,
+                    _ => POSE_LEN_V2,
                 };
                 let mut b = [0u8; 256];
-                b[..POSE_LEN].copy_from_slice(&valid);
+                b[..POSE_LEN_V2].copy_from_slice(&valid);
                 match kind {
                     2 => b[0] ^= 0x5A,
                     3 => b[4] = 9,
@@ -343,7 +348,7 @@ impl SoakDevice {
                             seq: self.seq.saturating_sub(1 + self.rand() % 50),
                             ..d
                         };
-                        b[..POSE_LEN].copy_from_slice(&encode_pose(&old));
+                        b[..POSE_LEN_V2].copy_from_slice(&encode_pose_v2(&old));
                     }
                     _ => {}
                 }
@@ -516,5 +521,65 @@ impl HapticDevice for SoakDevice {
 
     fn port_energy(&self) -> Option<PortEnergy> {
         self.sim.port_energy()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::haptics::touchx::{GimbalWaypoint, TouchXParams, Waypoint};
+    use crate::haptics::udp::UdpParams;
+
+    /// The stylus roll the simulated hand scripts reaches the service
+    /// through the bridge (version-2 pose datagrams carry the gimbal): a
+    /// guidewire scene's soak rolls the wire.
+    #[test]
+    fn the_gimbal_angles_pass_through_the_bridge() {
+        let pts = [
+            Waypoint {
+                t_s: 0.0,
+                position: Vec3::zeros(),
+            },
+            Waypoint {
+                t_s: 10.0,
+                position: Vec3::zeros(),
+            },
+        ];
+        let mut sim = TouchXSim::new(TouchXParams::default(), &pts).unwrap();
+        sim.set_gimbal_script(&[
+            GimbalWaypoint {
+                t_s: 0.0,
+                angles_rad: [0.0, 0.0, 1.0],
+            },
+            GimbalWaypoint {
+                t_s: 10.0,
+                angles_rad: [0.0, 0.0, 1.0],
+            },
+        ])
+        .unwrap();
+        let udp = UdpDevice::new(UdpParams {
+            bind: "127.0.0.1:0".into(),
+            peer: String::new(),
+            max_age_s: 0.5,
+            ..UdpParams::default()
+        });
+        let limits = CheckLimits {
+            peak_force_n: 7.9,
+            tank_initial_j: 0.01,
+            tank_max_j: 0.05,
+            zero_delay_s: 0.01,
+        };
+        let mut dev = SoakDevice::new(sim, udp, Vec::new(), limits, Arc::new(DeviceChecks::default()), 1);
+        dev.start().unwrap();
+        let mut roll = None;
+        for k in 0..2000 {
+            if let Ok(s) = dev.read(k as f64 * 1e-3) {
+                roll = Some(s.gimbal_rad[2]);
+                break;
+            }
+            std::thread::sleep(std::time::Duration::from_micros(200));
+        }
+        let roll = roll.expect("no pose came through the bridge");
+        assert!((roll - 1.0).abs() < 0.01, "roll {roll}");
     }
 }

@@ -28,7 +28,7 @@ use crate::rt::clock;
 use crate::service::faults::FaultSwitches;
 use crate::service::{DeviceContext, DeviceFactory, FaultTicks, Service, ServiceError, StartOptions};
 use device::{CheckLimits, DeviceChecks, DeviceFault, DeviceFaultKind, SoakDevice};
-use hand::{random_hand, HandMoves, Rng};
+use hand::{random_hand, random_wire_hand, HandMoves, Rng};
 use std::collections::BTreeMap;
 use std::net::UdpSocket;
 use std::path::{Path, PathBuf};
@@ -185,8 +185,36 @@ pub struct LegReport {
     /// The faults this leg injected, in order (s from the leg's first
     /// device read).
     pub planned_faults: Vec<PlannedFault>,
+    /// The guidewire's figures (a guidewire scene only).
+    pub wire: Option<WireLeg>,
     /// The service's text report of the leg.
     pub service_report: String,
+}
+
+/// The guidewire's figures over one leg (from the service report's
+/// `wire.*` keys).
+#[derive(Debug, Clone, Default, PartialEq, serde::Serialize)]
+pub struct WireLeg {
+    /// Wire steps run.
+    pub steps: u64,
+    /// Steps the watchdog restored to the last good state.
+    pub resets: u64,
+    /// Times the wire thread fell silent past `guidewire.stall_ms`.
+    pub stalls: u64,
+    /// Most wire inserted (m).
+    pub inserted_max_m: f64,
+    /// Segment of the mesh the tip ended in.
+    pub tip_segment: String,
+    /// Most contacts in a step.
+    pub contacts_max: usize,
+    /// Deepest penetration of a kept step (m).
+    pub max_penetration_m: f64,
+    /// Largest axial hub force (N).
+    pub axial_force_max_n: f64,
+    /// Wire step p99.9 (µs).
+    pub step_p999_us: f64,
+    /// System allocations of the wire thread after start.
+    pub allocations_after_start: u64,
 }
 
 /// One fault of a leg's schedule.
@@ -303,19 +331,46 @@ impl SoakReport {
         );
         for l in &self.legs {
             s += &format!(
-                "  leg {} ({}): {} ticks in {:.1} s, {} misses, tick p99.9 {:.1} µs, {} forces checked; hand: {} walks, {} strikes, {} long presses, {} slides\n",
+                "  leg {} ({}): {} ticks in {:.1} s, {} misses, tick p99.9 {:.1} µs, {} forces checked; hand: {}\n",
                 l.name,
-                l.youngs_pa.map(|e| format!("E = {:.3} MPa", e * 1e-6)).unwrap_or_else(|| "scene material".into()),
+                l.youngs_pa
+                    .map(|e| format!("E = {:.3} MPa", e * 1e-6))
+                    .unwrap_or_else(|| "scene material".into()),
                 l.ticks,
                 l.seconds,
                 l.deadline_misses,
                 l.tick_compute_p999_us,
                 l.forces_checked,
-                l.hand.walks,
-                l.hand.strikes,
-                l.hand.long_presses,
-                l.hand.slides
+                if l.wire.is_some() {
+                    "on the wire's hub (below)".to_string()
+                } else {
+                    format!(
+                        "{} walks, {} strikes, {} long presses, {} slides",
+                        l.hand.walks, l.hand.strikes, l.hand.long_presses, l.hand.slides
+                    )
+                }
             );
+            if let Some(w) = &l.wire {
+                let h = &l.hand;
+                s += &format!(
+                    "    wire hand: {} advances, {} pull-backs, {} jabs, {} rolls, {} off-axis; wire: {} steps, {} resets, {} stalls, inserted up to {:.1} mm, tip in {}, {} contacts at most, deepest {:.3} mm, axial force max {:.3} N, step p99.9 {:.0} µs, {} allocations\n",
+                    h.advances,
+                    h.pullbacks,
+                    h.jabs,
+                    h.rolls,
+                    h.off_axis,
+                    w.steps,
+                    w.resets,
+                    w.stalls,
+                    w.inserted_max_m * 1e3,
+                    w.tip_segment,
+                    w.contacts_max,
+                    w.max_penetration_m * 1e3,
+                    w.axial_force_max_n,
+                    w.step_p999_us,
+                    w.allocations_after_start
+                );
+            }
             let e = &l.port;
             s += &format!(
                 "    port energy: device in {:.4} J, out {:.4} J; observer in {:.4} J, out {:.4} J, unobserved {:.4} J, uncredited {:.4} J; tank low {:.4} J; worst window {:.4} J from {:.3} to {:.3} s\n",
@@ -793,16 +848,27 @@ fn run_leg(
             udp.peer = String::new();
             let half = Vec3::from(params.workspace_m) * 0.5;
             let origin = Vec3::from(cfg.device.origin_m);
-            let (pts, moves) = random_hand(
-                ctx.mesh,
-                origin,
-                half,
-                cfg.contact.tool_radius_m,
-                ctx.seconds + 5.0,
-                strike_fraction,
-                seed,
-            )
-            .ok_or_else(|| ServiceError::Device("soak: no wall point within the device's workspace".into()))?;
+            // A guidewire scene gets the hand on the wire's hub; any other
+            // scene the hand over the wall.
+            let (pts, gimbal, moves) = match (&cfg.wire, &cfg.guidewire) {
+                (Some(wire), Some(g)) => random_wire_hand(g, wire, half, ctx.seconds + 5.0, strike_fraction, seed)
+                    .ok_or_else(|| {
+                        ServiceError::Device("soak: the wire's drive leaves the stylus no room in the workspace".into())
+                    })?,
+                _ => {
+                    let (pts, moves) = random_hand(
+                        ctx.mesh,
+                        origin,
+                        half,
+                        cfg.contact.tool_radius_m,
+                        ctx.seconds + 5.0,
+                        strike_fraction,
+                        seed,
+                    )
+                    .ok_or_else(|| ServiceError::Device("soak: no wall point within the device's workspace".into()))?;
+                    (pts, Vec::new(), moves)
+                }
+            };
             if let Ok(mut m) = hand_moves.lock() {
                 *m = moves;
             }
@@ -824,6 +890,10 @@ fn run_leg(
             let mut sim = crate::haptics::touchx::TouchXSim::new(params, &pts)
                 .map_err(|e| ServiceError::Device(e.to_string()))?;
             sim.set_command_timeout(w.command_timeout_ms * 1e-3);
+            if !gimbal.is_empty() {
+                sim.set_gimbal_script(&gimbal)
+                    .map_err(|e| ServiceError::Device(e.to_string()))?;
+            }
             Ok(Box::new(SoakDevice::new(
                 sim,
                 UdpDevice::new(udp),
@@ -1239,6 +1309,18 @@ fn run_leg(
                 duration_s: p.dur_s,
             })
             .collect(),
+        wire: svc.wire.as_ref().map(|w| WireLeg {
+            steps: w.steps,
+            resets: w.resets,
+            stalls: w.stalls,
+            inserted_max_m: w.inserted_max_m,
+            tip_segment: w.tip_segment.clone(),
+            contacts_max: w.contacts_max,
+            max_penetration_m: w.max_penetration_m,
+            axial_force_max_n: w.axial_force_max_n,
+            step_p999_us: w.step_us.p999,
+            allocations_after_start: w.allocations_after_start,
+        }),
         service_report: svc.render(),
     });
     Ok(())
