@@ -256,6 +256,19 @@ enum Have {
     Hessian,
 }
 
+/// Slip per step (m) below which Coulomb friction is smoothed (a quadratic
+/// potential: a stiffness μλ/ε that turns into the constant force μλ
+/// beyond it): 1 µm, i.e. 1 mm/s at 1 kHz. With 0.1 µm, a wire pulled or
+/// pushed at 100 mm/s against several contacts stopped converging: the
+/// line search met the friction's near-kink in the second Newton
+/// iteration, and the step ended with the hub edge stretched by the feed,
+/// its force at the grip's limit (10 N, which the drive clamps to 3 N and
+/// the hand felt; found by the soak's guidewire hand, 2026-11-27). The
+/// capstan test is closer to e^{μθ} with 1 µm too (0.3 % against 1.4 %).
+/// What it costs: below 1 mm/s, sticking is a stiff viscous creep, not a
+/// hold.
+pub const FRICTION_SMOOTHING_M: f64 = 1e-6;
+
 /// Parallel transport of `d` from tangent `a` to tangent `b` (unit vectors).
 #[inline]
 fn transport(d: Vec3, a: Vec3, b: Vec3) -> Vec3 {
@@ -1121,7 +1134,7 @@ impl Wire {
         let r_w = 0.5 * p.diameter_m;
         let kc = p.contact_stiffness_n_per_m;
         let mu = p.friction;
-        let eps_v = 1e-7;
+        let eps_v = FRICTION_SMOOTHING_M;
         let s = &self.s;
         let coef = &self.coef[..n];
         let mut energy = 0.0;
@@ -1352,7 +1365,7 @@ impl Wire {
         let r_w = 0.5 * self.p.diameter_m;
         let kc = self.p.contact_stiffness_n_per_m;
         let mu = self.p.friction;
-        let eps_v = 1e-7;
+        let eps_v = FRICTION_SMOOTHING_M;
         self.contacts.clear();
         for i in 2..n {
             let Some(hit) = self.hits[i] else {
