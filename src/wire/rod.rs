@@ -1013,7 +1013,9 @@ impl Wire {
     /// The Newton iterations' starting point after `fed` metres entered
     /// (or left, if negative) at the hub: every free node slides by `fed`
     /// along the wire's own centreline, toward the tip (the tip along its
-    /// last edge), toward the hub on pull-back.
+    /// last edge). On pull-back nothing slides: the hub edge takes the
+    /// feed (the body says why; docs/WIRE.md "Friction's smoothing" what
+    /// made fast pull-backs converge).
     ///
     /// Why: the feed lengthens the hub edge's rest length, and the
     /// nearly inextensible wire (EA/h ≈ 10⁷ N/m) must follow within a
