@@ -22,7 +22,7 @@ fn defaults_are_valid() {
 #[test]
 fn impossible_values_name_the_key_and_the_range() {
     let path = Path::new("rt-config/guidewire.toml");
-    let cases: [(&str, &str, &str); 10] = [
+    let cases: [(&str, &str, &str); 11] = [
         (
             "youngs_modulus_pa = -5.0",
             "youngs_modulus_pa",
@@ -31,6 +31,11 @@ fn impossible_values_name_the_key_and_the_range() {
         ("diameter_m = 0.0", "diameter_m", "[0.00001, 0.01] m"),
         ("poisson_ratio = 0.7", "poisson_ratio", "[0, 0.5]"),
         ("friction = -0.1", "friction", "[0, 2]"),
+        (
+            "friction_smoothing_m = 0.0",
+            "friction_smoothing_m",
+            "[0.000000001, 0.001] m",
+        ),
         ("max_nodes = 2", "max_nodes", "4..=4096"),
         ("max_evaluations = 2", "max_evaluations", "3..=10000"),
         ("density_kg_m3 = nan", "density_kg_m3", "[1, 30000] kg/m³"),

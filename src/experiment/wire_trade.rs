@@ -1,6 +1,7 @@
 //! The guidewire's speed-for-accuracy knobs (the wire rows of `nvtmm
 //! experiment trade`): segment length, Newton iterations per step, the
-//! evaluation budget per step, contact stiffness and the friction model, each against a converged reference of
+//! evaluation budget per step, contact stiffness and the friction model
+//! (none, or its smoothing), each against a converged reference of
 //! the same insertion.
 //!
 //! The scenario: the default wire (0.035", nitinol, soft angled tip) pushed
@@ -183,6 +184,16 @@ pub fn rows(quick: bool) -> Result<Vec<WireTradeRow>, String> {
             ..reference.clone()
         },
     )?;
+    for eps in [1e-7, 1e-5] {
+        add(
+            "friction_smoothing",
+            format!("{:.1} µm", eps * 1e6),
+            WireParams {
+                friction_smoothing_m: eps,
+                ..reference.clone()
+            },
+        )?;
+    }
     add(
         "shipped",
         "3 mm, 2 it. (rt-config/guidewire.toml)".into(),
@@ -250,5 +261,9 @@ mod tests {
             .find(|x| x.knob == "segment_length" && x.value == "6 mm")
             .unwrap();
         assert!(coarse.nodes < r[0].nodes);
+        // Friction's smoothing is a knob: a tenth and ten times the default.
+        let eps: Vec<_> = r.iter().filter(|x| x.knob == "friction_smoothing").collect();
+        assert_eq!(eps.len(), 2);
+        assert!(eps.iter().all(|x| x.tip_error_mm > 0.0), "{eps:?}");
     }
 }

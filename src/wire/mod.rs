@@ -60,6 +60,12 @@ pub struct WireParams {
     pub max_nodes: usize,
     /// Coulomb friction coefficient against the wall.
     pub friction: f64,
+    /// Slip per step (m) below which friction is smoothed (a stiffness
+    /// μλ/ε sticking, the force μλ slipping): smaller holds a still wire
+    /// more firmly but makes fast steps with several contacts harder to
+    /// converge (docs/WIRE.md "Friction's smoothing"). Default 1 µm
+    /// (1 mm/s at 1 kHz).
+    pub friction_smoothing_m: f64,
     /// Penalty stiffness of the wall contact (N/m per node).
     pub contact_stiffness_n_per_m: f64,
     /// The grip's limit (N): while the wire pushes back on the hand harder
@@ -98,6 +104,7 @@ impl Default for WireParams {
             segment_length_m: 3e-3,
             max_nodes: 128,
             friction: 0.1,
+            friction_smoothing_m: rod::FRICTION_SMOOTHING_M,
             contact_stiffness_n_per_m: 1e6,
             max_hub_force_n: 10.0,
             drag_n_s_per_m2: 1e-3,
@@ -148,6 +155,7 @@ impl WireParams {
         }
         c.int_in("max_nodes", self.max_nodes, 4, 4096)?;
         c.f64_in("friction", self.friction, 0.0, 2.0, "")?;
+        c.f64_in("friction_smoothing_m", self.friction_smoothing_m, 1e-9, 1e-3, "m")?;
         c.f64_in(
             "contact_stiffness_n_per_m",
             self.contact_stiffness_n_per_m,

@@ -256,7 +256,8 @@ enum Have {
     Hessian,
 }
 
-/// Slip per step (m) below which Coulomb friction is smoothed (a quadratic
+/// The default of [`WireParams::friction_smoothing_m`]: the slip per step
+/// (m) below which Coulomb friction is smoothed (a quadratic
 /// potential: a stiffness μλ/ε that turns into the constant force μλ
 /// beyond it): 1 µm, i.e. 1 mm/s at 1 kHz. With 0.1 µm, a wire pulled or
 /// pushed at 100 mm/s against several contacts stopped converging: the
@@ -1136,7 +1137,7 @@ impl Wire {
         let r_w = 0.5 * p.diameter_m;
         let kc = p.contact_stiffness_n_per_m;
         let mu = p.friction;
-        let eps_v = FRICTION_SMOOTHING_M;
+        let eps_v = self.p.friction_smoothing_m;
         let s = &self.s;
         let coef = &self.coef[..n];
         let mut energy = 0.0;
@@ -1367,7 +1368,7 @@ impl Wire {
         let r_w = 0.5 * self.p.diameter_m;
         let kc = self.p.contact_stiffness_n_per_m;
         let mu = self.p.friction;
-        let eps_v = FRICTION_SMOOTHING_M;
+        let eps_v = self.p.friction_smoothing_m;
         self.contacts.clear();
         for i in 2..n {
             let Some(hit) = self.hits[i] else {
