@@ -95,7 +95,7 @@ pub struct BackgroundReport {
 }
 
 /// The guidewire's part (`wire.*`; null without `[wire]`).
-#[derive(Debug, Clone, Default, Serialize)]
+#[derive(Debug, Clone, Default, PartialEq, Serialize)]
 pub struct WireReport {
     /// Active nodes at the end (ghost and hub included).
     pub nodes: usize,

@@ -185,36 +185,11 @@ pub struct LegReport {
     /// The faults this leg injected, in order (s from the leg's first
     /// device read).
     pub planned_faults: Vec<PlannedFault>,
-    /// The guidewire's figures (a guidewire scene only).
-    pub wire: Option<WireLeg>,
+    /// The guidewire's figures: the service report's `wire.*` keys (a
+    /// guidewire scene only).
+    pub wire: Option<crate::service::report::WireReport>,
     /// The service's text report of the leg.
     pub service_report: String,
-}
-
-/// The guidewire's figures over one leg (from the service report's
-/// `wire.*` keys).
-#[derive(Debug, Clone, Default, PartialEq, serde::Serialize)]
-pub struct WireLeg {
-    /// Wire steps run.
-    pub steps: u64,
-    /// Steps the watchdog restored to the last good state.
-    pub resets: u64,
-    /// Times the wire thread fell silent past `guidewire.stall_ms`.
-    pub stalls: u64,
-    /// Most wire inserted (m).
-    pub inserted_max_m: f64,
-    /// Segment of the mesh the tip ended in.
-    pub tip_segment: String,
-    /// Most contacts in a step.
-    pub contacts_max: usize,
-    /// Deepest penetration of a kept step (m).
-    pub max_penetration_m: f64,
-    /// Largest axial hub force (N).
-    pub axial_force_max_n: f64,
-    /// Wire step p99.9 (µs).
-    pub step_p999_us: f64,
-    /// System allocations of the wire thread after start.
-    pub allocations_after_start: u64,
 }
 
 /// One fault of a leg's schedule.
@@ -367,7 +342,7 @@ impl SoakReport {
                     w.contacts_max,
                     w.max_penetration_m * 1e3,
                     w.axial_force_max_n,
-                    w.step_p999_us,
+                    w.step_us.p999,
                     w.allocations_after_start
                 );
             }
@@ -1309,18 +1284,7 @@ fn run_leg(
                 duration_s: p.dur_s,
             })
             .collect(),
-        wire: svc.wire.as_ref().map(|w| WireLeg {
-            steps: w.steps,
-            resets: w.resets,
-            stalls: w.stalls,
-            inserted_max_m: w.inserted_max_m,
-            tip_segment: w.tip_segment.clone(),
-            contacts_max: w.contacts_max,
-            max_penetration_m: w.max_penetration_m,
-            axial_force_max_n: w.axial_force_max_n,
-            step_p999_us: w.step_us.p999,
-            allocations_after_start: w.allocations_after_start,
-        }),
+        wire: svc.wire.clone(),
         service_report: svc.render(),
     });
     Ok(())
