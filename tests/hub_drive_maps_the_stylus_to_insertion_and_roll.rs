@@ -299,3 +299,26 @@ fn the_drive_steers_a_wire_and_feels_a_dead_end() {
         "on the axis, no guide force: {f:?}"
     );
 }
+
+/// A scripted hand's map (`DriveParams::stylus_at`, `gimbal_for`) is the
+/// inverse of the drive's: the stylus point it gives asks for the same
+/// inserted length, and the gimbal angles for the same roll.
+#[test]
+fn the_scripted_hands_map_inverts_the_drive() {
+    let d = DriveParams {
+        axis: [0.0, 2.0, -2.0],
+        origin_m: [0.01, -0.02, 0.03],
+        inserted_at_origin_m: 0.12,
+        insertion_scale: 3.0,
+        roll_index: 1,
+        roll_scale: -0.5,
+        ..DriveParams::default()
+    };
+    let drive = HubDrive::new(&wire_with(d), 0.0, 0.0).unwrap();
+    for ins in [0.02, 0.12, 0.175] {
+        assert!((drive.target(d.stylus_at(ins)) - ins).abs() < 1e-12, "{ins}");
+    }
+    assert_eq!(d.gimbal_for(0.4), [0.0, -0.8, 0.0]);
+    let held = DriveParams { roll_scale: 0.0, ..d };
+    assert_eq!(held.gimbal_for(0.4), [0.0; 3]);
+}

@@ -175,8 +175,6 @@ impl GuidewireConfig {
 /// roll on `drive.roll_index` divided by `drive.roll_scale`).
 pub fn hand_script(g: &GuidewireConfig, wire: &WireParams) -> (Vec<Waypoint>, Vec<GimbalWaypoint>) {
     let d = &wire.drive;
-    let a = Vec3::from(d.axis).normalize();
-    let origin = Vec3::from(d.origin_m);
     let rows: Vec<[f64; 3]> = if g.script.is_empty() {
         vec![[0.0, g.inserted_m, 0.0]]
     } else {
@@ -185,15 +183,13 @@ pub fn hand_script(g: &GuidewireConfig, wire: &WireParams) -> (Vec<Waypoint>, Ve
     let mut pts = Vec::new();
     let mut gim = Vec::new();
     for r in rows {
-        let p = origin + a * ((r[1] - d.inserted_at_origin_m) / d.insertion_scale);
-        pts.push(Waypoint { t_s: r[0], position: p });
-        let mut angles = [0.0; 3];
-        if d.roll_scale != 0.0 {
-            angles[d.roll_index.min(2)] = r[2] / d.roll_scale;
-        }
+        pts.push(Waypoint {
+            t_s: r[0],
+            position: d.stylus_at(r[1]),
+        });
         gim.push(GimbalWaypoint {
             t_s: r[0],
-            angles_rad: angles,
+            angles_rad: d.gimbal_for(r[2]),
         });
     }
     (pts, gim)

@@ -225,11 +225,10 @@ pub fn random_wire_hand(
 ) -> Option<(Vec<Waypoint>, Vec<GimbalWaypoint>, HandMoves)> {
     let d = &wire.drive;
     let axis = Vec3::from(d.axis).try_normalize(1e-12)?;
-    let origin = Vec3::from(d.origin_m);
     if d.insertion_scale <= 0.0 {
         return None;
     }
-    let stylus = |ins: f64| origin + axis * ((ins - d.inserted_at_origin_m) / d.insertion_scale);
+    let stylus = |ins: f64| d.stylus_at(ins);
     let inside = |x: Vec3| (0..3).all(|a| x[a].abs() + WIRE_OFF_AXIS_M + 0.005 < half[a]);
     let farthest = g.script.iter().map(|r| r[1]).fold(f64::NEG_INFINITY, f64::max);
     let hi = if farthest.is_finite() {
@@ -263,13 +262,9 @@ pub fn random_wire_hand(
             t_s: t,
             position: stylus(ins) + off,
         });
-        let mut angles = [0.0; 3];
-        if d.roll_scale != 0.0 {
-            angles[d.roll_index.min(2)] = roll / d.roll_scale;
-        }
         gim.push(GimbalWaypoint {
             t_s: t,
-            angles_rad: angles,
+            angles_rad: d.gimbal_for(roll),
         });
     };
     push(&mut pts, &mut gim, t, ins, roll, off);

@@ -98,6 +98,25 @@ impl Default for DriveParams {
 }
 
 impl DriveParams {
+    /// The stylus point (device frame, m) on the axis that asks for
+    /// `inserted_m` of wire: the inverse of [`HubDrive::target`] (a
+    /// scripted hand's way to the hub).
+    pub fn stylus_at(&self, inserted_m: f64) -> Vec3 {
+        let a = Vec3::from(self.axis).normalize();
+        Vec3::from(self.origin_m) + a * ((inserted_m - self.inserted_at_origin_m) / self.insertion_scale)
+    }
+
+    /// The gimbal angles (rad) that roll the wire by `roll_rad`: the roll
+    /// joint's angle divided by `roll_scale`, the others zero (all zero if
+    /// the roll is held, `roll_scale` = 0).
+    pub fn gimbal_for(&self, roll_rad: f64) -> [f64; 3] {
+        let mut angles = [0.0; 3];
+        if self.roll_scale != 0.0 {
+            angles[self.roll_index.min(2)] = roll_rad / self.roll_scale;
+        }
+        angles
+    }
+
     /// Range checks. `prefix` is prepended to key names (e.g. `drive.`).
     /// The wire's own limits (its length, its feed speed) are applied when
     /// driving, not here: a drive table stays valid for any wire.

@@ -1137,7 +1137,7 @@ impl Wire {
         let r_w = 0.5 * p.diameter_m;
         let kc = p.contact_stiffness_n_per_m;
         let mu = p.friction;
-        let eps_v = self.p.friction_smoothing_m;
+        let eps_v = p.friction_smoothing_m;
         let s = &self.s;
         let coef = &self.coef[..n];
         let mut energy = 0.0;
