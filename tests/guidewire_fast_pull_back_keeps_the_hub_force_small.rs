@@ -5,14 +5,16 @@
 //! back and pushes 15 mm twice at 100 mm/s (the drive's limit) and pulls
 //! back 30 mm, with the wire pressed on the wall at several points.
 //!
-//! Guards friction's smoothing (`wire::rod::FRICTION_SMOOTHING_M`): with
-//! 0.1 µm instead of 1 µm the line search met the friction's near-kink,
-//! steps ended unconverged with the hub edge holding the feed, and the hub
-//! force reached the grip's limit (10 N; the drive clamps it to 3 N, which
-//! the soak's guidewire hand felt). With 1 µm it passed three runs of
-//! four on 2026-11-27 (0.156 N) and reached 10 N in the fourth (the hand
-//! is followed in real time, so runs differ): ignored until a step that
-//! always converges there; run it with `--ignored`. Runs RT threads: run it alone
+//! Guards the step's convergence on fast moves with several contacts
+//! (docs/WIRE.md "Fast pulls"): friction's smoothing
+//! (`wire::rod::FRICTION_SMOOTHING_M`), friction's lagged normal, the
+//! penalty summed over the pieces of wall a node overlaps, the penalty's
+//! onset and the iterations that go on past the usual count while a node
+//! is off equilibrium. Before them, steps ended unconverged, the hub edge
+//! held the feed and the hub force reached the grip's limit (10 N, which
+//! the drive clamps to 3 N: the soak's guidewire hand felt it); with the
+//! smoothing alone, one run in four still did (2026-11-27). Runs RT
+//! threads: run it alone
 //! (`cargo test --release --test guidewire_fast_pull_back_keeps_the_hub_force_small -- --nocapture`).
 
 mod common;
@@ -23,7 +25,6 @@ use nvtmm::service::{run_service, StartOptions};
 static ALLOC: nvtmm::rt::alloc::RtAllocator = nvtmm::rt::alloc::RtAllocator;
 
 #[test]
-#[ignore = "intermittent: one run in four still reached the grip's 10 N (2026-11-27); run it with --ignored"]
 fn fast_pulls_and_pushes_against_the_wall_keep_the_hub_force_small() {
     let script = "[
   [0.0, 0.02, 0.0],

@@ -48,6 +48,66 @@ pub trait Lumen {
         let _ = cache;
         self.probe(p, range)
     }
+
+    /// Every piece of the wall that the sphere of `radius` about `p`
+    /// overlaps, into `out`, for a point on the lumen's side whose nearest
+    /// wall `nearest` (from [`Lumen::probe_cached`] with the same `cache`)
+    /// is nearer than `radius`.
+    ///
+    /// Why: against a wall made of flat pieces, the distance to the
+    /// nearest piece has a kink where two pieces meeting in a valley are
+    /// equally near, and a sphere pressed into the valley has no
+    /// equilibrium: its force turns from one piece's normal to the other's
+    /// as it crosses the kink. A penalty summed over the pieces overlapped
+    /// is smooth, and counts each once where pieces meet flat: the
+    /// triangles' terms, less those of the edges two of them share, plus
+    /// those of their vertices (weights in [`WallOverlap::weight`]): where
+    /// the nearest point of several triangles is one edge or vertex, their
+    /// terms cancel to one. The default (an analytic, smooth wall) is the
+    /// nearest wall alone. Must not allocate.
+    fn overlaps_cached(&self, p: Vec3, radius: f64, nearest: &WallHit, cache: &mut ProbeCache, out: &mut WallOverlaps) {
+        let _ = (p, radius, cache);
+        out.clear();
+        let _ = out.push(WallOverlap::from_hit(nearest));
+    }
+}
+
+/// One piece of the wall (a triangle, an edge or a vertex of a triangle
+/// wall; the whole wall of an analytic one) that a contact sphere
+/// overlaps: the sphere's penalty is the sum over its overlaps of
+/// `weight` · ½ k (radius − `distance`)² (see [`Lumen::overlaps_cached`]).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct WallOverlap {
+    /// +1 for a triangle, −1 for an edge two overlapped triangles share,
+    /// 1 − (triangles) + (edges) about a vertex (1 inside the wall, 0 on
+    /// its border).
+    pub weight: f64,
+    /// Distance from the sphere's centre to the piece (m, ≥ 0).
+    pub distance: f64,
+    /// Unit direction from the piece's nearest point to the centre.
+    pub normal: Vec3,
+    /// The wall's normal compliance there (m/N), as [`WallHit::compliance`].
+    pub compliance: f64,
+}
+
+/// Overlaps one contact sphere holds at most (a vertex of the wall with
+/// its fan of triangles and edges: six of each and the vertex fill 13).
+pub const MAX_OVERLAPS: usize = 16;
+
+/// A contact sphere's overlaps, fixed size.
+pub type WallOverlaps = heapless::Vec<WallOverlap, MAX_OVERLAPS>;
+
+impl WallOverlap {
+    /// The nearest wall seen from a point on the lumen's side as the one
+    /// piece overlapped.
+    pub fn from_hit(hit: &WallHit) -> WallOverlap {
+        WallOverlap {
+            weight: 1.0,
+            distance: hit.distance,
+            normal: hit.normal,
+            compliance: hit.compliance,
+        }
+    }
 }
 
 /// Candidate triangles a [`ProbeCache`] holds at most.
@@ -909,6 +969,131 @@ impl TriangleLumen {
         }
     }
 
+    /// [`Lumen::overlaps_cached`] for the triangle wall: the triangles
+    /// nearer than `radius` among the cache's candidates, the edges two of
+    /// them share and their vertices, each nearer than `radius`. Falls
+    /// back to the nearest wall alone when the cache does not cover `p`,
+    /// when `p` is not on the lumen's side, or when the overlaps do not
+    /// fit in [`MAX_OVERLAPS`]. Allocates nothing.
+    pub fn overlaps(&self, p: Vec3, radius: f64, nearest: &WallHit, cache: &ProbeCache, out: &mut WallOverlaps) {
+        out.clear();
+        let alone = |out: &mut WallOverlaps| {
+            out.clear();
+            let _ = out.push(WallOverlap::from_hit(nearest));
+        };
+        // Every triangle within `radius` of p must be a candidate.
+        let off = (p - cache.centre).norm() + (self.moved - cache.moved);
+        if nearest.distance <= 0.0 || !cache.usable || cache.stamp != self.stamp || off + radius > cache.reach {
+            return alone(out);
+        }
+        let comp = |v: u32| {
+            if self.compliance.is_empty() {
+                0.0
+            } else {
+                self.compliance[v as usize].max(0.0)
+            }
+        };
+        // The triangles overlapped (indices kept for the edges and vertices).
+        let mut faces: heapless::Vec<u32, MAX_OVERLAPS> = heapless::Vec::new();
+        for &t in &cache.tris[..cache.len as usize] {
+            let [gx, gy, gz, gr] = self.tri_spheres[t as usize];
+            let dc = ((p.x - gx).powi(2) + (p.y - gy).powi(2) + (p.z - gz).powi(2)).sqrt();
+            if dc - gr >= radius {
+                continue;
+            }
+            let [va, vb, vc] = self.tris[t as usize].map(|i| self.verts[i as usize]);
+            let q = closest_on_triangle(p, va, vb, vc);
+            let d = (p - q).norm();
+            if d >= radius || d <= 1e-12 {
+                continue;
+            }
+            let w = self.barycentric(t as usize, q);
+            let c = self.tris[t as usize].map(comp);
+            let face = WallOverlap {
+                weight: 1.0,
+                distance: d,
+                normal: (p - q) / d,
+                compliance: w[0] * c[0] + w[1] * c[1] + w[2] * c[2],
+            };
+            if faces.push(t).is_err() || out.push(face).is_err() {
+                return alone(out);
+            }
+        }
+        if faces.len() < 2 {
+            return alone(out);
+        }
+        // Edges shared by two overlapped triangles, then the vertices.
+        let mut edges: heapless::Vec<[u32; 2], MAX_OVERLAPS> = heapless::Vec::new();
+        for (a, &ta) in faces.iter().enumerate() {
+            let ia = self.tris[ta as usize];
+            for &tb in &faces[a + 1..] {
+                let ib = self.tris[tb as usize];
+                let mut shared = [0u32; 2];
+                let mut k = 0;
+                for v in ia {
+                    if ib.contains(&v) && k < 2 {
+                        shared[k] = v;
+                        k += 1;
+                    }
+                }
+                if k < 2 {
+                    continue;
+                }
+                let (a0, b0) = (self.verts[shared[0] as usize], self.verts[shared[1] as usize]);
+                let ab = b0 - a0;
+                let l2 = ab.norm_squared();
+                let s = if l2 > 0.0 {
+                    ((p - a0).dot(&ab) / l2).clamp(0.0, 1.0)
+                } else {
+                    0.0
+                };
+                let q = a0 + ab * s;
+                let d = (p - q).norm();
+                if d >= radius || d <= 1e-12 {
+                    continue;
+                }
+                let edge = WallOverlap {
+                    weight: -1.0,
+                    distance: d,
+                    normal: (p - q) / d,
+                    compliance: (1.0 - s) * comp(shared[0]) + s * comp(shared[1]),
+                };
+                if edges.push(shared).is_err() || out.push(edge).is_err() {
+                    return alone(out);
+                }
+            }
+        }
+        let mut seen: heapless::Vec<u32, { 3 * MAX_OVERLAPS }> = heapless::Vec::new();
+        for &t in &faces {
+            for v in self.tris[t as usize] {
+                if seen.contains(&v) {
+                    continue;
+                }
+                let _ = seen.push(v);
+                let q = self.verts[v as usize];
+                let d = (p - q).norm();
+                if d >= radius || d <= 1e-12 {
+                    continue;
+                }
+                let nf = faces.iter().filter(|&&t| self.tris[t as usize].contains(&v)).count() as f64;
+                let ne = edges.iter().filter(|e| e.contains(&v)).count() as f64;
+                let weight = 1.0 - nf + ne;
+                if weight == 0.0 {
+                    continue;
+                }
+                let vertex = WallOverlap {
+                    weight,
+                    distance: d,
+                    normal: (p - q) / d,
+                    compliance: comp(v),
+                };
+                if out.push(vertex).is_err() {
+                    return alone(out);
+                }
+            }
+        }
+    }
+
     /// Barycentric weights of `q` (a point on or near triangle `t`) on the
     /// triangle's three vertices: non-negative, summing to 1 (clamped to
     /// the triangle).
@@ -940,6 +1125,10 @@ impl Lumen for TriangleLumen {
 
     fn probe_cached(&self, p: Vec3, range: f64, cache: &mut ProbeCache) -> Option<WallHit> {
         self.probe_triangle_cached(p, range, cache).map(|(h, _)| h)
+    }
+
+    fn overlaps_cached(&self, p: Vec3, radius: f64, nearest: &WallHit, cache: &mut ProbeCache, out: &mut WallOverlaps) {
+        self.overlaps(p, radius, nearest, cache, out);
     }
 }
 
@@ -1227,5 +1416,81 @@ mod tests {
             }
         })
         .is_err());
+    }
+
+    /// A flat square of 4 × 4 cells on z = 0, each cut into two triangles
+    /// wound toward +z (the lumen's side), its centre vertex raised by
+    /// `bump` (a pit for negative: its cells then meet in valleys).
+    fn sheet(bump: f64) -> TriangleLumen {
+        let mut v = Vec::new();
+        for j in 0..5 {
+            for i in 0..5 {
+                let z = if (i, j) == (2, 2) { bump } else { 0.0 };
+                v.push(Vec3::new(i as f64 * 1e-3, j as f64 * 1e-3, z));
+            }
+        }
+        let mut t = Vec::new();
+        for j in 0..4u32 {
+            for i in 0..4u32 {
+                let a = j * 5 + i;
+                t.push([a, a + 1, a + 6]);
+                t.push([a, a + 6, a + 5]);
+            }
+        }
+        TriangleLumen::new(&v, &t).unwrap()
+    }
+
+    /// Σ weight · (radius − distance)² over the overlaps of the sphere at p.
+    fn overlap_sum(l: &TriangleLumen, p: Vec3, radius: f64) -> (f64, usize) {
+        let mut cache = ProbeCache::default();
+        let hit = l.probe_cached(p, 3.0 * radius, &mut cache).unwrap();
+        let mut o = WallOverlaps::new();
+        l.overlaps_cached(p, radius, &hit, &mut cache, &mut o);
+        (
+            o.iter().map(|o| o.weight * (radius - o.distance).powi(2)).sum(),
+            o.len(),
+        )
+    }
+
+    #[test]
+    fn overlaps_count_a_flat_wall_once_and_both_sides_of_a_valley() {
+        let flat = sheet(0.0);
+        let r = 0.45e-3;
+        // Over a face, a diagonal, an edge between cells and a vertex where
+        // six triangles meet: one penalty, that of the plane.
+        for (x, y) in [
+            (1.3e-3, 1.6e-3),
+            (1.5e-3, 1.5e-3),
+            (2.0e-3, 1.4e-3),
+            (2.0e-3, 2.0e-3),
+            (2.05e-3, 1.97e-3),
+        ] {
+            let h = 0.4e-3;
+            let (sum, pieces) = overlap_sum(&flat, Vec3::new(x, y, h), r);
+            assert!(
+                (sum - (r - h).powi(2)).abs() < 1e-12 * r * r,
+                "at ({x}, {y}): {sum:e} over {pieces} pieces, the plane's {:e}",
+                (r - h).powi(2)
+            );
+        }
+        // Above the vertex the sum ran over its whole fan.
+        assert!(overlap_sum(&flat, Vec3::new(2.0e-3, 2.0e-3, 0.4e-3), r).1 >= 7);
+        // A pit 0.3 mm deep: over its centre the sphere touches the six
+        // sloping faces around it (and their edges and the vertex: seven
+        // pieces of positive weight). The nearest face alone pushes it
+        // sideways (so a sphere pressed into the pit has no equilibrium);
+        // the overlaps' sum pushes it straight out, harder.
+        let pit = sheet(-0.3e-3);
+        let p = Vec3::new(2.0e-3, 2.0e-3, 0.05e-3);
+        let mut cache = ProbeCache::default();
+        let nearest = pit.probe_cached(p, 3.0 * r, &mut cache).unwrap();
+        let mut o = WallOverlaps::new();
+        pit.overlaps_cached(p, r, &nearest, &mut cache, &mut o);
+        let f: Vec3 = o.iter().map(|o| o.normal * (o.weight * (r - o.distance))).sum();
+        let f1 = nearest.normal * (r - nearest.distance);
+        assert!(o.iter().filter(|o| o.weight > 0.0).count() == 7, "{o:?}");
+        assert!(f1.xy().norm() > 0.2 * f1.norm(), "the nearest face's push {f1:?}");
+        assert!(f.xy().norm() < 1e-9 * f.norm(), "the overlaps' push {f:?}");
+        assert!(f.z > f1.z, "{} against {}", f.z, f1.z);
     }
 }

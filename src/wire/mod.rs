@@ -68,6 +68,12 @@ pub struct WireParams {
     pub friction_smoothing_m: f64,
     /// Penalty stiffness of the wall contact (N/m per node).
     pub contact_stiffness_n_per_m: f64,
+    /// Gap (m) at which the contact's penalty begins: its stiffness rises
+    /// from 0 there to `contact_stiffness_n_per_m` at touch, so a node that
+    /// Newton's last iterate left just short of the wall already sees it
+    /// (docs/WIRE.md "Contact near the wall"). The force at touch is
+    /// k · onset / 2. Default 10 µm; 0 for the plain penalty.
+    pub contact_onset_m: f64,
     /// The grip's limit (N): while the wire pushes back on the hand harder
     /// than this, the hub slips and feeds no more wire in (pulling back is
     /// always possible). Keeps a blocked wire's force bounded, as a
@@ -77,8 +83,15 @@ pub struct WireParams {
     pub drag_n_s_per_m2: f64,
     /// Time step (s).
     pub dt_s: f64,
-    /// Newton iterations per step at most.
+    /// Newton iterations per step (the usual count; see
+    /// `residual_tolerance_n` for more).
     pub newton_iterations: usize,
+    /// Past `newton_iterations`, the step goes on (up to four times as many
+    /// iterations, within `max_evaluations`) while some free node's net
+    /// force exceeds this (N): a step that ends far from equilibrium hands
+    /// its error to the next. Default 0.2 N; 0 stops at
+    /// `newton_iterations` (docs/WIRE.md "Steps that go on").
+    pub residual_tolerance_n: f64,
     /// Evaluations of the incremental potential per step at most (Newton
     /// assemblies, line-search trials and the reactions' evaluation): the
     /// step's cost is about this many evaluations at worst, whatever the
@@ -106,10 +119,12 @@ impl Default for WireParams {
             friction: 0.1,
             friction_smoothing_m: rod::FRICTION_SMOOTHING_M,
             contact_stiffness_n_per_m: 1e6,
+            contact_onset_m: rod::CONTACT_ONSET_M,
             max_hub_force_n: 10.0,
             drag_n_s_per_m2: 1e-3,
             dt_s: 1e-3,
             newton_iterations: 3,
+            residual_tolerance_n: rod::RESIDUAL_TOLERANCE_N,
             max_evaluations: 1000,
             drive: DriveParams::default(),
         }
@@ -163,11 +178,13 @@ impl WireParams {
             1e9,
             "N/m",
         )?;
+        c.f64_in("contact_onset_m", self.contact_onset_m, 0.0, 0.1 * self.diameter_m, "m")?;
         c.f64_in("max_hub_force_n", self.max_hub_force_n, 0.01, 1e4, "N")?;
         c.f64_in("drag_n_s_per_m2", self.drag_n_s_per_m2, 0.0, 1e3, "N·s/m²")?;
         c.f64_in("dt_s", self.dt_s, 1e-6, 0.01, "s")?;
         c.int_in("newton_iterations", self.newton_iterations, 1, 100)?;
         c.int_in("max_evaluations", self.max_evaluations, 3, 10_000)?;
+        c.f64_in("residual_tolerance_n", self.residual_tolerance_n, 0.0, 1e3, "N")?;
         self.drive.validate(path, "drive.")?;
         Ok(())
     }

@@ -14,7 +14,7 @@
 //! tip stays with the material as nodes enter and leave at the hub.
 
 use super::band::BandMatrix;
-use super::lumen::{perpendicular, Lumen, ProbeCache, WallHit};
+use super::lumen::{perpendicular, Lumen, ProbeCache, WallHit, WallOverlaps};
 use super::WireParams;
 use crate::config::ConfigError;
 use crate::math::{Mat3, Vec3};
@@ -115,6 +115,9 @@ struct State {
     u: Vec<f64>,
     rest: Vec<f64>,
     lam: Vec<f64>,
+    /// The wall normal of each node's contact in the last step (lagged with
+    /// `lam`): friction's tangent plane.
+    nrm: Vec<Vec3>,
     inserted: f64,
     roll: f64,
 }
@@ -131,6 +134,7 @@ impl State {
             u: vec![0.0; cap],
             rest: vec![0.0; cap],
             lam: vec![0.0; cap],
+            nrm: vec![Vec3::zeros(); cap],
             inserted: 0.0,
             roll: 0.0,
         }
@@ -146,6 +150,7 @@ impl State {
         self.u.copy_from_slice(&o.u);
         self.rest.copy_from_slice(&o.rest);
         self.lam.copy_from_slice(&o.lam);
+        self.nrm.copy_from_slice(&o.nrm);
         self.inserted = o.inserted;
         self.roll = o.roll;
     }
@@ -208,6 +213,12 @@ pub struct Wire {
     probe_cache: Vec<ProbeCache>,
     /// Per node: the wall probe of the last evaluation.
     hits: Vec<Option<WallHit>>,
+    /// Per node: the wall's penalty force on it at the last evaluation
+    /// (summed over the pieces of wall its sphere overlaps; zero out of
+    /// contact).
+    wall_force: Vec<Vec3>,
+    /// Scratch: one node's overlaps with the wall.
+    overlaps: WallOverlaps,
     /// Per node and edge: the step's coefficients.
     coef: Vec<Coef>,
     /// Per edge: 1 / its length at the trial state.
@@ -269,6 +280,13 @@ enum Have {
 /// What it costs: below 1 mm/s, sticking is a stiff viscous creep, not a
 /// hold.
 pub const FRICTION_SMOOTHING_M: f64 = 1e-6;
+
+/// The default `contact_onset_m`: the contact's penalty begins 10 µm before
+/// the wall (docs/WIRE.md "Contact near the wall").
+pub const CONTACT_ONSET_M: f64 = 1e-5;
+
+/// The default `residual_tolerance_n` (docs/WIRE.md "Steps that go on").
+pub const RESIDUAL_TOLERANCE_N: f64 = 0.2;
 
 /// Parallel transport of `d` from tangent `a` to tangent `b` (unit vectors).
 #[inline]
@@ -351,6 +369,37 @@ fn sin_cos_near(theta: f64, near: &mut (f64, f64, f64)) -> (f64, f64) {
     (s, c)
 }
 
+/// The contact penalty at penetration `pen` (m; negative: a gap) with
+/// stiffness `k` and onset `onset` (m): energy, force and stiffness. Zero
+/// below −onset; cubic from there to contact, its stiffness rising
+/// linearly from 0 to k; quadratic beyond (force k (pen + onset / 2)). With
+/// a zero onset, the plain ½ k pen² for pen > 0.
+fn penalty(pen: f64, k: f64, onset: f64) -> (f64, f64, f64) {
+    if pen <= -onset {
+        (0.0, 0.0, 0.0)
+    } else if pen < 0.0 {
+        let a = pen + onset;
+        (k * a * a * a / (6.0 * onset), k * a * a / (2.0 * onset), k * a / onset)
+    } else {
+        (
+            k * (onset * onset / 6.0 + 0.5 * onset * pen + 0.5 * pen * pen),
+            k * (pen + 0.5 * onset),
+            k,
+        )
+    }
+}
+
+/// The nearest positive semi-definite matrix to a symmetric `m`: its
+/// negative eigenvalues set to zero.
+fn psd(m: Mat3) -> Mat3 {
+    let e = nalgebra::SymmetricEigen::new(m);
+    if e.eigenvalues.iter().all(|&l| l >= 0.0) {
+        return m;
+    }
+    let l = e.eigenvalues.map(|l| l.max(0.0));
+    e.eigenvectors * Mat3::from_diagonal(&l) * e.eigenvectors.transpose()
+}
+
 fn outer(a: &Vec3, b: &Vec3) -> Mat3 {
     a * b.transpose()
 }
@@ -409,6 +458,8 @@ impl Wire {
             contacts: Vec::with_capacity(cap),
             probe_cache: vec![ProbeCache::default(); cap],
             hits: vec![None; cap],
+            wall_force: vec![Vec3::zeros(); cap],
+            overlaps: WallOverlaps::new(),
             coef: vec![Coef::default(); cap],
             inv_len: vec![0.0; cap],
             th_near: vec![(0.0, 0.0, 1.0); cap],
@@ -595,6 +646,7 @@ impl Wire {
                     s.v[i + 1] = s.v[i];
                     s.u[i + 1] = s.u[i];
                     s.lam[i + 1] = s.lam[i];
+                    s.nrm[i + 1] = s.nrm[i];
                     s.ref_twist[i + 1] = s.ref_twist[i];
                 }
                 self.probe_cache[2..=n].rotate_right(1);
@@ -632,6 +684,7 @@ impl Wire {
                     s.v[i] = s.v[i + 1];
                     s.u[i] = s.u[i + 1];
                     s.lam[i] = s.lam[i + 1];
+                    s.nrm[i] = s.nrm[i + 1];
                     s.ref_twist[i] = s.ref_twist[i + 1];
                 }
                 self.probe_cache[2..n].rotate_left(1);
@@ -753,7 +806,26 @@ impl Wire {
             // `eval_pen` is that of the current iterate for it ≥ 1 (the
             // accepted trial's evaluation).
             if it >= self.p.newton_iterations && self.eval_pen < 0.25 * r_w {
-                break;
+                // Past the configured count: go on only while the iterate is
+                // off equilibrium by more than the tolerance (known when its
+                // gradient is; a trial cut short by the line search says it is).
+                let tol = self.p.residual_tolerance_n;
+                if tol <= 0.0 {
+                    break;
+                }
+                if have < Have::Gradient {
+                    // The reactions want this evaluation anyway.
+                    rep.evaluations += 1;
+                    e_cur = self.eval_at(lumen, have == Have::Nothing, true, true);
+                    have = Have::Hessian;
+                }
+                let off = (2..n).any(|i| {
+                    Vec3::new(self.grad[4 * i], self.grad[4 * i + 1], self.grad[4 * i + 2]).norm_squared() > tol * tol
+                });
+                // Room for a trial and the reactions' evaluation?
+                if !off || !e_cur.is_finite() || rep.evaluations + 2 > self.p.max_evaluations {
+                    break;
+                }
             }
             // Room for this iteration's assembly, one trial and the
             // reactions' evaluation at the end?
@@ -1265,30 +1337,62 @@ impl Wire {
             }
         }
 
-        // Wall contact and friction on free nodes.
+        // Wall contact and friction on free nodes. Friction acts wherever
+        // the last step left a contact (its normal force and normal
+        // lagged), whether or not the trial point touches the wall: the
+        // energy is then continuous, and smooth, as the trial crosses the
+        // wall's surface or the nearest facet changes (docs/WIRE.md
+        // "Friction's smoothing").
         for i in 2..n {
             let hit = lumen.probe_cached(self.xt[i], 3.0 * r_w, &mut self.probe_cache[i]);
             self.hits[i] = hit;
-            let Some(hit) = hit else {
-                continue;
-            };
-            let pen = r_w - hit.distance;
-            if pen <= 0.0 {
-                continue;
+            let mut g = Vec3::zeros();
+            let mut hm = Mat3::zeros();
+            let mut touched = false;
+            self.wall_force[i] = Vec3::zeros();
+            let onset = p.contact_onset_m;
+            if let Some(hit) = hit.filter(|h| h.distance < r_w + onset) {
+                // The penalty over every piece of wall the node's sphere
+                // overlaps (`Lumen::overlaps_cached`: smooth where pieces
+                // meet). A compliant wall gives in series with the penalty:
+                // a piece's stiffness is 1/(1/k_c + c), and the depth the
+                // penalty alone takes (the wire's surface beyond the pushed
+                // wall) is k pen / k_c.
+                lumen.overlaps_cached(
+                    self.xt[i],
+                    r_w + onset,
+                    &hit,
+                    &mut self.probe_cache[i],
+                    &mut self.overlaps,
+                );
+                let mut signed = false;
+                for o in &self.overlaps {
+                    let pen = r_w - o.distance;
+                    let k = kc / (1.0 + kc * o.compliance);
+                    let (e, f, kk) = penalty(pen, k, onset);
+                    if o.weight > 0.0 {
+                        max_pen = max_pen.max(f / kc);
+                    } else {
+                        signed = true;
+                    }
+                    energy += o.weight * e;
+                    g -= o.normal * (o.weight * f);
+                    hm += outer(&o.normal, &o.normal) * (o.weight * kk);
+                }
+                // Edges enter with negative weight: keep the Hessian's
+                // contact block positive semi-definite.
+                if signed {
+                    hm = psd(hm);
+                }
+                self.wall_force[i] = -g;
+                touched = true;
             }
-            let nn = hit.normal;
-            // A compliant wall gives in series with the penalty: the
-            // contact's stiffness is 1/(1/k_c + c), and the depth the
-            // penalty alone takes (the wire's surface beyond the pushed
-            // wall) is k pen / k_c.
-            let k = kc / (1.0 + kc * hit.compliance);
-            max_pen = max_pen.max(pen * (k / kc));
-            energy += 0.5 * k * pen * pen;
             let lam = s.lam[i];
-            let pm = Mat3::identity() - outer(&nn, &nn);
-            let ut = pm * (self.xt[i] - self.x0[i]);
-            let un = ut.norm();
             if mu > 0.0 && lam > 0.0 {
+                let nn = s.nrm[i];
+                let pm = Mat3::identity() - outer(&nn, &nn);
+                let ut = pm * (self.xt[i] - self.x0[i]);
+                let un = ut.norm();
                 energy += mu
                     * lam
                     * if un < eps_v {
@@ -1296,20 +1400,17 @@ impl Wire {
                     } else {
                         un - 0.5 * eps_v
                     };
-            }
-            if assemble {
-                let mut g = -nn * (k * pen);
-                let mut hm = outer(&nn, &nn) * k;
-                if mu > 0.0 && lam > 0.0 {
-                    if un < eps_v {
-                        g += ut * (mu * lam / eps_v);
-                        hm += pm * (mu * lam / eps_v);
-                    } else {
-                        let uh = ut / un;
-                        g += uh * (mu * lam);
-                        hm += (pm - outer(&uh, &uh)) * (mu * lam / un);
-                    }
+                if un < eps_v {
+                    g += ut * (mu * lam / eps_v);
+                    hm += pm * (mu * lam / eps_v);
+                } else {
+                    let uh = ut / un;
+                    g += uh * (mu * lam);
+                    hm += (pm - outer(&uh, &uh)) * (mu * lam / un);
                 }
+                touched = true;
+            }
+            if assemble && touched {
                 for r in 0..3 {
                     self.grad[4 * i + r] += g[r];
                     if hess {
@@ -1358,33 +1459,36 @@ impl Wire {
         energy
     }
 
-    /// The contact list at the trial state, from the wall probes of its
-    /// evaluation (`hits`), and the next step's lagged normal forces. The
+    /// The contact list at the trial state, from the wall probes and
+    /// penalty forces of its evaluation (`hits`, `wall_force`), and the
+    /// next step's lagged normal forces and normals. The
     /// hub's reactions are in `hub_grad`, `hub_dtheta`: they come from the
     /// elastic terms only, and the assembled gradient at the clamp holds
     /// exactly those (inertia acts on free nodes).
     fn reactions(&mut self) {
         let n = self.s.n;
-        let r_w = 0.5 * self.p.diameter_m;
         let kc = self.p.contact_stiffness_n_per_m;
         let mu = self.p.friction;
         let eps_v = self.p.friction_smoothing_m;
         self.contacts.clear();
         for i in 2..n {
-            let Some(hit) = self.hits[i] else {
+            // The wall's penalty force at the evaluation: its size is the
+            // contact's normal force, its direction the contact's normal
+            // (the nearest wall's normal against one piece of wall).
+            let f = self.wall_force[i];
+            let lam = f.norm();
+            let Some(hit) = self.hits[i].filter(|_| lam > 0.0) else {
                 self.s.lam[i] = 0.0;
                 continue;
             };
-            let pen = r_w - hit.distance;
-            if pen <= 0.0 {
-                self.s.lam[i] = 0.0;
-                continue;
-            }
-            let nn = hit.normal;
+            let nn = f / lam;
+            // Friction as the step's energy had it: the lagged normal force
+            // and normal.
             let lam_prev = self.s.lam[i];
-            let ut = (Mat3::identity() - outer(&nn, &nn)) * (self.xt[i] - self.x0[i]);
-            let un = ut.norm();
             let friction = if mu > 0.0 && lam_prev > 0.0 {
+                let nl = self.s.nrm[i];
+                let ut = (Mat3::identity() - outer(&nl, &nl)) * (self.xt[i] - self.x0[i]);
+                let un = ut.norm();
                 if un < eps_v {
                     -ut * (mu * lam_prev / eps_v)
                 } else {
@@ -1393,8 +1497,8 @@ impl Wire {
             } else {
                 Vec3::zeros()
             };
-            let lam = kc / (1.0 + kc * hit.compliance) * pen;
             self.s.lam[i] = lam;
+            self.s.nrm[i] = nn;
             if self.contacts.len() < self.contacts.capacity() {
                 self.contacts.push(WireContact {
                     node: i,
@@ -1495,37 +1599,22 @@ mod tests {
 
     /// The assembled gradient is that of the energy (central differences),
     /// on a bent, twisted, pre-shaped wire touching a tube wall with friction.
-    #[test]
-    fn gradient_matches_finite_differences() {
-        let p = WireParams {
-            segment_length_m: 2e-3,
-            max_nodes: 16,
-            tip_length_m: 8e-3,
-            tip_curvature_per_m: 60.0,
-            youngs_modulus_pa: 1e9,
-            ..WireParams::default()
-        };
-        let mut w = Wire::new(&p, Vec3::zeros(), Vec3::x(), 0.02).unwrap();
-        let tube = StraightTube::new(Vec3::new(-0.01, 0.0, 0.0), Vec3::x(), 0.1, 1.2e-3, false).unwrap();
-        // A few steps to bend it against the wall and get friction going.
-        w.set_tip_load(Vec3::new(0.0, 0.05, 0.02));
-        w.set_hub(0.021, 0.3);
-        for _ in 0..5 {
-            w.step(&tube).unwrap();
-        }
-        w.set_hub(0.0215, 0.5);
+    /// The largest gap between the assembled gradient and central
+    /// differences of the energy at a state perturbed off the step's start,
+    /// and the largest gradient entry.
+    fn gradient_gap(w: &mut Wire, lumen: &dyn Lumen, amplitude: f64) -> (f64, f64) {
         w.begin_step_for_tests();
         let n = w.num_nodes();
         let mut x: Vec<Vec3> = w.positions().to_vec();
         let mut th: Vec<f64> = w.twists().to_vec();
         // Perturb the free unknowns a little off the start state.
         for i in 2..n {
-            x[i] += Vec3::new((i as f64).sin(), (i as f64 * 1.3).cos(), (i as f64 * 0.7).sin()) * 2e-5;
+            x[i] += Vec3::new((i as f64).sin(), (i as f64 * 1.3).cos(), (i as f64 * 0.7).sin()) * amplitude;
             if i < n - 1 {
                 th[i] += 0.05 * (i as f64).cos();
             }
         }
-        let (_, g) = w.energy_and_gradient_at(&tube, &x, &th, true);
+        let (_, g) = w.energy_and_gradient_at(lumen, &x, &th, true);
         let mut worst: f64 = 0.0;
         let mut scale: f64 = 0.0;
         for i in 2..n {
@@ -1545,19 +1634,137 @@ mod tests {
                     xp[i][c] += hstep;
                     xm[i][c] -= hstep;
                 }
-                let (ep, _) = w.energy_and_gradient_at(&tube, &xp, &tp, false);
-                let (em, _) = w.energy_and_gradient_at(&tube, &xm, &tm, false);
+                let (ep, _) = w.energy_and_gradient_at(lumen, &xp, &tp, false);
+                let (em, _) = w.energy_and_gradient_at(lumen, &xm, &tm, false);
                 let fd = (ep - em) / (2.0 * hstep);
                 let a = g[4 * i + c];
                 worst = worst.max((fd - a).abs());
                 scale = scale.max(a.abs());
             }
         }
+        (worst, scale)
+    }
+
+    #[test]
+    fn gradient_matches_finite_differences() {
+        let p = WireParams {
+            segment_length_m: 2e-3,
+            max_nodes: 16,
+            tip_length_m: 8e-3,
+            tip_curvature_per_m: 60.0,
+            youngs_modulus_pa: 1e9,
+            ..WireParams::default()
+        };
+        let mut w = Wire::new(&p, Vec3::zeros(), Vec3::x(), 0.02).unwrap();
+        let tube = StraightTube::new(Vec3::new(-0.01, 0.0, 0.0), Vec3::x(), 0.1, 1.2e-3, false).unwrap();
+        // A few steps to bend it against the wall and get friction going.
+        w.set_tip_load(Vec3::new(0.0, 0.05, 0.02));
+        w.set_hub(0.021, 0.3);
+        for _ in 0..5 {
+            w.step(&tube).unwrap();
+        }
+        w.set_hub(0.0215, 0.5);
+        let (worst, scale) = gradient_gap(&mut w, &tube, 2e-5);
         assert!(worst < 1e-4 * scale, "worst {worst:e} of {scale:e}");
     }
-    /// A budget of evaluations bounds every step's, the step says when it
-    /// ran out and leaves a finite wire; a budget never reached changes
-    /// nothing.
+
+    /// A square duct of circumradius 1.2 mm along x (triangles wound
+    /// inward), a corner straight below the axis (−y), and a wire lying in
+    /// that corner under a line load toward it, its hub in the corner too
+    /// (a straight wire: no pre-shaped tip).
+    fn wire_in_a_corner(friction: f64, tolerance: f64) -> (Wire, crate::wire::lumen::TriangleLumen) {
+        use crate::wire::lumen::{tube_wall, TriangleLumen};
+        let (v, t) = tube_wall(-0.01, 0.2, 1.2e-3, 4, 40, -std::f64::consts::FRAC_PI_2);
+        let duct = TriangleLumen::new(&v, &t).unwrap();
+        let p = WireParams {
+            segment_length_m: 2e-3,
+            max_nodes: 40,
+            friction,
+            tip_length_m: 0.0,
+            newton_iterations: 3,
+            residual_tolerance_n: tolerance,
+            ..WireParams::default()
+        };
+        // The hub where the wire's centreline lies in the corner unloaded:
+        // (r_w + the penalty's onset) √2 above it.
+        let y = -1.2e-3 + (0.5 * p.diameter_m + p.contact_onset_m) * std::f64::consts::SQRT_2;
+        let mut w = Wire::new(&p, Vec3::new(0.0, y, 0.0), Vec3::x(), 0.06).unwrap();
+        w.set_line_load(Vec3::new(0.0, -3.0, 0.0));
+        (w, duct)
+    }
+
+    #[test]
+    fn the_contact_energy_is_smooth_in_a_corner_of_the_wall() {
+        // Nodes pressed into the corner overlap both faces and the edge
+        // between them (the overlaps' signed sum) and sit in the penalty's
+        // onset: the gradient is still the energy's.
+        let (mut w, duct) = wire_in_a_corner(0.1, 0.0);
+        for _ in 0..50 {
+            w.step(&duct).unwrap();
+        }
+        let mut o = crate::wire::lumen::WallOverlaps::new();
+        let r_w = 0.5 * w.params().diameter_m + w.params().contact_onset_m;
+        let mut two = 0;
+        for &x in &w.positions()[2..] {
+            let mut cache = ProbeCache::default();
+            if let Some(hit) = duct.probe_cached(x, 3.0 * r_w, &mut cache) {
+                duct.overlaps_cached(x, r_w, &hit, &mut cache, &mut o);
+                two += usize::from(o.iter().filter(|p| p.weight > 0.0).count() >= 2);
+            }
+        }
+        assert!(two >= 10, "{two} nodes touch both faces: no test of the corner");
+        for amplitude in [2e-6, 2e-5] {
+            let (worst, scale) = gradient_gap(&mut w, &duct, amplitude);
+            assert!(
+                worst < 1e-4 * scale,
+                "amplitude {amplitude:e}: worst {worst:e} of {scale:e}"
+            );
+        }
+    }
+
+    #[test]
+    fn a_wire_pressed_into_a_corner_reaches_equilibrium() {
+        // Against the nearest face alone, a node in the corner had no
+        // equilibrium (its force turned from one face's normal to the
+        // other's as it crossed the corner's plane); with both faces it has
+        // one, and Newton's three iterations find it.
+        let (mut w, duct) = wire_in_a_corner(0.0, 0.0);
+        let mut worst: f64 = 0.0;
+        for k in 0..300 {
+            let r = w.step(&duct).unwrap();
+            if k >= 200 {
+                worst = worst.max(r.residual_n);
+            }
+        }
+        assert!(worst < 1e-6, "largest residual {worst:e} N");
+        // Both faces carry the load alike (no sideways force), and in the
+        // middle third, away from the clamp and the free tip (the wire is a
+        // beam on the wall's elastic foundation), each node's share of it:
+        // 3 N/m over a segment, straight up.
+        let n = w.num_nodes();
+        let share = 3.0 * w.params().segment_length_m;
+        let (mut sum, mut middle) = (0.0, 0);
+        for c in w.contacts() {
+            let up = c.normal * c.normal_force;
+            assert!(
+                up.z.abs() < 1e-6 * share,
+                "node {}: a sideways force {} N",
+                c.node,
+                up.z
+            );
+            if 3 * c.node >= n && 3 * c.node < 2 * n {
+                sum += up.y;
+                middle += 1;
+            }
+        }
+        assert!(middle >= 8, "{middle} contacts in the middle third");
+        let mean = sum / middle as f64;
+        assert!(
+            (mean - share).abs() < 0.02 * share,
+            "the wall carries {mean} N a node in the middle, the load {share} N"
+        );
+    }
+
     #[test]
     fn the_evaluation_budget_bounds_every_step() {
         let run = |budget: usize| {
