@@ -195,11 +195,29 @@ pub fn rows(quick: bool) -> Result<Vec<WireTradeRow>, String> {
         )?;
     }
     add(
+        "contact_onset",
+        "0 (penalty from contact)".into(),
+        WireParams {
+            contact_onset_m: 0.0,
+            ..reference.clone()
+        },
+    )?;
+    add(
         "shipped",
         "3 mm, 2 it. (rt-config/guidewire.toml)".into(),
         WireParams {
             segment_length_m: 3e-3,
             newton_iterations: 2,
+            ..reference.clone()
+        },
+    )?;
+    add(
+        "shipped + residual_tolerance",
+        "3 mm, 2 it., 0 N (no iterations past 2)".into(),
+        WireParams {
+            segment_length_m: 3e-3,
+            newton_iterations: 2,
+            residual_tolerance_n: 0.0,
             ..reference.clone()
         },
     )?;
@@ -265,5 +283,9 @@ mod tests {
         let eps: Vec<_> = r.iter().filter(|x| x.knob == "friction_smoothing").collect();
         assert_eq!(eps.len(), 2);
         assert!(eps.iter().all(|x| x.tip_error_mm > 0.0), "{eps:?}");
+        // So are the penalty's onset and the residual tolerance.
+        for knob in ["contact_onset", "shipped + residual_tolerance"] {
+            assert_eq!(r.iter().filter(|x| x.knob == knob).count(), 1, "{knob}");
+        }
     }
 }
