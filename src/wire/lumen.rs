@@ -849,13 +849,7 @@ impl TriangleLumen {
         } else {
             (0.0, face)
         };
-        let compliance = if self.compliance.is_empty() {
-            0.0
-        } else {
-            let w = self.barycentric(t, q);
-            let c = self.tris[t].map(|i| self.compliance[i as usize]);
-            (w[0] * c[0] + w[1] * c[1] + w[2] * c[2]).max(0.0)
-        };
+        let compliance = self.compliance_at(t, q);
         Some((
             WallHit {
                 distance,
@@ -1007,13 +1001,11 @@ impl TriangleLumen {
             if d >= radius || d <= 1e-12 {
                 continue;
             }
-            let w = self.barycentric(t as usize, q);
-            let c = self.tris[t as usize].map(comp);
             let face = WallOverlap {
                 weight: 1.0,
                 distance: d,
                 normal: (p - q) / d,
-                compliance: w[0] * c[0] + w[1] * c[1] + w[2] * c[2],
+                compliance: self.compliance_at(t as usize, q),
             };
             if faces.push(t).is_err() || out.push(face).is_err() {
                 return alone(out);
@@ -1092,6 +1084,17 @@ impl TriangleLumen {
                 }
             }
         }
+    }
+
+    /// The wall's normal compliance at `q`, a point of triangle `t`: its
+    /// vertices' compliances interpolated (0 for a rigid wall).
+    fn compliance_at(&self, t: usize, q: Vec3) -> f64 {
+        if self.compliance.is_empty() {
+            return 0.0;
+        }
+        let w = self.barycentric(t, q);
+        let c = self.tris[t].map(|i| self.compliance[i as usize]);
+        (w[0] * c[0] + w[1] * c[1] + w[2] * c[2]).max(0.0)
     }
 
     /// Barycentric weights of `q` (a point on or near triangle `t`) on the
