@@ -1,5 +1,6 @@
 //! What the wire touches: the [`Lumen`] trait (the nearest point of the
-//! vessel's inner wall, the signed distance to it and the wall's normal) and
+//! vessel's inner wall, the signed distance to it and the wall's normal;
+//! the pieces of wall a contact sphere overlaps, [`Lumen::overlaps_cached`]) and
 //! three walls: a rigid straight tube ([`StraightTube`], optionally closed at
 //! its far end), a rigid curved tube ([`CurvedTube`]: a torus section between
 //! two straight pieces) and a triangle surface whose vertices may move every

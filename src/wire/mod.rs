@@ -71,7 +71,7 @@ pub struct WireParams {
     /// Gap (m) at which the contact's penalty begins: its stiffness rises
     /// from 0 there to `contact_stiffness_n_per_m` at touch, so a node that
     /// Newton's last iterate left just short of the wall already sees it
-    /// (docs/WIRE.md "Contact near the wall"). The force at touch is
+    /// (docs/WIRE.md "Fast pulls", change 3). The force at touch is
     /// k · onset / 2. Default 10 µm; 0 for the plain penalty.
     pub contact_onset_m: f64,
     /// The grip's limit (N): while the wire pushes back on the hand harder
@@ -90,7 +90,7 @@ pub struct WireParams {
     /// iterations, within `max_evaluations`) while some free node's net
     /// force exceeds this (N): a step that ends far from equilibrium hands
     /// its error to the next. Default 0.2 N; 0 stops at
-    /// `newton_iterations` (docs/WIRE.md "Steps that go on").
+    /// `newton_iterations` (docs/WIRE.md "Fast pulls", change 4).
     pub residual_tolerance_n: f64,
     /// Evaluations of the incremental potential per step at most (Newton
     /// assemblies, line-search trials and the reactions' evaluation): the

@@ -282,10 +282,10 @@ enum Have {
 pub const FRICTION_SMOOTHING_M: f64 = 1e-6;
 
 /// The default `contact_onset_m`: the contact's penalty begins 10 µm before
-/// the wall (docs/WIRE.md "Contact near the wall").
+/// the wall (docs/WIRE.md "Fast pulls", change 3).
 pub const CONTACT_ONSET_M: f64 = 1e-5;
 
-/// The default `residual_tolerance_n` (docs/WIRE.md "Steps that go on").
+/// The default `residual_tolerance_n` (docs/WIRE.md "Fast pulls", change 4).
 pub const RESIDUAL_TOLERANCE_N: f64 = 0.2;
 
 /// Parallel transport of `d` from tangent `a` to tangent `b` (unit vectors).
@@ -807,8 +807,9 @@ impl Wire {
             // accepted trial's evaluation).
             if it >= self.p.newton_iterations && self.eval_pen < 0.25 * r_w {
                 // Past the configured count: go on only while the iterate is
-                // off equilibrium by more than the tolerance (known when its
-                // gradient is; a trial cut short by the line search says it is).
+                // off equilibrium by more than the tolerance (its gradient
+                // tells; a trial that assembled none is evaluated here, which
+                // the reactions would do anyway if the step stops).
                 let tol = self.p.residual_tolerance_n;
                 if tol <= 0.0 {
                     break;
@@ -1341,8 +1342,8 @@ impl Wire {
         // the last step left a contact (its normal force and normal
         // lagged), whether or not the trial point touches the wall: the
         // energy is then continuous, and smooth, as the trial crosses the
-        // wall's surface or the nearest facet changes (docs/WIRE.md
-        // "Friction's smoothing").
+        // wall's surface or the nearest facet changes (docs/WIRE.md "Fast
+        // pulls", change 2).
         for i in 2..n {
             let hit = lumen.probe_cached(self.xt[i], 3.0 * r_w, &mut self.probe_cache[i]);
             self.hits[i] = hit;
@@ -1370,6 +1371,8 @@ impl Wire {
                     let pen = r_w - o.distance;
                     let k = kc / (1.0 + kc * o.compliance);
                     let (e, f, kk) = penalty(pen, k, onset);
+                    // The depth reported is the penalty's share of the
+                    // force, f / k_c (with the onset, k_c · onset / 2 at touch).
                     if o.weight > 0.0 {
                         max_pen = max_pen.max(f / kc);
                     } else {
