@@ -72,6 +72,21 @@ fn capstan(theta: f64, mu: f64, speed: f64) -> (f64, f64) {
     (sum / count as f64 / t_tip, most)
 }
 
+/// Pulls at `speed` (m/s), prints the ratio against e^{μθ} and checks it
+/// within 5 %; returns the largest hub force.
+fn check_capstan(theta: f64, mu: f64, speed: f64) -> f64 {
+    let (ratio, most) = capstan(theta, mu, speed);
+    let expect = (mu * theta).exp();
+    let err = (ratio - expect).abs() / expect;
+    println!(
+        "{:.0} mm/s, θ = {theta:.3} rad, μ = {mu}: hub / tip force {ratio:.4}, e^(μθ) = {expect:.4}, error {:.2} %, largest hub force {most:.3} N",
+        speed * 1e3,
+        err * 100.0
+    );
+    assert!(err < 0.05, "{speed} m/s, θ = {theta}, μ = {mu}: {ratio} vs {expect}");
+    most
+}
+
 #[test]
 fn pulling_around_a_bend_multiplies_the_force_by_e_to_the_mu_theta() {
     for (theta, mu) in [
@@ -79,14 +94,7 @@ fn pulling_around_a_bend_multiplies_the_force_by_e_to_the_mu_theta() {
         (std::f64::consts::PI, 0.2),
         (std::f64::consts::PI, 0.0),
     ] {
-        let (ratio, _) = capstan(theta, mu, 0.01);
-        let expect = (mu * theta).exp();
-        let err = (ratio - expect).abs() / expect;
-        println!(
-            "θ = {theta:.3} rad, μ = {mu}: hub / tip force {ratio:.4}, e^(μθ) = {expect:.4}, error {:.2} %",
-            err * 100.0
-        );
-        assert!(err < 0.05, "θ = {theta}, μ = {mu}: {ratio} vs {expect}");
+        check_capstan(theta, mu, 0.01);
     }
 }
 
@@ -97,14 +105,7 @@ fn a_fast_pull_around_a_bend_follows_the_capstan_too() {
     // ratio 4.15 at θ = π/2 (docs/WIRE.md "Fast pulls"; checked by setting
     // both to 0); the onset alone makes it pass.
     for (theta, mu) in [(std::f64::consts::FRAC_PI_2, 0.3), (std::f64::consts::PI, 0.2)] {
-        let (ratio, most) = capstan(theta, mu, 0.1);
-        let expect = (mu * theta).exp();
-        let err = (ratio - expect).abs() / expect;
-        println!(
-            "100 mm/s, θ = {theta:.3} rad, μ = {mu}: hub / tip force {ratio:.4}, e^(μθ) = {expect:.4}, error {:.2} %, largest hub force {most:.3} N",
-            err * 100.0
-        );
-        assert!(err < 0.05, "θ = {theta}, μ = {mu}: {ratio} vs {expect}");
+        let most = check_capstan(theta, mu, 0.1);
         assert!(most < 5.0, "largest hub force {most} N (the grip's limit is 10 N)");
     }
 }
