@@ -389,6 +389,17 @@ fn penalty(pen: f64, k: f64, onset: f64) -> (f64, f64, f64) {
     }
 }
 
+/// The gradient of the friction potential μλ·f(|u|) (f: u²/2ε below ε,
+/// u − ε/2 above) at slip `ut` of length `un`, `mu_lam` = μλ: the force
+/// of friction on the wire is its opposite.
+fn friction_gradient(ut: Vec3, un: f64, mu_lam: f64, eps: f64) -> Vec3 {
+    if un < eps {
+        ut * (mu_lam / eps)
+    } else {
+        ut / un * mu_lam
+    }
+}
+
 /// The nearest positive semi-definite matrix to a symmetric `m`: its
 /// negative eigenvalues set to zero.
 fn psd(m: Mat3) -> Mat3 {
@@ -1392,10 +1403,7 @@ impl Wire {
             }
             let lam = s.lam[i];
             if mu > 0.0 && lam > 0.0 {
-                let nn = s.nrm[i];
-                let pm = Mat3::identity() - outer(&nn, &nn);
-                let ut = pm * (self.xt[i] - self.x0[i]);
-                let un = ut.norm();
+                let (pm, ut, un) = self.slip(i);
                 energy += mu
                     * lam
                     * if un < eps_v {
@@ -1403,12 +1411,11 @@ impl Wire {
                     } else {
                         un - 0.5 * eps_v
                     };
+                g += friction_gradient(ut, un, mu * lam, eps_v);
                 if un < eps_v {
-                    g += ut * (mu * lam / eps_v);
                     hm += pm * (mu * lam / eps_v);
                 } else {
                     let uh = ut / un;
-                    g += uh * (mu * lam);
                     hm += (pm - outer(&uh, &uh)) * (mu * lam / un);
                 }
                 touched = true;
@@ -1462,6 +1469,16 @@ impl Wire {
         energy
     }
 
+    /// Node i's slip over the step at the trial state in its lagged
+    /// contact's tangent plane: that plane's projector, the slip and its
+    /// length (friction's argument, in the energy and the reactions alike).
+    fn slip(&self, i: usize) -> (Mat3, Vec3, f64) {
+        let nn = self.s.nrm[i];
+        let pm = Mat3::identity() - outer(&nn, &nn);
+        let ut = pm * (self.xt[i] - self.x0[i]);
+        (pm, ut, ut.norm())
+    }
+
     /// The contact list at the trial state, from the wall probes and
     /// penalty forces of its evaluation (`hits`, `wall_force`), and the
     /// next step's lagged normal forces and normals. The
@@ -1489,14 +1506,8 @@ impl Wire {
             // and normal.
             let lam_prev = self.s.lam[i];
             let friction = if mu > 0.0 && lam_prev > 0.0 {
-                let nl = self.s.nrm[i];
-                let ut = (Mat3::identity() - outer(&nl, &nl)) * (self.xt[i] - self.x0[i]);
-                let un = ut.norm();
-                if un < eps_v {
-                    -ut * (mu * lam_prev / eps_v)
-                } else {
-                    -ut / un * (mu * lam_prev)
-                }
+                let (_, ut, un) = self.slip(i);
+                -friction_gradient(ut, un, mu * lam_prev, eps_v)
             } else {
                 Vec3::zeros()
             };
