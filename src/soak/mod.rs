@@ -586,6 +586,8 @@ enum Watch {
         from_s: f64,
         deadline_s: f64,
         before: FaultTicks,
+        /// What the watch saw, for a miss's detail.
+        seen: GainTrace,
     },
     /// The gain stays at 1 from `from_s` to `until_s` (the fault must change
     /// nothing); `before` is the watchdog's cause counts at the start.
@@ -607,6 +609,43 @@ enum Watch {
     },
     /// The stream receiver gets a datagram after `from_s` by `deadline_s`.
     Stream { from_s: f64, deadline_s: f64 },
+}
+
+/// What a [`Watch::GainBack`] saw after the fault's end: enough to tell a
+/// miss whose force came back late (the watchdog held it: a cause counted)
+/// from one whose ramp ran slow (the loop ticked too rarely) or never began.
+#[derive(Debug, Clone, Copy)]
+struct GainTrace {
+    /// Loop ticks and deadline misses at the last poll before the fault's end.
+    ticks0: u64,
+    misses0: u64,
+    /// The last poll after the fault's end that saw the gain at zero (s).
+    last_zero_s: Option<f64>,
+}
+
+impl GainTrace {
+    fn new(snap: &crate::service::Snapshot) -> GainTrace {
+        GainTrace {
+            ticks0: snap.ticks,
+            misses0: snap.deadline_misses,
+            last_zero_s: None,
+        }
+    }
+
+    /// The detail of a miss at `now`, `from_s` being the fault's end.
+    fn detail(&self, snap: &crate::service::Snapshot, from_s: f64, now: f64) -> String {
+        let zero = match self.last_zero_s {
+            Some(t) => format!("last at zero {:.0} ms after the fault's end", (t - from_s) * 1e3),
+            None => "never seen at zero after the fault's end".to_string(),
+        };
+        format!(
+            "gain {:.3} at {:.0} ms, {zero}; {} loop ticks and {} deadline misses since",
+            snap.gain,
+            (now - from_s) * 1e3,
+            snap.ticks.saturating_sub(self.ticks0),
+            snap.deadline_misses.saturating_sub(self.misses0)
+        )
+    }
 }
 
 struct Pending {
@@ -973,11 +1012,15 @@ fn run_leg(
             }
             next += 1;
             let w = match p.kind {
-                "silence" | "nan_pose" | "wild_pose" => Watch::GainBack {
-                    from_s: p.at_s + p.dur_s,
-                    deadline_s: p.at_s + p.dur_s + recover_s + slack,
-                    before: FaultTicks::default(),
-                },
+                "silence" | "nan_pose" | "wild_pose" => {
+                    let snap = handle.snapshot();
+                    Watch::GainBack {
+                        from_s: p.at_s + p.dur_s,
+                        deadline_s: p.at_s + p.dur_s + recover_s + slack,
+                        before: snap.fault_ticks,
+                        seen: GainTrace::new(&snap),
+                    }
+                }
                 "garbage_datagrams" => Watch::GainHeld {
                     from_s: p.at_s,
                     until_s: p.at_s + p.dur_s,
@@ -1026,10 +1069,12 @@ fn run_leg(
                     clock::inject_jump(CLOCK_JUMP_MS * 1_000_000);
                     // The leap moved every clock, this schedule's too.
                     let after = rel();
+                    let snap = handle.snapshot();
                     Watch::GainBack {
                         from_s: after,
                         deadline_s: after + recover_s + slack,
-                        before: FaultTicks::default(),
+                        before: snap.fault_ticks,
+                        seen: GainTrace::new(&snap),
                     }
                 }
                 _ => continue,
@@ -1051,22 +1096,26 @@ fn run_leg(
         let snap = handle.snapshot();
         let full = snap.gain >= 0.999;
         let mut done: Vec<(usize, bool, Option<f64>)> = Vec::new();
-        let mut causes: Vec<(usize, FaultTicks)> = Vec::new();
+        let mut causes: Vec<(usize, FaultTicks, Option<String>)> = Vec::new();
         for (i, p) in pending.iter_mut().enumerate() {
             let verdict = match &mut p.watch {
                 Watch::GainBack {
                     from_s,
                     deadline_s,
                     before,
+                    seen,
                 } => {
                     if now < *from_s {
                         // Counted from the fault's end: what the fault itself raised is not a miss cause.
                         *before = snap.fault_ticks;
+                        *seen = GainTrace::new(&snap);
+                    } else if snap.gain <= 1e-9 {
+                        seen.last_zero_s = Some(now);
                     }
                     if now >= *from_s && full {
                         Some((true, Some((now - *from_s) * 1e3)))
                     } else if now > *deadline_s {
-                        causes.push((i, *before));
+                        causes.push((i, *before, Some(seen.detail(&snap, *from_s, now))));
                         Some((false, Some((now - *from_s) * 1e3)))
                     } else {
                         None
@@ -1082,7 +1131,7 @@ fn run_leg(
                         *low = true;
                     }
                     if now > *until_s && *low {
-                        causes.push((i, *before));
+                        causes.push((i, *before, None));
                     }
                     (now > *until_s).then_some((!*low, None))
                 }
@@ -1136,16 +1185,17 @@ fn run_leg(
         for (i, ok, ms) in done.into_iter().rev() {
             let p = pending.remove(i);
             let f = report.faults.entry(p.kind.to_string()).or_default();
-            if let Some((_, before)) = causes.iter().find(|(j, _)| *j == i) {
+            if let Some((_, before, seen)) = causes.iter().find(|(j, _, _)| *j == i) {
                 let grown: Vec<&str> = snap.fault_ticks.grown_since(before).collect();
-                f.miss_causes.push(format!(
-                    "at {now:.2} s: {}",
-                    if grown.is_empty() {
-                        "no watchdog cause counted (the gain was still ramping in)".to_string()
-                    } else {
-                        grown.join(" + ")
-                    }
-                ));
+                let what = if grown.is_empty() {
+                    "no watchdog cause counted since the fault's end".to_string()
+                } else {
+                    grown.join(" + ")
+                };
+                f.miss_causes.push(match seen {
+                    Some(d) => format!("at {now:.2} s: {what} ({d})"),
+                    None => format!("at {now:.2} s: {what}"),
+                });
             }
             f.injected += 1;
             if ok {
