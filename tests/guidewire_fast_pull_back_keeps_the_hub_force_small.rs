@@ -19,8 +19,6 @@
 
 mod common;
 
-use nvtmm::service::{run_service, StartOptions};
-
 #[global_allocator]
 static ALLOC: nvtmm::rt::alloc::RtAllocator = nvtmm::rt::alloc::RtAllocator;
 
@@ -48,8 +46,7 @@ fn fast_pulls_and_pushes_against_the_wall_keep_the_hub_force_small() {
 ";
     let dir = tempfile::tempdir().unwrap();
     let cfg = common::guidewire::write(dir.path(), 14.5, script, true);
-    let report = run_service(&StartOptions::file(cfg)).expect("the guidewire service runs");
-    println!("{}", report.render());
+    let report = common::guidewire::run_unless_the_machine_paused(&cfg);
     let w = report.wire.as_ref().expect("wire.* keys");
     assert!(w.inserted_max_m > 0.18, "the wire went in: {} m", w.inserted_max_m);
     assert!(

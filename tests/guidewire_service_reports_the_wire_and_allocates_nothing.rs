@@ -7,8 +7,6 @@
 
 mod common;
 
-use nvtmm::service::{run_service, StartOptions};
-
 #[global_allocator]
 static ALLOC: nvtmm::rt::alloc::RtAllocator = nvtmm::rt::alloc::RtAllocator;
 
@@ -21,8 +19,7 @@ fn a_short_guidewire_run_reports_finite_wire_keys_and_allocates_nothing() {
         "[[0.0, 0.02, 0.0], [0.3, 0.02, 0.0], [3.3, 0.08, 0.5]]",
         std::env::var("GW_LOAD_WALL").map(|v| v != "0").unwrap_or(true),
     );
-    let report = run_service(&StartOptions::file(cfg)).expect("the guidewire service runs");
-    println!("{}", report.render());
+    let report = common::guidewire::run_unless_the_machine_paused(&cfg);
     let w = report.wire.as_ref().expect("wire.* keys");
     assert!(w.steps > 2000, "{} wire steps", w.steps);
     assert!(

@@ -73,3 +73,35 @@ script = {script}
     std::fs::write(&path, cfg).unwrap();
     path
 }
+
+/// The wire's stall watchdog in the shipped configuration (`guidewire.stall_ms`).
+pub const STALL_MS: f64 = 20.0;
+
+/// Runs the service at `cfg` and prints its report; runs it again (at most
+/// twice more, saying why) when the wire stalled while the machine had
+/// paused the loop's RT thread for half the stall watchdog or longer.
+///
+/// Why: the loop and the wire run SCHED_FIFO on different CPUs, so a
+/// loop thread woken 10–20 ms late is the machine (a shared VM's hiccup;
+/// seen here at 20.2 ms, once in 16 runs of the navigation test), not the
+/// wire; the wire's watchdog then rightly counts a stall and resets it,
+/// and the run no longer says anything about navigation. A stall without
+/// such a pause is returned as it is, for the caller's assertions.
+pub fn run_unless_the_machine_paused(cfg: &Path) -> nvtmm::service::Report {
+    use nvtmm::service::{run_service, StartOptions};
+    let mut runs = 0;
+    loop {
+        runs += 1;
+        let report = run_service(&StartOptions::file(cfg)).expect("the guidewire service runs");
+        println!("{}", report.render());
+        let stalled = report.wire.as_ref().is_some_and(|w| w.stalls > 0);
+        let pause_ms = report.period_jitter_us.max * 1e-3;
+        if !(stalled && pause_ms >= 0.5 * STALL_MS) || runs == 3 {
+            return report;
+        }
+        println!(
+            "the machine paused the loop's RT thread for {pause_ms:.1} ms and the wire stalled: \
+             run {runs} says nothing of the wire; running again"
+        );
+    }
+}
