@@ -59,6 +59,7 @@ fn bench_wire_tick_json_has_the_contract_keys_and_no_resets() {
             "segment_mm",
             "tick_us",
             "ticks",
+            "time_limited",
             "wire_us"
         ]
     );

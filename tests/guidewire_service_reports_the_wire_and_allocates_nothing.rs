@@ -64,6 +64,7 @@ fn a_short_guidewire_run_reports_finite_wire_keys_and_allocates_nothing() {
         "step_us",
         "evaluations_max",
         "budget_spent_steps",
+        "time_limited_steps",
         "resets",
     ] {
         assert!(json["wire"].get(k).is_some(), "wire.{k} missing");

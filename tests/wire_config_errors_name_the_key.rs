@@ -22,7 +22,7 @@ fn defaults_are_valid() {
 #[test]
 fn impossible_values_name_the_key_and_the_range() {
     let path = Path::new("rt-config/guidewire.toml");
-    let cases: [(&str, &str, &str); 13] = [
+    let cases: [(&str, &str, &str); 14] = [
         (
             "youngs_modulus_pa = -5.0",
             "youngs_modulus_pa",
@@ -39,6 +39,11 @@ fn impossible_values_name_the_key_and_the_range() {
         ("max_nodes = 2", "max_nodes", "4..=4096"),
         ("contact_onset_m = 0.001", "contact_onset_m", "[0, 0.000089] m"),
         ("residual_tolerance_n = -1.0", "residual_tolerance_n", "[0, 1000] N"),
+        (
+            "residual_time_limit_us = 2000.0",
+            "residual_time_limit_us",
+            "[0, 1000] µs",
+        ),
         ("max_evaluations = 2", "max_evaluations", "3..=10000"),
         ("density_kg_m3 = nan", "density_kg_m3", "[1, 30000] kg/m³"),
         ("tip_stiffness_factor = 0.0", "tip_stiffness_factor", "[0.0001, 10]"),

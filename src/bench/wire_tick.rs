@@ -65,6 +65,9 @@ pub struct WireTickBench {
     pub evaluations_max: usize,
     /// Steps that ended because they spent their evaluation budget.
     pub budget_spent: usize,
+    /// Steps that stopped their extra iterations at the wire's
+    /// `residual_time_limit_us`.
+    pub time_limited: usize,
     /// Line load pressing the wire onto the wall (N/m).
     pub line_load_n_per_m: f64,
     /// Ticks timed.
@@ -259,6 +262,7 @@ pub fn bench_wire_tick(config: &Path, o: &WireTickOptions) -> Result<WireTickBen
     );
     let mut evals = Vec::with_capacity(ticks);
     let mut budget_spent = 0usize;
+    let mut time_limited = 0usize;
     let (mut iters, mut contacts, mut contacts_max, mut loads_max, mut qp_solved, mut resets) =
         (0usize, 0usize, 0usize, 0usize, 0usize, 0usize);
     let mut deepest: f64 = 0.0;
@@ -348,6 +352,7 @@ pub fn bench_wire_tick(config: &Path, o: &WireTickOptions) -> Result<WireTickBen
                 iters += r.iterations;
                 evals.push(r.evaluations);
                 budget_spent += r.budget_spent as usize;
+                time_limited += r.time_spent as usize;
                 deepest = deepest.max(r.max_penetration_m);
             }
         }
@@ -369,6 +374,7 @@ pub fn bench_wire_tick(config: &Path, o: &WireTickOptions) -> Result<WireTickBen
         },
         evaluations_max: evals.iter().copied().max().unwrap_or(0),
         budget_spent,
+        time_limited,
         line_load_n_per_m: line_load,
         ticks,
         contacts_mean: contacts as f64 / ticks as f64,

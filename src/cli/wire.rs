@@ -69,7 +69,7 @@ pub fn bench_wire_tick_cmd(config: &Path, o: &WireTickOptions, json: bool) -> Re
     }
     println!(
         "{} nodes ({:.2} mm segments, {:.1} mm inserted), {} Newton iterations at most ({:.2} mean), \
-         evaluations a step {:.2} mean, {} p99.9, {} max ({} allowed, {} steps spent them), line load {} N/m: contacts {:.1} mean, {} max; {} point loads at most; QP solved on {} of {} ticks; \
+         evaluations a step {:.2} mean, {} p99.9, {} max ({} allowed, {} steps spent them, {} stopped at the time limit), line load {} N/m: contacts {:.1} mean, {} max; {} point loads at most; QP solved on {} of {} ticks; \
          {} lumen rebuilds ({}); {} resets; deepest {:.3} mm",
         b.nodes,
         b.segment_mm,
@@ -81,6 +81,7 @@ pub fn bench_wire_tick_cmd(config: &Path, o: &WireTickOptions, json: bool) -> Re
         b.evaluations_max,
         b.evaluations_max_allowed,
         b.budget_spent,
+        b.time_limited,
         b.line_load_n_per_m,
         b.contacts_mean,
         b.contacts_max,

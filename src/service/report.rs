@@ -128,6 +128,10 @@ pub struct WireReport {
     pub evaluations_max: usize,
     /// Steps that ended because they spent `max_evaluations`.
     pub budget_spent_steps: u64,
+    /// Steps that stopped going on past `newton_iterations` because they
+    /// had run the wire's `residual_time_limit_us`, still off equilibrium
+    /// by more than its `residual_tolerance_n`.
+    pub time_limited_steps: u64,
     /// Times the wire went back to its last good state (a non-finite step,
     /// a node deeper than the diameter in the wall, or a stalled thread);
     /// each ramps the hand's force to zero.
@@ -504,7 +508,7 @@ impl Report {
         s += &format!("  ring overflows: {}\n", rings.join(", "));
         if let Some(w) = &self.wire {
             s += &format!(
-                "  wire: {} nodes, {:.1} mm inserted (most {:.1}), tip in {}; step (µs) {} over {} steps ({} Newton it., {} evaluations at most; {} spent the budget), \
+                "  wire: {} nodes, {:.1} mm inserted (most {:.1}), tip in {}; step (µs) {} over {} steps ({} Newton it., {} evaluations at most; {} spent the budget, {} the time limit), \
                  contacts p50 {:.0} max {}, deepest {:.3} mm, axial force max {:.3} N, {} resets, {} stalls, thread {} on CPU {}\n\
                  {}",
                 w.nodes,
@@ -516,6 +520,7 @@ impl Report {
                 w.iterations_max,
                 w.evaluations_max,
                 w.budget_spent_steps,
+                w.time_limited_steps,
                 w.contacts_p50,
                 w.contacts_max,
                 w.max_penetration_m * 1e3,

@@ -131,6 +131,7 @@ impl<const R: usize> RunningService for Running<R> {
                 iterations_max: w.iterations_max,
                 evaluations_max: w.evaluations_max,
                 budget_spent_steps: w.budget_spent,
+                time_limited_steps: w.time_spent,
                 resets: w.resets,
                 stalls: lr.wire_stalls,
                 wall_updates: w.wall_updates,

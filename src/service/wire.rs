@@ -376,6 +376,7 @@ pub(super) struct WireResult {
     pub iterations_max: usize,
     pub evaluations_max: usize,
     pub budget_spent: u64,
+    pub time_spent: u64,
     pub allocations: u64,
     pub wall_updates: u64,
     pub loads_ring_full: u64,
@@ -595,6 +596,7 @@ pub(super) fn wire_thread(mut p: WirePlan) -> WireResult {
         iterations_max: 0,
         evaluations_max: 0,
         budget_spent: 0,
+        time_spent: 0,
         allocations: 0,
         wall_updates: 0,
         loads_ring_full: 0,
@@ -673,6 +675,7 @@ pub(super) fn wire_thread(mut p: WirePlan) -> WireResult {
                 res.iterations_max = res.iterations_max.max(rep.iterations);
                 res.evaluations_max = res.evaluations_max.max(rep.evaluations);
                 res.budget_spent += rep.budget_spent as u64;
+                res.time_spent += rep.time_spent as u64;
                 WireShared::set(&p.shared.axial_bits, rep.hub_axial_force_n);
                 since_good += 1;
                 if since_good >= p.good_every && rep.max_penetration_m < 0.5 * radius {

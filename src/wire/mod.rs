@@ -92,6 +92,14 @@ pub struct WireParams {
     /// its error to the next. Default 0.2 N; 0 stops at
     /// `newton_iterations` (docs/WIRE.md "Fast pulls", change 4).
     pub residual_tolerance_n: f64,
+    /// Wall-clock time (µs) after which a step stops going on past
+    /// `newton_iterations` for `residual_tolerance_n`: the extra
+    /// iterations run only while the step has run less than this, so a
+    /// hard step ends in time for its thread's period. 0 (the library's
+    /// default): no time limit, a step's outcome depends on nothing but
+    /// its inputs; the shipped service file sets 500 µs for its 1 ms wire
+    /// thread (docs/WIRE.md "A time limit on the extra iterations").
+    pub residual_time_limit_us: f64,
     /// Evaluations of the incremental potential per step at most (Newton
     /// assemblies, line-search trials and the reactions' evaluation): the
     /// step's cost is about this many evaluations at worst, whatever the
@@ -125,6 +133,7 @@ impl Default for WireParams {
             dt_s: 1e-3,
             newton_iterations: 3,
             residual_tolerance_n: rod::RESIDUAL_TOLERANCE_N,
+            residual_time_limit_us: 0.0,
             max_evaluations: 1000,
             drive: DriveParams::default(),
         }
@@ -185,6 +194,13 @@ impl WireParams {
         c.int_in("newton_iterations", self.newton_iterations, 1, 100)?;
         c.int_in("max_evaluations", self.max_evaluations, 3, 10_000)?;
         c.f64_in("residual_tolerance_n", self.residual_tolerance_n, 0.0, 1e3, "N")?;
+        c.f64_in(
+            "residual_time_limit_us",
+            self.residual_time_limit_us,
+            0.0,
+            1e6 * self.dt_s,
+            "µs (at most the time step; 0: no limit)",
+        )?;
         self.drive.validate(path, "drive.")?;
         Ok(())
     }

@@ -101,6 +101,10 @@ pub struct StepReport {
     /// The step stopped because its evaluation budget (`max_evaluations`)
     /// was spent, not because it converged or ran its iterations.
     pub budget_spent: bool,
+    /// The step stopped going on past `newton_iterations` because it had
+    /// run `residual_time_limit_us`, off equilibrium by more than
+    /// `residual_tolerance_n`.
+    pub time_spent: bool,
 }
 
 /// The state that [`Wire::save_good_state`] keeps.
@@ -813,6 +817,9 @@ impl Wire {
         // full step costs one evaluation instead of two.
         let mut have = Have::Nothing;
         let mut e_cur = 0.0;
+        // The extra iterations' time limit (0: none); read only if set.
+        let limit_ns = (self.p.residual_time_limit_us * 1e3) as i64;
+        let t_start = if limit_ns > 0 { crate::rt::clock::now_ns() } else { 0 };
         for it in 0..max_it {
             // `eval_pen` is that of the current iterate for it ≥ 1 (the
             // accepted trial's evaluation).
@@ -823,6 +830,10 @@ impl Wire {
                 // the reactions would do anyway if the step stops).
                 let tol = self.p.residual_tolerance_n;
                 if tol <= 0.0 {
+                    break;
+                }
+                if limit_ns > 0 && crate::rt::clock::now_ns() - t_start > limit_ns {
+                    rep.time_spent = true;
                     break;
                 }
                 if have < Have::Gradient {
@@ -1777,6 +1788,38 @@ mod tests {
             (mean - share).abs() < 0.02 * share,
             "the wall carries {mean} N a node in the middle, the load {share} N"
         );
+    }
+
+    #[test]
+    fn the_time_limit_stops_the_extra_iterations_only() {
+        // With a tolerance of 1e-9 N, a step still off equilibrium after
+        // its three configured iterations goes on; a time limit the step
+        // has always run past when it checks (1 ns) stops it at three, and
+        // says so; without a limit none is stopped by time. The two runs
+        // are the same up to the first step that went on.
+        let run = |limit_us: f64| {
+            let (mut w, duct) = wire_in_a_corner(0.1, 1e-9);
+            w.p.residual_time_limit_us = limit_us;
+            (0..40).map(|_| w.step(&duct).unwrap()).collect::<Vec<_>>()
+        };
+        let free = run(0.0);
+        assert!(free.iter().all(|r| !r.time_spent));
+        let k0 = free
+            .iter()
+            .position(|r| r.iterations > 3)
+            .expect("no step went on past its iterations: no test of the limit");
+        let limited = run(1e-3);
+        assert_eq!(
+            limited[..k0],
+            free[..k0],
+            "the same steps before the first that went on"
+        );
+        assert!(
+            limited[k0].time_spent && limited[k0].iterations == 3,
+            "{:?}",
+            limited[k0]
+        );
+        assert!(limited.iter().all(|r| r.iterations <= 3));
     }
 
     #[test]
