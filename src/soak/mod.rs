@@ -621,6 +621,9 @@ struct GainTrace {
     misses0: u64,
     /// The last poll after the fault's end that saw the gain at zero (s).
     last_zero_s: Option<f64>,
+    /// The longest this thread's 2 ms poll slept after the fault's end
+    /// (s): hundreds of ms means the machine paused every thread.
+    max_poll_gap_s: f64,
 }
 
 impl GainTrace {
@@ -629,6 +632,7 @@ impl GainTrace {
             ticks0: snap.ticks,
             misses0: snap.deadline_misses,
             last_zero_s: None,
+            max_poll_gap_s: 0.0,
         }
     }
 
@@ -639,11 +643,13 @@ impl GainTrace {
             None => "never seen at zero after the fault's end".to_string(),
         };
         format!(
-            "gain {:.3} at {:.0} ms, {zero}; {} loop ticks and {} deadline misses since",
+            "gain {:.3} at {:.0} ms, {zero}; {} loop ticks and {} deadline misses since; \
+             this thread's 2 ms poll slept {:.0} ms at most",
             snap.gain,
             (now - from_s) * 1e3,
             snap.ticks.saturating_sub(self.ticks0),
-            snap.deadline_misses.saturating_sub(self.misses0)
+            snap.deadline_misses.saturating_sub(self.misses0),
+            self.max_poll_gap_s * 1e3
         )
     }
 }
@@ -963,6 +969,7 @@ fn run_leg(
     let mut rebind_at: Option<f64> = None;
     let mut buf = [0u8; 65536];
     let mut last_frame_s = f64::NEG_INFINITY;
+    let mut last_poll = 0.0;
     // Warm-up: a quarter of the leg (at least 10 s), and until the first
     // background basis recomputation is in (its working set is the largest
     // the run allocates), or half the leg.
@@ -975,6 +982,8 @@ fn run_leg(
     let end_s = seconds;
     while rel() < end_s && !handle.is_finished() {
         let now = rel();
+        let poll_gap = now - last_poll;
+        last_poll = now;
         // Stream receiver: drain, note the last datagram.
         if let Some(r) = receiver.as_ref() {
             while r.recv_from(&mut buf).is_ok() {
@@ -1109,8 +1118,11 @@ fn run_leg(
                         // Counted from the fault's end: what the fault itself raised is not a miss cause.
                         *before = snap.fault_ticks;
                         *seen = GainTrace::new(&snap);
-                    } else if snap.gain <= 1e-9 {
-                        seen.last_zero_s = Some(now);
+                    } else {
+                        seen.max_poll_gap_s = seen.max_poll_gap_s.max(poll_gap);
+                        if snap.gain <= 1e-9 {
+                            seen.last_zero_s = Some(now);
+                        }
                     }
                     if now >= *from_s && full {
                         Some((true, Some((now - *from_s) * 1e3)))
@@ -1342,7 +1354,33 @@ fn run_leg(
 
 #[cfg(test)]
 mod tests {
-    use super::{basis_refresh_on, finish, window_levels, FaultOutcome, LegReport, PortEnergyLeg, SoakReport};
+    use super::{
+        basis_refresh_on, finish, window_levels, FaultOutcome, GainTrace, LegReport, PortEnergyLeg, SoakReport,
+    };
+
+    #[test]
+    fn a_late_recovery_says_what_the_gain_and_the_loop_did() {
+        let mut snap = crate::service::Snapshot {
+            ticks: 5000,
+            deadline_misses: 7,
+            ..Default::default()
+        };
+        let mut seen = GainTrace::new(&snap);
+        seen.last_zero_s = Some(10.46);
+        seen.max_poll_gap_s = 0.004;
+        snap.ticks = 5610;
+        snap.deadline_misses = 10;
+        snap.gain = 0.41;
+        assert_eq!(
+            seen.detail(&snap, 10.0, 10.866),
+            "gain 0.410 at 866 ms, last at zero 460 ms after the fault's end; 610 loop ticks and 3 deadline \
+             misses since; this thread's 2 ms poll slept 4 ms at most"
+        );
+        seen.last_zero_s = None;
+        assert!(seen
+            .detail(&snap, 10.0, 10.866)
+            .contains("never seen at zero after the fault's end"));
+    }
 
     #[test]
     fn basis_refresh_is_read_from_the_config_and_off_skips_its_fault() {
