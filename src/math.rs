@@ -39,6 +39,18 @@ pub fn vertex_normals(points: &[Vec3], triangles: &[[u32; 3]]) -> Vec<Vec3> {
     n
 }
 
+/// Where on the segment a–b the point closest to `p` lies: t ∈ [0, 1] with
+/// the point a + t (b − a); 0 for a degenerate segment.
+pub fn segment_parameter(p: Vec3, a: Vec3, b: Vec3) -> f64 {
+    let ab = b - a;
+    let l2 = ab.norm_squared();
+    if l2 > 0.0 {
+        ((p - a).dot(&ab) / l2).clamp(0.0, 1.0)
+    } else {
+        0.0
+    }
+}
+
 /// The closest point to `p` on triangle (a, b, c) (Ericson, *Real-Time
 /// Collision Detection*, 5.1.5).
 pub fn closest_on_triangle(p: Vec3, a: Vec3, b: Vec3, c: Vec3) -> Vec3 {

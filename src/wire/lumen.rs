@@ -1033,14 +1033,8 @@ impl TriangleLumen {
                     continue;
                 }
                 let (a0, b0) = (self.verts[shared[0] as usize], self.verts[shared[1] as usize]);
-                let ab = b0 - a0;
-                let l2 = ab.norm_squared();
-                let s = if l2 > 0.0 {
-                    ((p - a0).dot(&ab) / l2).clamp(0.0, 1.0)
-                } else {
-                    0.0
-                };
-                let q = a0 + ab * s;
+                let s = crate::math::segment_parameter(p, a0, b0);
+                let q = a0 + (b0 - a0) * s;
                 let d = (p - q).norm();
                 if d >= radius || d <= 1e-12 {
                     continue;

@@ -204,11 +204,7 @@ fn tube_query(points: &[Vec3], radii: &[f64], p: &Vec3) -> (f64, f64, f64) {
         let (a, b) = (points[i], points[i + 1]);
         let ab = b - a;
         let l2 = ab.norm_squared();
-        let t = if l2 > 0.0 {
-            ((p - a).dot(&ab) / l2).clamp(0.0, 1.0)
-        } else {
-            0.0
-        };
+        let t = crate::math::segment_parameter(*p, a, b);
         let r = radii[i] + (radii[i + 1] - radii[i]) * t;
         let d = (p - (a + ab * t)).norm() - r;
         let l = l2.sqrt();

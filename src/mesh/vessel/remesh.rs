@@ -316,13 +316,7 @@ impl Reference {
 
 /// The closest point to `p` on the segment a–b.
 pub fn closest_on_segment(p: &Vec3, a: &Vec3, b: &Vec3) -> Vec3 {
-    let ab = b - a;
-    let l2 = ab.norm_squared();
-    if l2 <= 0.0 {
-        return *a;
-    }
-    let t = ((p - a).dot(&ab) / l2).clamp(0.0, 1.0);
-    a + ab * t
+    a + (b - a) * crate::math::segment_parameter(*p, *a, *b)
 }
 
 fn tri_normal(a: &Vec3, b: &Vec3, c: &Vec3) -> Vec3 {
