@@ -135,15 +135,6 @@ pub struct FaultOutcome {
     /// nothing was on, or before a recovery that came late.
     #[serde(skip_serializing_if = "Vec::is_empty")]
     pub miss_causes: Vec<String>,
-    /// Injections whose outcome was not judged: the force dipped or came
-    /// back late while the machine had paused the device thread (a gap
-    /// between its reads longer than [`device::DEVICE_PAUSE_S`]), which the
-    /// service rightly takes for a silent device; counted in `injected`,
-    /// neither recovered nor missed.
-    pub not_judged: u64,
-    /// Why each was not judged.
-    #[serde(skip_serializing_if = "Vec::is_empty")]
-    pub not_judged_why: Vec<String>,
 }
 
 /// One leg's figures.
@@ -792,16 +783,16 @@ fn finish(r: &mut SoakReport, legs_ok: bool) {
     for (k, f) in &r.faults {
         add(
             &format!("fault {k}: injected and recovered"),
-            f.injected > f.not_judged && f.recovered + f.not_judged == f.injected,
-            {
-                let mut d = format!("{} injected, {} recovered", f.injected, f.recovered);
-                if f.not_judged > 0 {
-                    d += &format!(", {} not judged ({})", f.not_judged, f.not_judged_why.join("; "));
-                }
-                if !f.miss_causes.is_empty() {
-                    d += &format!("; misses: {}", f.miss_causes.join("; "));
-                }
-                d
+            f.injected > 0 && f.recovered == f.injected,
+            if f.miss_causes.is_empty() {
+                format!("{} injected, {} recovered", f.injected, f.recovered)
+            } else {
+                format!(
+                    "{} injected, {} recovered; misses: {}",
+                    f.injected,
+                    f.recovered,
+                    f.miss_causes.join("; ")
+                )
             },
         );
     }
@@ -1115,15 +1106,6 @@ fn run_leg(
         let full = snap.gain >= 0.999;
         let mut done: Vec<(usize, bool, Option<f64>)> = Vec::new();
         let mut causes: Vec<(usize, FaultTicks, Option<String>)> = Vec::new();
-        // A pause of the device thread that ended in [a, b]: the service
-        // rightly saw a silent device, whatever the fault.
-        let paused_in = |a: f64, b: f64| {
-            checks
-                .last_pause()
-                .filter(|&(end, _)| end >= a && end <= b)
-                .map(|(end, len)| format!("the device thread paused {:.1} ms, until {end:.2} s", len * 1e3))
-        };
-        let mut unjudged: Vec<(usize, String)> = Vec::new();
         for (i, p) in pending.iter_mut().enumerate() {
             let verdict = match &mut p.watch {
                 Watch::GainBack {
@@ -1145,9 +1127,6 @@ fn run_leg(
                     if now >= *from_s && full {
                         Some((true, Some((now - *from_s) * 1e3)))
                     } else if now > *deadline_s {
-                        if let Some(why) = paused_in(*from_s - 0.01, *deadline_s) {
-                            unjudged.push((i, why));
-                        }
                         causes.push((i, *before, Some(seen.detail(&snap, *from_s, now))));
                         Some((false, Some((now - *from_s) * 1e3)))
                     } else {
@@ -1164,9 +1143,6 @@ fn run_leg(
                         *low = true;
                     }
                     if now > *until_s && *low {
-                        if let Some(why) = paused_in(*from_s - recover_s, *until_s) {
-                            unjudged.push((i, why));
-                        }
                         causes.push((i, *before, None));
                     }
                     (now > *until_s).then_some((!*low, None))
@@ -1221,12 +1197,6 @@ fn run_leg(
         for (i, ok, ms) in done.into_iter().rev() {
             let p = pending.remove(i);
             let f = report.faults.entry(p.kind.to_string()).or_default();
-            if let Some((_, why)) = unjudged.iter().find(|(j, _)| *j == i) {
-                f.injected += 1;
-                f.not_judged += 1;
-                f.not_judged_why.push(format!("at {now:.2} s: {why}"));
-                continue;
-            }
             if let Some((_, before, seen)) = causes.iter().find(|(j, _, _)| *j == i) {
                 let grown: Vec<&str> = snap.fault_ticks.grown_since(before).collect();
                 let what = if grown.is_empty() {
@@ -1449,42 +1419,6 @@ mod tests {
         assert!(skip.skipped && !skip.passed, "{skip:?}");
         assert!(r.passed, "{:?}", r.checks);
         assert!(r.render().contains("[skip] fault basis_failure"));
-    }
-
-    /// An injection the machine's pause of the device thread left
-    /// unjudged counts neither way; a fault with none judged fails.
-    #[test]
-    fn a_fault_the_machine_paused_is_not_judged() {
-        let check = |injected: u64, recovered: u64, not_judged: u64| {
-            let mut r = SoakReport {
-                rss_legs_measured: 1,
-                ..SoakReport::default()
-            };
-            r.faults.insert(
-                "garbage_datagrams".into(),
-                FaultOutcome {
-                    injected,
-                    recovered,
-                    not_judged,
-                    not_judged_why: vec!["at 18.45 s: the device thread paused 6.2 ms, until 18.21 s".into()],
-                    ..FaultOutcome::default()
-                },
-            );
-            finish(&mut r, true);
-            r.checks
-                .into_iter()
-                .find(|c| c.name == "fault garbage_datagrams: injected and recovered")
-                .unwrap()
-        };
-        let c = check(4, 3, 1);
-        assert!(c.passed, "{c:?}");
-        assert!(
-            c.detail.contains("1 not judged (at 18.45 s: the device thread paused"),
-            "{}",
-            c.detail
-        );
-        assert!(!check(4, 2, 1).passed, "a miss beside the unjudged one still fails");
-        assert!(!check(1, 0, 1).passed, "nothing judged is not a pass");
     }
 
     /// Each leg's line shows the port's energy as the device measured it
