@@ -107,7 +107,20 @@ pub struct DeviceChecks {
     pub garbage_sent: AtomicU64,
     /// Garbage datagrams the bridge rejected (read at the end).
     pub garbage_rejected: AtomicU64,
+    /// When the device thread's last pause ended (s from the first read,
+    /// f64 bits; 0: none yet): the latest gap between two reads longer
+    /// than [`DEVICE_PAUSE_S`], which the service rightly takes for a
+    /// silent device (the machine did not run the thread, not a fault
+    /// the soak injected).
+    pub pause_end_s_bits: AtomicU64,
+    /// That pause's length (s, f64 bits).
+    pub pause_len_s_bits: AtomicU64,
 }
+
+/// A gap between two reads of the device thread (period 1 ms) longer than
+/// this is a pause of the thread (s): the freshest sample is then older
+/// than the watchdog's 5 ms device timeout may allow.
+pub const DEVICE_PAUSE_S: f64 = 0.004;
 
 fn f64_of(a: &AtomicU64) -> f64 {
     f64::from_bits(a.load(Ordering::Relaxed))
@@ -124,6 +137,13 @@ impl DeviceChecks {
     pub fn t0_s(&self) -> Option<f64> {
         let b = self.t0_s_bits.load(Ordering::Relaxed);
         (b != 0).then(|| f64::from_bits(b))
+    }
+
+    /// The device thread's latest pause: (its end in s from the first
+    /// read, its length in s), None if it never paused.
+    pub fn last_pause(&self) -> Option<(f64, f64)> {
+        let end = f64_of(&self.pause_end_s_bits);
+        (end > 0.0).then(|| (end, f64_of(&self.pause_len_s_bits)))
     }
 
     /// Largest force written (N).
@@ -177,6 +197,8 @@ pub struct SoakDevice {
     now: f64,
     seq: u64,
     nan_direct: bool,
+    /// Injected clock leaps seen at the last read.
+    jumps_seen: u64,
     wild_far: bool,
     rng: u64,
     buf: [u8; 256],
@@ -220,6 +242,7 @@ impl SoakDevice {
             limits,
             t0: None,
             now: 0.0,
+            jumps_seen: crate::rt::clock::injected_jumps(),
             seq: 0,
             nan_direct: false,
             wild_far: false,
@@ -457,6 +480,17 @@ impl HapticDevice for SoakDevice {
             self.checks.t0_s_bits.store(now_s.to_bits(), Ordering::Relaxed);
             now_s
         });
+        // An injected clock leap (the soak's `clock_jump`) is not a pause.
+        let jumps = crate::rt::clock::injected_jumps();
+        let leapt = jumps != self.jumps_seen;
+        self.jumps_seen = jumps;
+        let gap = now_s - self.now;
+        if self.now > 0.0 && gap > DEVICE_PAUSE_S && !leapt {
+            self.checks.pause_len_s_bits.store(gap.to_bits(), Ordering::Relaxed);
+            self.checks
+                .pause_end_s_bits
+                .store((now_s - t0).to_bits(), Ordering::Relaxed);
+        }
         self.now = now_s;
         self.update_faults(now_s - t0);
         // The hand and the stylus move on whatever the link does.
