@@ -50,8 +50,9 @@ pub const RSS_BUDGET_BYTES: i64 = 1 << 20;
 /// install, [`RSS_CYCLE_QUANTILE`]): on a 2-core machine a recomputation
 /// now runs 16–23 s back to back with the next, its working set in phases
 /// (tens of MB each) longer than a window, and windows compared one phase
-/// with another (5–6 MB of false growth in 2 of 5 runs of the 1.5-minute
-/// gate on 2026-11-28).
+/// with another (5–6 MB of false growth in 2 of 6 runs of the 1.5-minute
+/// gate on 2026-11-28, both beside a busy thread that slowed the
+/// recomputation).
 pub const RSS_WINDOW_S: f64 = 8.0;
 
 /// Which quantile of a window's readings is its level.
@@ -190,6 +191,9 @@ pub struct LegReport {
     /// Highest single reading above the warm-up level (bytes): the
     /// transient working set of the background threads (not checked).
     pub rss_peak_above_warmup_bytes: Option<i64>,
+    /// How many levels the memory check read after warm-up: complete
+    /// basis cycles, or 8 s windows without recomputation (two needed).
+    pub rss_levels: usize,
     /// Resident memory once a second (s since the first read, MB).
     pub rss_trace_mb: Vec<(f64, f64)>,
     /// Garbage datagrams sent and rejected by the bridge.
@@ -816,11 +820,16 @@ fn finish(r: &mut SoakReport, legs_ok: bool) {
         "resident memory flat after warm-up",
         r.rss_growth_bytes <= RSS_BUDGET_BYTES && r.rss_legs_measured > 0,
         format!(
-            "grew {:.3} MB, budget {:.1} MB ({} of {} legs long enough to measure)",
+            "grew {:.3} MB, budget {:.1} MB ({} of {} legs long enough to measure; levels read per leg: {})",
             r.rss_growth_bytes as f64 / 1048576.0,
             RSS_BUDGET_BYTES as f64 / 1048576.0,
             r.rss_legs_measured,
-            r.legs.len()
+            r.legs.len(),
+            r.legs
+                .iter()
+                .map(|l| l.rss_levels.to_string())
+                .collect::<Vec<_>>()
+                .join(", ")
         ),
     );
     add(
@@ -1427,6 +1436,7 @@ fn run_leg(
         rss_after_warmup_bytes: rss_warm.filter(|_| measured),
         rss_growth_bytes: measured.then_some(rss_growth),
         rss_peak_above_warmup_bytes: rss_peak.filter(|_| measured),
+        rss_levels: levels.len(),
         rss_trace_mb: rss_trace,
         garbage_sent,
         garbage_rejected,
