@@ -7,6 +7,9 @@
 //! it.
 
 use serde::Serialize;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::Arc;
+use std::thread::JoinHandle;
 
 /// What a thread asks for.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -230,6 +233,46 @@ pub fn set_current_nice(nice: i32) -> Result<(), String> {
     }
 }
 
+/// Starts a thread that keeps CPU `cpu` from going idle until `stop` is
+/// set: pinned there, under `SCHED_IDLE` (it runs only when nothing else
+/// on that CPU wants to, and any other thread preempts it at once), it
+/// spins. On a virtual machine a halted virtual CPU is woken through the
+/// host when a timer fires, which can make an RT thread sleeping to a
+/// deadline there wake milliseconds late; a CPU that never halts takes the
+/// timer at once (the user-space counterpart of booting with
+/// `idle=poll`). It costs that CPU's idle time, and takes some from plain
+/// threads there (a `SCHED_IDLE` thread still gets a small share).
+/// Returns the thread and why something asked for was refused (the thread
+/// spins anyway: unpinned or under the normal policy it is only less
+/// useful).
+pub fn spawn_keep_awake(cpu: usize, stop: Arc<AtomicBool>) -> std::io::Result<(JoinHandle<()>, Vec<String>)> {
+    let (tx, rx) = std::sync::mpsc::channel();
+    let h = std::thread::Builder::new().name("nvtmm-awake".into()).spawn(move || {
+        let mut refusals = setup_current(&RtRequest {
+            fifo_priority: None,
+            cpu: Some(cpu),
+            prefault_stack_bytes: 0,
+        })
+        .refusals;
+        // SAFETY: sched_param is plain data; sched_setscheduler(0, ..)
+        // applies to the calling thread and reads the struct only.
+        let param: libc::sched_param = unsafe { std::mem::zeroed() };
+        // SAFETY: as above.
+        if unsafe { libc::sched_setscheduler(0, libc::SCHED_IDLE, &param) } != 0 {
+            refusals.push(format!(
+                "keep-awake thread: SCHED_IDLE refused ({})",
+                std::io::Error::last_os_error()
+            ));
+        }
+        let _ = tx.send(refusals);
+        while !stop.load(Ordering::Relaxed) {
+            std::hint::spin_loop();
+        }
+    })?;
+    let refusals = rx.recv().unwrap_or_default();
+    Ok((h, refusals))
+}
+
 /// Whether the calling thread runs under SCHED_FIFO now.
 pub fn current_is_fifo() -> bool {
     // SAFETY: sched_getscheduler(0) queries the calling thread; no pointers.
@@ -239,6 +282,27 @@ pub fn current_is_fifo() -> bool {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The keep-awake thread runs pinned under SCHED_IDLE (which any user
+    /// may take), spins, and ends once told to.
+    #[test]
+    fn the_keep_awake_thread_spins_idle_and_stops() {
+        let stop = Arc::new(AtomicBool::new(false));
+        let (h, refusals) = spawn_keep_awake(0, stop.clone()).unwrap();
+        assert!(
+            !refusals.iter().any(|r| r.contains("SCHED_IDLE")),
+            "SCHED_IDLE is never refused on Linux: {refusals:?}"
+        );
+        std::thread::sleep(std::time::Duration::from_millis(20));
+        assert!(!h.is_finished(), "it spins until told to stop");
+        stop.store(true, Ordering::Relaxed);
+        let t0 = std::time::Instant::now();
+        while !h.is_finished() && t0.elapsed().as_secs() < 10 {
+            std::thread::sleep(std::time::Duration::from_millis(1));
+        }
+        assert!(h.is_finished(), "it stops once told to");
+        h.join().unwrap();
+    }
 
     #[test]
     fn setup_reports_what_it_got_and_never_fails() {

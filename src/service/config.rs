@@ -85,6 +85,10 @@ pub struct LoopConfig {
     /// Cross-fade of a model swap (ms): the old and the new model both run
     /// and the force blends over; 0 switches at once.
     pub swap_blend_ms: f64,
+    /// Keep the loop's CPU from going idle with a `SCHED_IDLE` spinning
+    /// thread pinned there ([`crate::rt::thread::spawn_keep_awake`]), for
+    /// virtual machines whose idle CPUs wake late. Needs `cpu` ≥ 0.
+    pub keep_cpu_awake: bool,
 }
 
 impl Default for LoopConfig {
@@ -97,6 +101,7 @@ impl Default for LoopConfig {
             lock_memory: true,
             baseline_s: 2.0,
             swap_blend_ms: 20.0,
+            keep_cpu_awake: false,
         }
     }
 }
@@ -351,6 +356,12 @@ impl ServiceConfig {
         c.int_in("loop.stack_kib", l.stack_kib, 256, 65_536)?;
         c.f64_in("loop.baseline_s", l.baseline_s, 0.0, 60.0, "s")?;
         c.f64_in("loop.swap_blend_ms", l.swap_blend_ms, 0.0, 1000.0, "ms")?;
+        if l.keep_cpu_awake && l.cpu < 0 {
+            return Err(c.err(
+                "loop.keep_cpu_awake",
+                "needs the loop pinned: set loop.cpu to a CPU (0 or more)",
+            ));
+        }
         let d = &self.device;
         c.f64_in("device.rate_hz", d.rate_hz, 100.0, 10_000.0, "Hz")?;
         c.int_in("device.priority", d.priority, 0, 99)?;
@@ -453,5 +464,12 @@ mod tests {
         let mut bad: ServiceConfig = parse_toml("scene = \"s.toml\"\n[watchdog]\nramp_down_ms = 50", p).unwrap();
         bad.path = p.into();
         assert_eq!(bad.validate().unwrap_err().key, "watchdog.ramp_down_ms");
+        // Keeping the loop's CPU awake needs the loop pinned.
+        let mut bad: ServiceConfig =
+            parse_toml("scene = \"s.toml\"\n[loop]\ncpu = -1\nkeep_cpu_awake = true", p).unwrap();
+        bad.path = p.into();
+        let e = bad.validate().unwrap_err();
+        assert_eq!(e.key, "loop.keep_cpu_awake");
+        assert!(e.msg.contains("loop.cpu"), "{e}");
     }
 }

@@ -218,6 +218,8 @@ pub struct Report {
     pub loop_cpu: Option<usize>,
     /// Memory locked (mlockall).
     pub memory_locked: bool,
+    /// The loop's CPU was kept from idling (`loop.keep_cpu_awake`).
+    pub loop_cpu_kept_awake: bool,
     /// Device backend.
     pub device: String,
     /// Mesh nodes and tets of the full model.
@@ -349,12 +351,17 @@ impl Report {
             self.ticks, self.seconds, self.device, self.nodes, self.tets, self.r, self.r_capacity
         );
         s += &format!(
-            "  RT: SCHED_FIFO {}, CPU {}, memory {}\n",
+            "  RT: SCHED_FIFO {}, CPU {}, memory {}{}\n",
             if self.rt_policy_granted { "granted" } else { "REFUSED" },
             self.loop_cpu
                 .map(|c| c.to_string())
                 .unwrap_or_else(|| "not pinned".into()),
-            if self.memory_locked { "locked" } else { "not locked" }
+            if self.memory_locked { "locked" } else { "not locked" },
+            if self.loop_cpu_kept_awake {
+                ", loop CPU kept awake"
+            } else {
+                ""
+            }
         );
         for r in &self.rt_refusals {
             s += &format!("    refused: {r}\n");

@@ -44,6 +44,8 @@ pub(super) struct Running<const R: usize> {
     bg_handle: Option<JoinHandle<BackgroundStats>>,
     basis_handle: Option<JoinHandle<BasisStats>>,
     pub_handle: Option<JoinHandle<super::publisher::PublisherResult>>,
+    /// The thread keeping the loop's CPU awake (`loop.keep_cpu_awake`).
+    awake_handle: Option<JoinHandle<()>>,
     refusals: Vec<String>,
     memory_locked: bool,
     rings: RingConfig,
@@ -160,6 +162,10 @@ impl<const R: usize> RunningService for Running<R> {
             None => BasisStats::default(),
         };
         let pr = survive(join(self.pub_handle.take(), "stream"), &mut threads_lost).unwrap_or_default();
+        let kept_awake = match self.awake_handle.take() {
+            Some(h) => survive(join(Some(h), "keep-awake"), &mut threads_lost).is_some(),
+            None => false,
+        };
         let (stream_frames, stream_errors, stream_error) = (pr.frames, pr.errors, pr.first_error);
         if let Some(w) = wire.as_mut() {
             w.wall_dent_max_m = pr.wire_dent_max_m;
@@ -260,6 +266,7 @@ impl<const R: usize> RunningService for Running<R> {
             rt_refusals: refusals,
             loop_cpu: lr.grant.cpu,
             memory_locked,
+            loop_cpu_kept_awake: kept_awake,
             device: self.device_name.clone(),
             nodes: self.nodes,
             tets: self.tets,
@@ -401,6 +408,20 @@ pub(super) fn start_with<const R: usize>(p: Prepared) -> Result<Running<R>, Serv
     if cfg.servo.lock_memory && !memory_locked {
         refusals.push("mlockall refused (RLIMIT_MEMLOCK); memory not locked".to_string());
     }
+    // The loop's CPU kept from idling (validated: the loop is pinned).
+    let awake_handle = match usize::try_from(cfg.servo.cpu) {
+        Ok(c) if cfg.servo.keep_cpu_awake => match crate::rt::thread::spawn_keep_awake(c, stop.clone()) {
+            Ok((h, why)) => {
+                refusals.extend(why);
+                Some(h)
+            }
+            Err(e) => {
+                refusals.push(format!("keep-awake thread not started: {e}"));
+                None
+            }
+        },
+        _ => None,
+    };
     let mut device = device;
     device.start().map_err(|e| ServiceError::Device(e.to_string()))?;
     let device_name = device.name().to_string();
@@ -658,6 +679,7 @@ pub(super) fn start_with<const R: usize>(p: Prepared) -> Result<Running<R>, Serv
         bg_handle,
         basis_handle,
         pub_handle: Some(pub_handle),
+        awake_handle,
         refusals,
         memory_locked,
         rings,
