@@ -408,20 +408,6 @@ pub(super) fn start_with<const R: usize>(p: Prepared) -> Result<Running<R>, Serv
     if cfg.servo.lock_memory && !memory_locked {
         refusals.push("mlockall refused (RLIMIT_MEMLOCK); memory not locked".to_string());
     }
-    // The loop's CPU kept from idling (validated: the loop is pinned).
-    let awake_handle = match usize::try_from(cfg.servo.cpu) {
-        Ok(c) if cfg.servo.keep_cpu_awake => match crate::rt::thread::spawn_keep_awake(c, stop.clone()) {
-            Ok((h, why)) => {
-                refusals.extend(why);
-                Some(h)
-            }
-            Err(e) => {
-                refusals.push(format!("keep-awake thread not started: {e}"));
-                None
-            }
-        },
-        _ => None,
-    };
     let mut device = device;
     device.start().map_err(|e| ServiceError::Device(e.to_string()))?;
     let device_name = device.name().to_string();
@@ -669,6 +655,21 @@ pub(super) fn start_with<const R: usize>(p: Prepared) -> Result<Running<R>, Serv
         .stack_size(cfg.servo.stack_kib * 1024)
         .spawn(move || loop_thread::<R>(tick, lio, plan))
         .map_err(|e| ServiceError::Thread("haptic loop", e.to_string()))?;
+    // The loop's CPU kept from idling (validated: the loop is pinned);
+    // started last, as nothing after it can fail and leave it spinning.
+    let awake_handle = match usize::try_from(cfg.servo.cpu) {
+        Ok(c) if cfg.servo.keep_cpu_awake => match crate::rt::thread::spawn_keep_awake(c, stop.clone()) {
+            Ok((h, why)) => {
+                refusals.extend(why);
+                Some(h)
+            }
+            Err(e) => {
+                refusals.push(format!("keep-awake thread not started: {e}"));
+                None
+            }
+        },
+        _ => None,
+    };
     Ok(Running {
         stop,
         live,
