@@ -72,6 +72,18 @@ pub(super) trait RunningService: Send {
     fn faults(&self) -> Arc<FaultSwitches>;
 }
 
+/// Sets the stop flag when dropped, unless emptied first: every thread a
+/// failed start had already spawned sees it and ends.
+struct StopOnDrop(Option<Arc<AtomicBool>>);
+
+impl Drop for StopOnDrop {
+    fn drop(&mut self) {
+        if let Some(s) = &self.0 {
+            s.store(true, Ordering::Relaxed);
+        }
+    }
+}
+
 /// Joins a thread; a panic becomes an error naming the thread and the
 /// panic message.
 fn join<T>(h: Option<JoinHandle<T>>, name: &'static str) -> Result<T, ServiceError> {
@@ -394,6 +406,9 @@ pub(super) fn start_with<const R: usize>(p: Prepared) -> Result<Running<R>, Serv
     let (model_tx, model_rx) = rtrb::RingBuffer::<Box<LoopModel<R>>>::new(rings.model);
     let (ret_tx, ret_rx) = rtrb::RingBuffer::<Box<LoopModel<R>>>::new(rings.returned);
     let stop = Arc::new(AtomicBool::new(false));
+    // A start that fails after spawning threads stops them (disarmed once
+    // the service is handed out).
+    let mut stop_on_failure = StopOnDrop(Some(stop.clone()));
     let live = Arc::new(LiveStats::default());
     let faults = Arc::new(FaultSwitches::default());
     let (state_tx, state_rx) = rtrb::RingBuffer::<StateSnapshot<R>>::new(rings.state);
@@ -670,6 +685,7 @@ pub(super) fn start_with<const R: usize>(p: Prepared) -> Result<Running<R>, Serv
         },
         _ => None,
     };
+    stop_on_failure.0 = None;
     Ok(Running {
         stop,
         live,
