@@ -6,6 +6,11 @@ use std::time::{Duration, Instant};
 /// Starts a small service (1458-node arch, r = 16) with the basis refresh
 /// every 0.3 s and short model timeouts, in `dir`.
 pub fn start(dir: &std::path::Path) -> Handle {
+    Service::start(options(dir)).unwrap()
+}
+
+/// The options [`start`] starts with (the scene file written into `dir`).
+pub fn options(dir: &std::path::Path) -> StartOptions {
     let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
     std::fs::write(
         dir.join("scene.toml"),
@@ -52,7 +57,7 @@ enabled = false
 "#,
         root.join("rt-config/touchx.toml").display()
     );
-    Service::start(StartOptions::text(config, dir.join("in-memory.toml"))).unwrap()
+    StartOptions::text(config, dir.join("in-memory.toml"))
 }
 
 /// Polls `cond` on snapshots every 10 ms for up to `secs` (a loaded
