@@ -109,18 +109,13 @@ pub struct DeviceChecks {
     pub garbage_rejected: AtomicU64,
     /// When the device thread's last pause ended (s from the first read,
     /// f64 bits; 0: none yet): the latest gap between two reads longer
-    /// than [`DEVICE_PAUSE_S`], which the service rightly takes for a
+    /// than [`CheckLimits::pause_s`], which the service rightly takes for a
     /// silent device (the machine did not run the thread, not a fault
     /// the soak injected).
     pub pause_end_s_bits: AtomicU64,
     /// That pause's length (s, f64 bits).
     pub pause_len_s_bits: AtomicU64,
 }
-
-/// A gap between two reads of the device thread (period 1 ms) longer than
-/// this is a pause of the thread (s): the freshest sample is then older
-/// than the watchdog's 5 ms device timeout may allow.
-pub const DEVICE_PAUSE_S: f64 = 0.004;
 
 fn f64_of(a: &AtomicU64) -> f64 {
     f64::from_bits(a.load(Ordering::Relaxed))
@@ -180,6 +175,10 @@ pub struct CheckLimits {
     /// Allowed onset-to-zero delay of the force on a device fault that stops
     /// the data (s): 10 ms.
     pub zero_delay_s: f64,
+    /// A gap between two of the device thread's reads longer than this is
+    /// a pause of the thread (s): the watchdog's device timeout less one
+    /// read period, past which the freshest sample may be too old.
+    pub pause_s: f64,
 }
 
 /// The soak's instrumented device.
@@ -485,7 +484,7 @@ impl HapticDevice for SoakDevice {
         let leapt = jumps != self.jumps_seen;
         self.jumps_seen = jumps;
         let gap = now_s - self.now;
-        if self.now > 0.0 && gap > DEVICE_PAUSE_S && !leapt {
+        if self.now > 0.0 && gap > self.limits.pause_s && !leapt {
             self.checks.pause_len_s_bits.store(gap.to_bits(), Ordering::Relaxed);
             self.checks
                 .pause_end_s_bits
@@ -602,6 +601,7 @@ mod tests {
             tank_initial_j: 0.01,
             tank_max_j: 0.05,
             zero_delay_s: 0.01,
+            pause_s: 0.004,
         };
         let mut dev = SoakDevice::new(sim, udp, Vec::new(), limits, Arc::new(DeviceChecks::default()), 1);
         dev.start().unwrap();

@@ -147,7 +147,7 @@ pub struct FaultOutcome {
     pub miss_causes: Vec<String>,
     /// Injections whose outcome was not judged: the force dipped or came
     /// back late while the machine had paused the device thread (a gap
-    /// between its reads longer than [`device::DEVICE_PAUSE_S`]), which the
+    /// between its reads longer than [`device::CheckLimits::pause_s`]), which the
     /// service rightly takes for a silent device; counted in `injected`,
     /// neither recovered nor missed.
     pub not_judged: u64,
@@ -955,6 +955,7 @@ fn run_leg(
                 tank_initial_j: cfg.passivity.tank_initial_j,
                 tank_max_j: cfg.passivity.tank_max_j,
                 zero_delay_s: ZERO_WITHIN_S,
+                pause_s: w.device_timeout_ms * 1e-3 - 1.0 / cfg.device.rate_hz,
             };
             let recover_s = w.device_timeout_ms * 1e-3
                 + udp.max_age_s
