@@ -843,10 +843,6 @@ impl Wire {
                 if tol <= 0.0 {
                     break;
                 }
-                if limit_ns > 0 && crate::rt::clock::now_ns() - t_start > limit_ns {
-                    rep.time_spent = true;
-                    break;
-                }
                 if have < Have::Gradient {
                     // The reactions want this evaluation anyway.
                     rep.evaluations += 1;
@@ -858,6 +854,12 @@ impl Wire {
                 });
                 // Room for a trial and the reactions' evaluation?
                 if !off || !e_cur.is_finite() || rep.evaluations + 2 > self.p.max_evaluations {
+                    break;
+                }
+                // Off equilibrium, but out of time: only such a step counts
+                // as stopped by the limit.
+                if limit_ns > 0 && crate::rt::clock::now_ns() - t_start > limit_ns {
+                    rep.time_spent = true;
                     break;
                 }
             }
@@ -1899,6 +1901,20 @@ mod tests {
             limited[k0]
         );
         assert!(limited.iter().all(|r| r.iterations <= 3));
+        // A step that ran its three iterations within the tolerance (here
+        // 1000 N: every step) is not one the limit stopped, though it has
+        // run past the limit when it checks.
+        let (mut w, duct) = wire_in_a_corner(0.1, 1e3);
+        w.p.residual_time_limit_us = 1e-3;
+        let reps: Vec<_> = (0..40).map(|_| w.step(&duct).unwrap()).collect();
+        assert!(
+            reps.iter().any(|r| r.iterations == 3),
+            "no step ran its three iterations: no test"
+        );
+        assert!(
+            reps.iter().all(|r| !r.time_spent),
+            "a converged step counted as stopped by time"
+        );
     }
 
     #[test]
