@@ -289,6 +289,9 @@ enum BenchCmd {
         /// With --tick: rebuild the lumen from the reduced model's deformed wall, as the service does (without the dent of the wire's own loads, docs/WIRE.md "The wall under the wire"), instead of the rest wall.
         #[arg(long)]
         follow_wall: bool,
+        /// With --tick: run the ticks as the service's wire thread does, on this CPU at SCHED_FIFO priority 80 with memory locked, one tick a period (the wire's `dt_s`) instead of back to back; where the OS refuses, the output says so.
+        #[arg(long, value_name = "CPU")]
+        rt: Option<usize>,
         /// Print JSON.
         #[arg(long)]
         json: bool,
@@ -500,6 +503,7 @@ fn main() -> ExitCode {
                 config,
                 line_load,
                 follow_wall,
+                rt,
                 json,
             } => {
                 if tick {
@@ -512,6 +516,7 @@ fn main() -> ExitCode {
                             evaluations,
                             line_load,
                             follow_wall,
+                            rt_cpu: rt,
                         },
                         json,
                     )

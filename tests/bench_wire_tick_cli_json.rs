@@ -52,10 +52,13 @@ fn bench_wire_tick_json_has_the_contract_keys_and_no_resets() {
             "lumen_updates",
             "lumen_us",
             "max_penetration_mm",
+            "memory_locked",
             "nodes",
+            "paced",
             "qp_solved",
             "qp_us",
             "resets",
+            "rt",
             "segment_mm",
             "tick_us",
             "ticks",
@@ -66,6 +69,9 @@ fn bench_wire_tick_json_has_the_contract_keys_and_no_resets() {
     assert_eq!(obj["ticks"], 200);
     assert_eq!(obj["resets"], 0);
     assert_eq!(obj["follow_wall"], false);
+    // Back to back in an ordinary thread unless asked.
+    assert_eq!(obj["paced"], false);
+    assert_eq!(obj["rt"]["fifo"], false);
     // The budget bounds every step's evaluations.
     assert_eq!(obj["evaluations_max_allowed"], 12);
     let most = obj["evaluations_max"].as_u64().unwrap();
@@ -84,4 +90,32 @@ fn bench_wire_tick_json_has_the_contract_keys_and_no_resets() {
     }
     // The whole tick holds its parts.
     assert!(obj["tick_us"]["p50"].as_f64() >= obj["wire_us"]["p50"].as_f64());
+}
+
+#[test]
+fn bench_wire_tick_with_rt_runs_paced_and_says_what_the_os_granted() {
+    let out = Command::new(env!("CARGO_BIN_EXE_nvtmm"))
+        .current_dir(env!("CARGO_MANIFEST_DIR"))
+        .args([
+            "bench", "wire", "--tick", "--nodes", "32", "--steps", "100", "--rt", "0", "--json",
+        ])
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let v: serde_json::Value = serde_json::from_slice(&out.stdout).expect("JSON");
+    assert_eq!(v["paced"], true);
+    assert_eq!(v["ticks"], 100);
+    assert_eq!(v["resets"], 0);
+    // Granted, or refused with the reason said (an unprivileged machine).
+    let refusals: Vec<String> = v["rt"]["refusals"]
+        .as_array()
+        .expect("refusals")
+        .iter()
+        .map(|r| r.as_str().unwrap().to_string())
+        .collect();
+    let said = |what: &str| refusals.iter().any(|r| r.contains(what));
+    assert!(v["rt"]["fifo"] == true || said("SCHED_FIFO"), "{refusals:?}");
+    assert!(v["rt"]["cpu"] == 0 || said("CPU 0"), "{refusals:?}");
+    assert!(v["memory_locked"] == true || said("mlockall"), "{refusals:?}");
+    assert_eq!(v["rt"]["priority"], 80);
 }

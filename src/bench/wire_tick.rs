@@ -85,6 +85,13 @@ pub struct WireTickBench {
     pub lumen_updates: usize,
     /// Whether the lumen followed the reduced model's deformed wall.
     pub follow_wall: bool,
+    /// Whether the ticks ran one a period (`--rt`), not back to back.
+    pub paced: bool,
+    /// What the OS granted the ticks' thread with `--rt` (default: nothing
+    /// asked), and whether memory was locked.
+    pub rt: crate::rt::thread::RtGrant,
+    /// See `rt`; the refusal's text is among `rt.refusals`.
+    pub memory_locked: bool,
     /// Steps restored to the last good state (failed or too deep).
     pub resets: usize,
     /// Deepest penetration over the timed ticks (mm).
@@ -121,7 +128,39 @@ pub struct WireTickOptions {
     pub line_load: f64,
     /// Rebuild the lumen from the reduced model's deformed wall.
     pub follow_wall: bool,
+    /// Run the ticks as the service's wire thread does: pinned to this CPU
+    /// at SCHED_FIFO priority [`RT_PRIORITY`] with memory locked (unlocked
+    /// at the end) and the CPU kept awake (a `SCHED_IDLE` spinner there, as
+    /// `loop.keep_cpu_awake`), one tick a period (`dt_s`). The calling thread keeps
+    /// its policy and pinning afterwards. None: back to back, in an
+    /// ordinary thread.
+    pub rt_cpu: Option<usize>,
 }
+
+/// Undoes what `--rt` set up for the ticks: stops the keep-awake thread,
+/// unlocks memory.
+#[derive(Default)]
+struct RtGuard {
+    stop: std::sync::Arc<std::sync::atomic::AtomicBool>,
+    awake: Option<std::thread::JoinHandle<()>>,
+    locked: bool,
+}
+
+impl Drop for RtGuard {
+    fn drop(&mut self) {
+        self.stop.store(true, std::sync::atomic::Ordering::Relaxed);
+        if let Some(h) = self.awake.take() {
+            let _ = h.join();
+        }
+        if self.locked {
+            crate::rt::thread::unlock_memory();
+        }
+    }
+}
+
+/// The SCHED_FIFO priority of the ticks with [`WireTickOptions::rt_cpu`]
+/// (the shipped guidewire configuration's wire thread runs at 80).
+pub const RT_PRIORITY: u8 = 80;
 
 /// Runs it on the service configuration at `config`: a wire of `nodes`
 /// nodes, at most `iterations` Newton iterations and `evaluations`
@@ -140,6 +179,7 @@ pub fn bench_wire_tick(config: &Path, o: &WireTickOptions) -> Result<WireTickBen
         evaluations,
         line_load,
         follow_wall,
+        rt_cpu,
     } = *o;
     let arg = super::BenchError::Arg;
     if !(16..=4096).contains(&nodes) {
@@ -268,7 +308,49 @@ pub fn bench_wire_tick(config: &Path, o: &WireTickOptions) -> Result<WireTickBen
     let mut deepest: f64 = 0.0;
     let stream_every = (1.0 / (60.0 * dt)).round().max(1.0) as usize;
     let r_w = 0.5 * params.diameter_m;
+    // As the service's wire thread: pinned, SCHED_FIFO, memory locked, one
+    // tick a period (back to back, a FIFO thread would also run into the
+    // kernel's RT throttling).
+    let mut grant = crate::rt::thread::RtGrant::default();
+    let mut memory_locked = false;
+    // Stops the keep-awake thread and unlocks memory however the loop ends
+    // (a failed step returns early).
+    let mut rt_guard = RtGuard::default();
+    if let Some(cpu) = rt_cpu {
+        match crate::rt::thread::lock_memory() {
+            Ok(()) => {
+                memory_locked = true;
+                rt_guard.locked = true;
+            }
+            Err(e) => grant.refusals.push(format!("mlockall refused ({e})")),
+        }
+        let g = crate::rt::thread::setup_current(&crate::rt::thread::RtRequest {
+            fifo_priority: Some(RT_PRIORITY),
+            cpu: Some(cpu),
+            prefault_stack_bytes: 256 * 1024,
+        });
+        grant.refusals.extend(g.refusals.iter().cloned());
+        grant = crate::rt::thread::RtGrant {
+            refusals: grant.refusals,
+            ..g
+        };
+        // And its CPU kept awake, as the service's `loop.keep_cpu_awake`
+        // does for the loop's: a halted virtual CPU wakes late and cold.
+        match crate::rt::thread::spawn_keep_awake(cpu, rt_guard.stop.clone()) {
+            Ok((h, refusals)) => {
+                grant.refusals.extend(refusals);
+                rt_guard.awake = Some(h);
+            }
+            Err(e) => grant.refusals.push(format!("keep-awake thread not started ({e})")),
+        }
+    }
+    let period_ns = (dt * 1e9).round() as i64;
+    let mut next = crate::rt::clock::now_ns();
     for k in 0..cap {
+        if rt_cpu.is_some() {
+            next += period_ns;
+            crate::rt::clock::sleep_until(next);
+        }
         let t = k as f64 * dt;
         let phase = (std::f64::consts::TAU * t).sin();
         wire.set_hub(ins0 - 1.5e-3 + 1.5e-3 * phase, roll0 + 0.3 * phase);
@@ -357,6 +439,7 @@ pub fn bench_wire_tick(config: &Path, o: &WireTickOptions) -> Result<WireTickBen
             }
         }
     }
+    drop(rt_guard);
     Ok(WireTickBench {
         nodes: wire.num_nodes(),
         segment_mm: seg * 1e3,
@@ -383,6 +466,9 @@ pub fn bench_wire_tick(config: &Path, o: &WireTickOptions) -> Result<WireTickBen
         qp_solved,
         lumen_updates: t_lumen.len(),
         follow_wall,
+        paced: rt_cpu.is_some(),
+        rt: grant,
+        memory_locked,
         resets,
         max_penetration_mm: deepest * 1e3,
         tick_us: Percentiles::of(&t_tick),

@@ -59,7 +59,7 @@ pub fn bench_wire_cmd(nodes: Option<usize>, steps: usize, iterations: usize, jso
 }
 
 /// `nvtmm bench wire --tick [--config C] [--nodes N] [--steps S]
-/// [--iterations K] [--evaluations E] [--line-load F] [--follow-wall] [--json]`: the whole guidewire tick in
+/// [--iterations K] [--evaluations E] [--line-load F] [--follow-wall] [--rt CPU] [--json]`: the whole guidewire tick in
 /// the branched arch, and its parts.
 pub fn bench_wire_tick_cmd(config: &Path, o: &WireTickOptions, json: bool) -> Result<()> {
     let b = bench_wire_tick(config, o)?;
@@ -93,6 +93,25 @@ pub fn bench_wire_tick_cmd(config: &Path, o: &WireTickOptions, json: bool) -> Re
         b.resets,
         b.max_penetration_mm
     );
+    if b.paced {
+        println!(
+            "ticks one a period on CPU {}, {}, memory {}{}",
+            b.rt.cpu.map_or("(not pinned)".to_string(), |c| c.to_string()),
+            if b.rt.fifo {
+                format!("SCHED_FIFO {}", b.rt.priority)
+            } else {
+                "ordinary policy".to_string()
+            },
+            if b.memory_locked { "locked" } else { "not locked" },
+            if b.rt.refusals.is_empty() {
+                String::new()
+            } else {
+                format!(" (refused: {})", b.rt.refusals.join("; "))
+            }
+        );
+    } else {
+        println!("ticks back to back in an ordinary thread (--rt CPU: as the service's wire thread)");
+    }
     println!("| part | p50 µs | p99 µs | p99.9 µs | max µs |");
     println!("|:---|---:|---:|---:|---:|");
     for (name, p) in [
