@@ -119,3 +119,38 @@ fn bench_wire_tick_with_rt_runs_paced_and_says_what_the_os_granted() {
     assert!(v["memory_locked"] == true || said("mlockall"), "{refusals:?}");
     assert_eq!(v["rt"]["priority"], 80);
 }
+
+#[test]
+fn the_hub_turning_to_push_costs_few_evaluations() {
+    // The bench's 127-node wire pressed onto the deformed wall by 5 N/m
+    // (33 contacts), its hub moved ±1.5 mm at 1 Hz: where the hub turns to
+    // push, the contacts break from sticking into slipping. Sliding the
+    // whole wire by each small feed started every contact slipping, and
+    // those steps took up to 15 evaluations (docs/WIRE.md "Slow pushes
+    // start from the unmoved wire"). The timed second covers a turn.
+    let out = Command::new(env!("CARGO_BIN_EXE_nvtmm"))
+        .current_dir(env!("CARGO_MANIFEST_DIR"))
+        .args([
+            "bench",
+            "wire",
+            "--tick",
+            "--steps",
+            "1000",
+            "--follow-wall",
+            "--line-load",
+            "5",
+            "--json",
+        ])
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let v: serde_json::Value = serde_json::from_slice(&out.stdout).expect("JSON");
+    assert_eq!(v["resets"], 0);
+    let contacts = v["contacts_mean"].as_f64().unwrap();
+    assert!(
+        contacts >= 25.0,
+        "{contacts} contacts on average: not the wall-loaded wire"
+    );
+    let most = v["evaluations_max"].as_u64().unwrap();
+    assert!(most <= 8, "{most} evaluations in a step");
+}

@@ -296,6 +296,18 @@ pub const FRICTION_SMOOTHING_M: f64 = 1e-6;
 /// the wall (docs/WIRE.md "Fast pulls", change 3).
 pub const CONTACT_ONSET_M: f64 = 1e-5;
 
+/// Feeds up to this many `friction_smoothing_m` a step do not slide the
+/// wire along itself ([`Wire::slide`]): the step starts from the unmoved
+/// nodes. The slide puts every contact at a slip of the whole feed; for a
+/// feed near the smoothing, as when the hub starts pushing again after a
+/// turn, most contacts should stay stuck or barely slip, and started
+/// slipping (where the Newton model has no stiffness along the slip) the
+/// step took up to 15 evaluations. From the unmoved nodes the contacts
+/// start stuck, where that model is exact, and the hub edge's compression
+/// (a few micrometres) is the grip's piecewise model's to resolve
+/// (docs/WIRE.md "Slow pushes start from the unmoved wire").
+pub const SLIDE_MIN_FEED_SMOOTHINGS: f64 = 10.0;
+
 /// The default `residual_tolerance_n` (docs/WIRE.md "Fast pulls", change 4).
 pub const RESIDUAL_TOLERANCE_N: f64 = 0.2;
 
@@ -1139,14 +1151,18 @@ impl Wire {
     /// and converges there; the slide is part of the step's motion, so
     /// inertia and friction see it. A tip against the wall slides along
     /// it; a tip heading into the wall (a dead end) blocks the slide: the
-    /// feed stays in the hub edge, where the grip caps the force.
+    /// feed stays in the hub edge, where the grip caps the force. A feed
+    /// of at most [`SLIDE_MIN_FEED_SMOOTHINGS`] friction smoothings slides
+    /// nothing (docs/WIRE.md "Slow pushes start from the unmoved wire").
     fn slide(&mut self, fed: f64, lumen: &dyn Lumen) {
         let n = self.s.n;
         // Pulling back stretches the hub edge instead: the grip does not
         // cap a pull, so Newton stays in the stiff regime and converges
         // from the unmoved nodes (sliding them back along the bent wire
         // cut the inside of a bend: tests/wire_capstan_matches_euler_eytelwein.rs).
-        if fed <= 0.0 || n < 3 {
+        // A slow push starts from the unmoved nodes too (see
+        // SLIDE_MIN_FEED_SMOOTHINGS).
+        if fed <= SLIDE_MIN_FEED_SMOOTHINGS * self.p.friction_smoothing_m || n < 3 {
             return;
         }
         let x = &mut self.s.x;
