@@ -297,7 +297,7 @@ pub const FRICTION_SMOOTHING_M: f64 = 1e-6;
 pub const CONTACT_ONSET_M: f64 = 1e-5;
 
 /// Feeds up to this many `friction_smoothing_m` a step do not slide the
-/// wire along itself ([`Wire::slide`]): the step starts from the unmoved
+/// wire along itself (the step's starting point, `Wire::slide`): the step starts from the unmoved
 /// nodes. The slide puts every contact at a slip of the whole feed; for a
 /// feed near the smoothing, as when the hub starts pushing again after a
 /// turn, most contacts should stay stuck or barely slip, and started
