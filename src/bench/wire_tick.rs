@@ -312,28 +312,20 @@ pub fn bench_wire_tick(config: &Path, o: &WireTickOptions) -> Result<WireTickBen
     // tick a period (back to back, a FIFO thread would also run into the
     // kernel's RT throttling).
     let mut grant = crate::rt::thread::RtGrant::default();
-    let mut memory_locked = false;
     // Stops the keep-awake thread and unlocks memory however the loop ends
     // (a failed step returns early).
     let mut rt_guard = RtGuard::default();
     if let Some(cpu) = rt_cpu {
-        match crate::rt::thread::lock_memory() {
-            Ok(()) => {
-                memory_locked = true;
-                rt_guard.locked = true;
-            }
-            Err(e) => grant.refusals.push(format!("mlockall refused ({e})")),
-        }
-        let g = crate::rt::thread::setup_current(&crate::rt::thread::RtRequest {
+        let locked = crate::rt::thread::lock_memory();
+        rt_guard.locked = locked.is_ok();
+        grant = crate::rt::thread::setup_current(&crate::rt::thread::RtRequest {
             fifo_priority: Some(RT_PRIORITY),
             cpu: Some(cpu),
             prefault_stack_bytes: 256 * 1024,
         });
-        grant.refusals.extend(g.refusals.iter().cloned());
-        grant = crate::rt::thread::RtGrant {
-            refusals: grant.refusals,
-            ..g
-        };
+        if let Err(e) = locked {
+            grant.refusals.push(format!("mlockall refused ({e})"));
+        }
         // And its CPU kept awake, as the service's `loop.keep_cpu_awake`
         // does for the loop's: a halted virtual CPU wakes late and cold.
         match crate::rt::thread::spawn_keep_awake(cpu, rt_guard.stop.clone()) {
@@ -439,6 +431,7 @@ pub fn bench_wire_tick(config: &Path, o: &WireTickOptions) -> Result<WireTickBen
             }
         }
     }
+    let memory_locked = rt_guard.locked;
     drop(rt_guard);
     Ok(WireTickBench {
         nodes: wire.num_nodes(),
