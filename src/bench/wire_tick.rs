@@ -328,13 +328,7 @@ pub fn bench_wire_tick(config: &Path, o: &WireTickOptions) -> Result<WireTickBen
         }
         // And its CPU kept awake, as the service's `loop.keep_cpu_awake`
         // does for the loop's: a halted virtual CPU wakes late and cold.
-        match crate::rt::thread::spawn_keep_awake(cpu, rt_guard.stop.clone()) {
-            Ok((h, refusals)) => {
-                grant.refusals.extend(refusals);
-                rt_guard.awake = Some(h);
-            }
-            Err(e) => grant.refusals.push(format!("keep-awake thread not started ({e})")),
-        }
+        rt_guard.awake = crate::rt::thread::spawn_keep_awake_noting(cpu, rt_guard.stop.clone(), &mut grant.refusals);
     }
     let period_ns = (dt * 1e9).round() as i64;
     let mut next = crate::rt::clock::now_ns();

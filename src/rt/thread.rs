@@ -273,6 +273,26 @@ pub fn spawn_keep_awake(cpu: usize, stop: Arc<AtomicBool>) -> std::io::Result<(J
     Ok((h, refusals))
 }
 
+/// [`spawn_keep_awake`], with what was refused, or why the thread did not
+/// start, added to `refusals` (the service and `bench wire --tick --rt`
+/// both report them so).
+pub fn spawn_keep_awake_noting(
+    cpu: usize,
+    stop: Arc<AtomicBool>,
+    refusals: &mut Vec<String>,
+) -> Option<JoinHandle<()>> {
+    match spawn_keep_awake(cpu, stop) {
+        Ok((h, why)) => {
+            refusals.extend(why);
+            Some(h)
+        }
+        Err(e) => {
+            refusals.push(format!("keep-awake thread not started: {e}"));
+            None
+        }
+    }
+}
+
 /// Whether the calling thread runs under SCHED_FIFO now.
 pub fn current_is_fifo() -> bool {
     // SAFETY: sched_getscheduler(0) queries the calling thread; no pointers.

@@ -673,16 +673,7 @@ pub(super) fn start_with<const R: usize>(p: Prepared) -> Result<Running<R>, Serv
     // The loop's CPU kept from idling (validated: the loop is pinned);
     // started last, as nothing after it can fail and leave it spinning.
     let awake_handle = match usize::try_from(cfg.servo.cpu) {
-        Ok(c) if cfg.servo.keep_cpu_awake => match crate::rt::thread::spawn_keep_awake(c, stop.clone()) {
-            Ok((h, why)) => {
-                refusals.extend(why);
-                Some(h)
-            }
-            Err(e) => {
-                refusals.push(format!("keep-awake thread not started: {e}"));
-                None
-            }
-        },
+        Ok(c) if cfg.servo.keep_cpu_awake => crate::rt::thread::spawn_keep_awake_noting(c, stop.clone(), &mut refusals),
         _ => None,
     };
     stop_on_failure.0 = None;
