@@ -217,6 +217,9 @@ pub struct Wire {
     hub_grad: Vec3,
     hub_dtheta: f64,
     last_axial: f64,
+    /// The last step's residual (`StepReport::residual_n`; infinite before
+    /// the first step and after a restore): whether the next push slides.
+    last_residual: f64,
     eval_pen: f64,
     contacts: Vec<WireContact>,
     /// Per node: what the lumen keeps near it between probes (moves with
@@ -488,6 +491,7 @@ impl Wire {
             hub_grad: Vec3::zeros(),
             hub_dtheta: 0.0,
             last_axial: 0.0,
+            last_residual: f64::INFINITY,
             eval_pen: 0.0,
             contacts: Vec::with_capacity(cap),
             probe_cache: vec![ProbeCache::default(); cap],
@@ -647,6 +651,19 @@ impl Wire {
             *v = Vec3::zeros();
         }
         self.contacts.clear();
+        self.last_residual = f64::INFINITY;
+    }
+
+    /// The net force on a node (N) below which a step counts as having
+    /// ended at equilibrium for [`Wire::slide`]: the wire's
+    /// `residual_tolerance_n`, or its default where that is 0 (no
+    /// iterations past `newton_iterations`).
+    fn settled_tolerance(&self) -> f64 {
+        if self.p.residual_tolerance_n > 0.0 {
+            self.p.residual_tolerance_n
+        } else {
+            RESIDUAL_TOLERANCE_N
+        }
     }
 
     fn h_seg(&self) -> f64 {
@@ -910,6 +927,15 @@ impl Wire {
             if !scale.is_finite() {
                 break;
             }
+            // An update this small is rounding (a hundred times the last
+            // bit of a 0.1 m coordinate): the iterate has converged. A line
+            // search along it would compare energies that differ by
+            // rounding alone, and ran out its trials.
+            if mx < 1e-15 && mt < 1e-14 {
+                rep.iterations = it + 1;
+                rep.last_update = mx.max(mt);
+                break;
+            }
             let slope: f64 = (0..dofs).map(|k| self.grad[k] * self.dx[k]).sum::<f64>() * scale;
             // What the first trial assembles: nothing beyond its energy if
             // the step was capped (the model is then far from the energy;
@@ -1034,6 +1060,7 @@ impl Wire {
         rep.residual_n = (2..n)
             .map(|i| Vec3::new(self.grad[4 * i], self.grad[4 * i + 1], self.grad[4 * i + 2]).norm())
             .fold(0.0, f64::max);
+        self.last_residual = rep.residual_n;
         rep.contacts = self.contacts.len();
         rep.max_penetration_m = self.contacts.iter().map(|c| c.penetration).fold(0.0, f64::max);
         if !self.s.is_finite() || !rep.hub_axial_force_n.is_finite() {
@@ -1162,7 +1189,11 @@ impl Wire {
         // cut the inside of a bend: tests/wire_capstan_matches_euler_eytelwein.rs).
         // A slow push starts from the unmoved nodes too (see
         // SLIDE_MIN_FEED_SMOOTHINGS).
-        if fed <= SLIDE_MIN_FEED_SMOOTHINGS * self.p.friction_smoothing_m || n < 3 {
+        // After a step that ended at equilibrium every push starts from the
+        // unmoved nodes too (docs/WIRE.md "Pushes start from the unmoved
+        // wire"): the slide is kept for a wire still off equilibrium.
+        let settled = self.last_residual <= self.settled_tolerance();
+        if settled || fed <= SLIDE_MIN_FEED_SMOOTHINGS * self.p.friction_smoothing_m || n < 3 {
             return;
         }
         let x = &mut self.s.x;
@@ -1641,7 +1672,7 @@ impl Wire {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::wire::lumen::StraightTube;
+    use crate::wire::lumen::{NoWall, StraightTube};
 
     /// The geometry's fast angles agree with the library's to a few ulps:
     /// the series branches (small angles) and the fall-backs.
@@ -1931,6 +1962,34 @@ mod tests {
             reps.iter().all(|r| !r.time_spent),
             "a converged step counted as stopped by time"
         );
+    }
+
+    /// A wire that has come to rest (the hand still, nothing moving) costs
+    /// one evaluation a step: a Newton update of rounding size is
+    /// convergence, not a direction to search along. Before, the line
+    /// search met energies equal to rounding and ran all its twelve trials:
+    /// 13–14 evaluations a step while the service's hand held still.
+    #[test]
+    fn a_wire_at_rest_costs_one_evaluation_a_step() {
+        let p = WireParams {
+            segment_length_m: 2e-3,
+            max_nodes: 40,
+            ..WireParams::default()
+        };
+        // In free space and lying on a wall under a load.
+        let tube = StraightTube::new(Vec3::new(-0.01, 0.0, 0.0), Vec3::x(), 0.2, 1.5e-3, false).unwrap();
+        for (lumen, load) in [(&NoWall as &dyn Lumen, 0.0), (&tube as &dyn Lumen, 3.0)] {
+            let mut w = Wire::new(&p, Vec3::zeros(), Vec3::x(), 0.03).unwrap();
+            w.set_line_load(Vec3::new(0.0, load, 0.0));
+            // Settle (the straight-laid tip springs into its shape).
+            for _ in 0..2000 {
+                w.step(lumen).unwrap();
+            }
+            let reps: Vec<_> = (0..50).map(|_| w.step(lumen).unwrap()).collect();
+            assert!(reps.iter().all(|r| r.residual_n < 1e-4), "not at rest: {:?}", reps[0]);
+            let most = reps.iter().map(|r| r.evaluations).max().unwrap();
+            assert!(most <= 2, "load {load} N/m: {most} evaluations a step at rest");
+        }
     }
 
     #[test]
