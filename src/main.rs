@@ -183,6 +183,10 @@ enum ExperimentCmd {
         /// stiffness, friction model), a few seconds.
         #[arg(long)]
         wire: bool,
+        /// The speed the guidewire rows push the wire at (mm/s, above 0 and
+        /// at most 100).
+        #[arg(long, default_value_t = 50.0)]
+        wire_speed: f64,
     },
 }
 
@@ -537,7 +541,12 @@ fn main() -> ExitCode {
             ExperimentCmd::Reduced { out, quick } => cli::reduced::experiment_reduced(&out, quick),
             ExperimentCmd::Fig5 { out, quick } => cli::sim::experiment_fig5(&out, quick),
             ExperimentCmd::Table { out, quick } => cli::sim::experiment_table(&out, quick),
-            ExperimentCmd::Trade { out, quick, wire } => cli::sim::experiment_trade(&out, quick, wire),
+            ExperimentCmd::Trade {
+                out,
+                quick,
+                wire,
+                wire_speed,
+            } => cli::sim::experiment_trade(&out, quick, wire, wire_speed * 1e-3),
         },
         Command::Replay(a) => cli::stream::replay(a),
         Command::View(a) => cli::stream::view(a),

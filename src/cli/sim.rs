@@ -177,10 +177,14 @@ pub fn experiment_table(out: &Path, quick: bool) -> Result<()> {
     Ok(())
 }
 
-pub fn experiment_trade(out: &Path, quick: bool, wire_only: bool) -> Result<()> {
+pub fn experiment_trade(out: &Path, quick: bool, wire_only: bool, wire_speed: f64) -> Result<()> {
     // The guidewire's knobs (docs/RESULTS.md, "Guidewire").
-    let wire = nvtmm::experiment::wire_trade::rows(quick)?;
-    let table = nvtmm::experiment::wire_trade::markdown(&wire);
+    let wire = nvtmm::experiment::wire_trade::rows(quick, wire_speed)?;
+    let table = format!(
+        "The guidewire pushed at {:.0} mm/s.\n\n{}",
+        wire_speed * 1e3,
+        nvtmm::experiment::wire_trade::markdown(&wire)
+    );
     std::fs::create_dir_all(out)?;
     std::fs::write(out.join("trade_wire.md"), &table)?;
     println!("{table}");

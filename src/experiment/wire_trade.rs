@@ -5,7 +5,7 @@
 //! the same insertion.
 //!
 //! The scenario: the default wire (0.035", nitinol, soft angled tip) pushed
-//! at 50 mm/s into a rigid curved tube shaped like the arch (a 40 mm inlet,
+//! at 50 mm/s (or the speed given, up to [`MAX_PUSH_M_S`]) into a rigid curved tube shaped like the arch (a 40 mm inlet,
 //! a half turn of 30 mm centreline radius, a 100 mm outlet, 4 mm lumen
 //! radius), from 20 mm inserted. Errors are the largest tip distance from
 //! the reference over the run (sampled every 10 ms) and the mean absolute
@@ -62,8 +62,14 @@ fn tube() -> Result<CurvedTube, String> {
     .map_err(|e| e.to_string())
 }
 
-/// Inserts the wire with `p` for `seconds` at 50 mm/s.
-fn run(p: &WireParams, seconds: f64) -> Result<Run, String> {
+/// The scenario's default push speed (m/s).
+pub const PUSH_M_S: f64 = 0.05;
+
+/// The fastest push the scenario takes (m/s): the drive's limit.
+pub const MAX_PUSH_M_S: f64 = 0.1;
+
+/// Inserts the wire with `p` for `seconds` at `speed` m/s.
+fn run(p: &WireParams, seconds: f64, speed: f64) -> Result<Run, String> {
     let lumen = tube()?;
     let mut w = Wire::new(p, Vec3::zeros(), Vec3::x(), 0.02).map_err(|e| e.to_string())?;
     let steps = (seconds / p.dt_s).round() as usize;
@@ -71,7 +77,7 @@ fn run(p: &WireParams, seconds: f64) -> Result<Run, String> {
     let (mut tips, mut hub, mut us) = (Vec::new(), Vec::new(), Vec::with_capacity(steps));
     let (mut contacts_max, mut evaluations_max) = (0, 0);
     for k in 1..=steps {
-        w.set_hub(0.02 + 0.05 * k as f64 * p.dt_s, 0.0);
+        w.set_hub(0.02 + speed * k as f64 * p.dt_s, 0.0);
         let t0 = Instant::now();
         let r = w.step(&lumen).map_err(|e| format!("step {k}: {e:?}"))?;
         us.push(t0.elapsed().as_secs_f64() * 1e6);
@@ -104,11 +110,20 @@ pub fn reference_params() -> WireParams {
     }
 }
 
-/// Runs every row (`quick`: 1 s of insertion instead of 2.5 s).
-pub fn rows(quick: bool) -> Result<Vec<WireTradeRow>, String> {
+/// Runs every row (`quick`: 1 s of insertion instead of 2.5 s) with the
+/// wire pushed at `speed` m/s (in (0, [`MAX_PUSH_M_S`]]; [`PUSH_M_S`] by
+/// default).
+pub fn rows(quick: bool, speed: f64) -> Result<Vec<WireTradeRow>, String> {
+    if !(speed > 0.0 && speed <= MAX_PUSH_M_S) {
+        return Err(format!(
+            "the wire's push speed is {} mm/s: it must be above 0 and at most {} mm/s",
+            speed * 1e3,
+            MAX_PUSH_M_S * 1e3
+        ));
+    }
     let seconds = if quick { 1.0 } else { 2.5 };
     let reference = reference_params();
-    let base = run(&reference, seconds)?;
+    let base = run(&reference, seconds, speed)?;
     let mean_ref = base.hub.iter().map(|f| f.abs()).sum::<f64>() / base.hub.len().max(1) as f64;
     let row = |knob: &str, value: String, r: &Run| -> WireTradeRow {
         let tip_error_mm = r
@@ -132,7 +147,7 @@ pub fn rows(quick: bool) -> Result<Vec<WireTradeRow>, String> {
     };
     let mut out = vec![row("reference", "1.5 mm, 8 it., 1e6 N/m, μ 0.1".into(), &base)];
     let mut add = |knob: &str, value: String, p: WireParams| -> Result<(), String> {
-        let r = run(&p, seconds)?;
+        let r = run(&p, seconds, speed)?;
         out.push(row(knob, value, &r));
         Ok(())
     };
@@ -263,7 +278,7 @@ mod tests {
 
     #[test]
     fn the_reference_row_has_no_error_and_every_row_is_finite() {
-        let r = rows(true).unwrap();
+        let r = rows(true, PUSH_M_S).unwrap();
         assert_eq!(r[0].knob, "reference");
         assert_eq!(r[0].tip_error_mm, 0.0);
         assert_eq!(r[0].hub_force_error, 0.0);
@@ -286,6 +301,14 @@ mod tests {
         // So are the penalty's onset and the residual tolerance.
         for knob in ["contact_onset", "shipped + residual_tolerance"] {
             assert_eq!(r.iter().filter(|x| x.knob == knob).count(), 1, "{knob}");
+        }
+    }
+
+    #[test]
+    fn a_push_speed_out_of_range_is_refused_by_name() {
+        for v in [0.0, -0.01, 0.2, f64::NAN] {
+            let e = rows(true, v).unwrap_err();
+            assert!(e.contains("push speed") && e.contains("100 mm/s"), "{e}");
         }
     }
 }
