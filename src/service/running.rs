@@ -84,6 +84,27 @@ impl Drop for StopOnDrop {
     }
 }
 
+/// What a start that fails part-way undoes when dropped: the device, while
+/// this holds it (started or not), is stopped (its force set to zero), and
+/// the memory lock the start took is released, unless `unlock_memory` was
+/// cleared once the service was handed out. An embedding application whose
+/// start fails keeps neither a device pushing nor its memory locked.
+struct UndoOnFailure {
+    device: Option<Box<dyn HapticDevice>>,
+    unlock_memory: bool,
+}
+
+impl Drop for UndoOnFailure {
+    fn drop(&mut self) {
+        if let Some(d) = self.device.as_mut() {
+            d.stop();
+        }
+        if self.unlock_memory {
+            crate::rt::thread::unlock_memory();
+        }
+    }
+}
+
 /// Joins a thread; a panic becomes an error naming the thread and the
 /// panic message.
 fn join<T>(h: Option<JoinHandle<T>>, name: &'static str) -> Result<T, ServiceError> {
@@ -423,9 +444,19 @@ pub(super) fn start_with<const R: usize>(p: Prepared) -> Result<Running<R>, Serv
     if cfg.servo.lock_memory && !memory_locked {
         refusals.push("mlockall refused (RLIMIT_MEMLOCK); memory not locked".to_string());
     }
-    let mut device = device;
-    device.start().map_err(|e| ServiceError::Device(e.to_string()))?;
-    let device_name = device.name().to_string();
+    // From here a start that fails stops the device (force to zero) and
+    // releases the memory lock it took, as a stop would.
+    let mut undo = UndoOnFailure {
+        device: Some(device),
+        unlock_memory: memory_locked,
+    };
+    let device_name = match undo.device.as_mut() {
+        Some(d) => {
+            d.start().map_err(|e| ServiceError::Device(e.to_string()))?;
+            d.name().to_string()
+        }
+        None => return Err(ServiceError::Device("no device".into())),
+    };
 
     clock::epoch();
     // The baseline runs first on the loop's thread; the device and the
@@ -616,6 +647,11 @@ pub(super) fn start_with<const R: usize>(p: Prepared) -> Result<Running<R>, Serv
         force: force_rx,
         stop: stop.clone(),
     };
+    // The device thread stops the device when it ends (the stop flag of a
+    // start that fails later ends it).
+    let Some(device) = undo.device.take() else {
+        return Err(ServiceError::Device("no device".into()));
+    };
     let dev_handle = std::thread::Builder::new()
         .name("nvtmm-device".into())
         .stack_size(1 << 20)
@@ -677,6 +713,7 @@ pub(super) fn start_with<const R: usize>(p: Prepared) -> Result<Running<R>, Serv
         _ => None,
     };
     stop_on_failure.0 = None;
+    undo.unlock_memory = false;
     Ok(Running {
         stop,
         live,
