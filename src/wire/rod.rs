@@ -315,7 +315,7 @@ pub const SLIDE_MIN_FEED_SMOOTHINGS: f64 = 10.0;
 pub const RESIDUAL_TOLERANCE_N: f64 = 0.2;
 
 /// Parallel transport of `d` from tangent `a` to tangent `b` (unit vectors).
-#[inline]
+#[inline(always)]
 fn transport(d: Vec3, a: Vec3, b: Vec3) -> Vec3 {
     let k = a.cross(&b);
     let c = a.dot(&b);
@@ -323,8 +323,12 @@ fn transport(d: Vec3, a: Vec3, b: Vec3) -> Vec3 {
     // The rotation about k = a × b taking a to b (Rodrigues, with
     // |k|² = (1 − c)(1 + c)): no square root and one division. For turns
     // beyond 90° (1 + c small), the normalised form below.
-    if s2 >= 1e-28 && c >= 0.0 {
-        return d * c + k.cross(&d) + k * (k.dot(&d) / (1.0 + c));
+    if c >= 0.0 {
+        if s2 >= 1e-28 {
+            return d * c + k.cross(&d) + k * (k.dot(&d) / (1.0 + c));
+        }
+        // Parallel (an edge that did not turn): as `transport_slow`.
+        return d;
     }
     transport_slow(d, a, b)
 }
@@ -1093,6 +1097,14 @@ impl Wire {
     /// predicted stretch change. The Huber energy is convex in st, so the
     /// consistent piece's update minimises a convex model whose gradient
     /// at the iterate is the true one: a descent direction.
+    ///
+    /// The piece assembled is the holding grip's, whatever the iterate's:
+    /// its solve is the update whenever the grip holds after it, which is
+    /// nearly always (a push that starts from the unmoved wire begins past
+    /// the grip's limit by its feed, which the update relaxes). Assembled
+    /// at the iterate's piece instead, 42 % of the tick bench's Newton
+    /// updates took the second solve (docs/WIRE.md "The grip in the Newton
+    /// model").
     fn newton_direction(&mut self) -> bool {
         let n = self.s.n;
         let dofs = 4 * n;
@@ -1102,8 +1114,8 @@ impl Wire {
         for k in 0..dofs {
             self.dx[k] = -self.grad[k];
         }
-        self.h.solve(&mut self.dx[..dofs]);
         if n < 3 {
+            self.h.solve(&mut self.dx[..dofs]);
             return true;
         }
         let f_grip = self.p.max_hub_force_n;
@@ -1113,26 +1125,32 @@ impl Wire {
         let slip0 = (k1 * st0).abs() > f_grip;
         // The grip's piece: its force at the iterate and axial stiffness.
         let piece = |slip: bool, side: f64| if slip { (f_grip * side, 0.0) } else { (k1 * st0, k1) };
-        let (f0, ka0) = piece(slip0, st0.signum());
+        // The Hessian holds the holding grip's piece (`eval_at`), the
+        // likely one after the update: a feed left in the hub edge starts
+        // the step past the grip's limit, and the update relaxes it. Its
+        // model's gradient differs from the true one by the change of the
+        // edge's force along t at node 2.
+        let f_true = piece(slip0, st0.signum()).0;
+        let (f0, ka0) = piece(false, 0.0);
+        for c in 0..3 {
+            self.dx[8 + c] -= (f0 - f_true) * t[c];
+        }
+        self.h.solve(&mut self.dx[..dofs]);
         let fits = |slip: bool, side: f64, st1: f64| {
             let s1 = (k1 * st1).abs() > f_grip;
             s1 == slip && (!slip || st1.signum() == side)
         };
         let a = t.dot(&Vec3::new(self.dx[8], self.dx[9], self.dx[10]));
-        if fits(slip0, st0.signum(), st0 + a) {
+        if fits(false, 0.0, st0 + a) {
             return true;
         }
         self.dz[..dofs].fill(0.0);
         self.dz[8..11].copy_from_slice(t.as_slice());
         self.h.solve(&mut self.dz[..dofs]);
         let b = t.dot(&Vec3::new(self.dz[8], self.dz[9], self.dz[10]));
-        // Slipping one way and predicted to stick or slip the other way:
-        // try the grip holding; holding and predicted to slip: that side.
-        let (mut slip, mut side) = if slip0 {
-            (false, 0.0)
-        } else {
-            (true, (st0 + a).signum())
-        };
+        // Holding, the update lands past the grip's limit: slip on that
+        // side, and from there the pieces in turn.
+        let (mut slip, mut side) = (true, (st0 + a).signum());
         for _ in 0..3 {
             let (f1, ka1) = piece(slip, side);
             let (c, dk) = (f0 - f1, ka1 - ka0);
@@ -1334,9 +1352,11 @@ impl Wire {
             let k = coef[j].stretch;
             let st = self.len[j] - s.rest[j];
             let slipping = j == 1 && (k * st).abs() > f_grip;
+            // The Hessian keeps the holding grip's stiffness where it slips
+            // too (`Wire::newton_direction` chooses the piece).
             let (force, k_axial) = if slipping {
                 energy += f_grip * st.abs() - 0.5 * f_grip * f_grip / k;
-                (f_grip * st.signum(), 0.0)
+                (f_grip * st.signum(), k)
             } else {
                 energy += 0.5 * k * st * st;
                 (k * st, k)
