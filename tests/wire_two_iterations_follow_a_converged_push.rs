@@ -1,8 +1,8 @@
 //! Two Newton iterations a step follow a converged push: the default wire
 //! pushed at 20 and at 50 mm/s into the trade experiment's rigid
-//! arch-shaped tube (a 40 mm inlet, a half turn of 30 mm radius, 4 mm
-//! lumen radius), once with two iterations a step and once with eight, on
-//! the same 1.5 mm segments: the tips stay within 0.2 mm of each other.
+//! arch-shaped tube (`experiment::wire_trade::tube`), once with two
+//! iterations a step and once with eight (the trade's reference, 1.5 mm
+//! segments): the tips stay within 0.2 mm of each other.
 //!
 //! Guards where a push starts its step (docs/WIRE.md "Pushes start from
 //! the unmoved wire once it has settled"). When every push slid the wire
@@ -11,28 +11,17 @@
 //! (`nvtmm experiment trade --wire`); the slide set every contact slipping
 //! by the whole feed, which two iterations did not undo.
 
+use nvtmm::experiment::wire_trade;
 use nvtmm::math::Vec3;
-use nvtmm::wire::{CurvedTube, CurvedTubeShape, Wire, WireParams};
+use nvtmm::wire::{Wire, WireParams};
 
 /// The tip every 10 ms over `seconds` of pushing at `speed` m/s from 20 mm
 /// inserted, and the most evaluations a step took.
 fn tips(iterations: usize, speed: f64, seconds: f64) -> (Vec<Vec3>, usize) {
-    let tube = CurvedTube::new(&CurvedTubeShape {
-        start: Vec3::zeros(),
-        tangent: Vec3::x(),
-        toward: Vec3::y(),
-        inlet: 0.04,
-        bend_radius: 0.03,
-        angle: std::f64::consts::PI,
-        outlet: 0.1,
-        radius: 4e-3,
-    })
-    .unwrap();
+    let tube = wire_trade::tube().unwrap();
     let p = WireParams {
-        segment_length_m: 1.5e-3,
         newton_iterations: iterations,
-        max_nodes: 200,
-        ..WireParams::default()
+        ..wire_trade::reference_params()
     };
     let mut w = Wire::new(&p, Vec3::zeros(), Vec3::x(), 0.02).unwrap();
     let steps = (seconds / p.dt_s).round() as usize;

@@ -47,8 +47,11 @@ struct Run {
     evaluations_max: usize,
 }
 
-/// The tube of the scenario.
-fn tube() -> Result<CurvedTube, String> {
+/// The scenario's tube: a rigid curved tube shaped like the arch (a 40 mm
+/// inlet, a half turn of 30 mm centreline radius, a 100 mm outlet, 4 mm
+/// lumen radius), the wire's access point at its inlet's start (the
+/// origin) and the insertion axis +x.
+pub fn tube() -> Result<CurvedTube, String> {
     CurvedTube::new(&CurvedTubeShape {
         start: Vec3::zeros(),
         tangent: Vec3::x(),

@@ -1177,20 +1177,27 @@ impl Wire {
     }
 
     /// The Newton iterations' starting point after `fed` metres entered
-    /// (or left, if negative) at the hub: every free node slides by `fed`
-    /// along the wire's own centreline, toward the tip (the tip along its
-    /// last edge). On pull-back nothing slides: the hub edge takes the
-    /// feed (the body says why; docs/WIRE.md "Friction's smoothing" what
-    /// made fast pull-backs converge).
+    /// (or left, if negative) at the hub, for a wire off equilibrium: every
+    /// free node slides by `fed` along the wire's own centreline, toward
+    /// the tip (the tip along its last edge). On pull-back nothing slides:
+    /// the hub edge takes the feed (the body says why; docs/WIRE.md
+    /// "Friction's smoothing" what made fast pull-backs converge). After a
+    /// step that ended at equilibrium nothing slides either: the grip's
+    /// piecewise Newton model takes the feed left in the hub edge in one
+    /// solve, and the slide's start biased steps that two iterations did
+    /// not finish (docs/WIRE.md "Pushes start from the unmoved wire once
+    /// it has settled").
     ///
-    /// Why: the feed lengthens the hub edge's rest length, and the
-    /// nearly inextensible wire (EA/h ≈ 10⁷ N/m) must follow within a
-    /// micrometre. Started from the unmoved nodes, the hub edge begins the
-    /// step compressed by the whole feed (0.1 mm: ~10³ N), far beyond the
-    /// grip's limit, where its Huber energy has no axial stiffness; Newton
-    /// then degenerates into a capped, bisected gradient step that never
-    /// lands within the micrometre, and the step ends with the hub force at
-    /// the grip's limit although nothing resists. Sliding the wire along
+    /// Why it slides a wire off equilibrium: the feed lengthens the hub
+    /// edge's rest length, and the nearly inextensible wire (EA/h ≈ 10⁷
+    /// N/m) must follow within a micrometre. Started from the unmoved
+    /// nodes, the hub edge begins the step compressed by the whole feed
+    /// (0.1 mm: ~10³ N), far beyond the grip's limit; where the updates
+    /// are capped (the wire far from equilibrium, as a straight-laid
+    /// pre-shaped tip springing into shape), the cap scales down the hub
+    /// edge's share of the update too, and the step ends with the hub force
+    /// near the grip's limit although nothing resists. (Before the grip's
+    /// piecewise Newton model, every push did.) Sliding the wire along
     /// itself keeps every edge's length to second order in the turning
     /// angle, so the step starts near equilibrium, in the stiff regime,
     /// and converges there; the slide is part of the step's motion, so
@@ -1205,11 +1212,8 @@ impl Wire {
         // cap a pull, so Newton stays in the stiff regime and converges
         // from the unmoved nodes (sliding them back along the bent wire
         // cut the inside of a bend: tests/wire_capstan_matches_euler_eytelwein.rs).
-        // A slow push starts from the unmoved nodes too (see
-        // SLIDE_MIN_FEED_SMOOTHINGS).
-        // After a step that ended at equilibrium every push starts from the
-        // unmoved nodes too (docs/WIRE.md "Pushes start from the unmoved
-        // wire"): the slide is kept for a wire still off equilibrium.
+        // A slow push (see SLIDE_MIN_FEED_SMOOTHINGS), and any push after a
+        // step that ended at equilibrium, start from the unmoved nodes too.
         let settled = self.last_residual <= self.settled_tolerance();
         if settled || fed <= SLIDE_MIN_FEED_SMOOTHINGS * self.p.friction_smoothing_m || n < 3 {
             return;
