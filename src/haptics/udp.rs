@@ -623,6 +623,15 @@ impl HapticDevice for UdpDevice {
     }
 }
 
+/// A dropped bridge stops like a stopped one: its peer gets the stop
+/// datagram with a zero force (a service whose device thread could not be
+/// spawned drops the device without its stop).
+impl Drop for UdpDevice {
+    fn drop(&mut self) {
+        self.stop();
+    }
+}
+
 impl UdpDevice {
     fn send(&mut self, f: Vec3, flags: u32) -> Result<(), DeviceError> {
         let Some(sock) = self.socket.as_ref() else {
@@ -665,6 +674,25 @@ impl UdpDevice {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Dropped without a stop (a service whose device thread could not be
+    /// spawned), the bridge still sends its peer the stop datagram.
+    #[test]
+    fn a_dropped_bridge_sends_the_stop() {
+        let peer = UdpSocket::bind("127.0.0.1:0").unwrap();
+        peer.set_read_timeout(Some(std::time::Duration::from_secs(5))).unwrap();
+        let mut d = UdpDevice::new(UdpParams {
+            bind: "127.0.0.1:0".into(),
+            peer: peer.local_addr().unwrap().to_string(),
+            ..UdpParams::default()
+        });
+        d.start().unwrap();
+        drop(d);
+        let mut buf = [0u8; 256];
+        let n = peer.recv(&mut buf).expect("no stop datagram");
+        let f = decode_force(&buf[..n]).unwrap();
+        assert!(f.flags & FLAG_STOP != 0 && f.force == [0.0; 3], "{f:?}");
+    }
 
     #[test]
     fn pose_and_force_round_trip() {
