@@ -308,7 +308,10 @@ pub const CONTACT_ONSET_M: f64 = 1e-5;
 /// step took up to 15 evaluations. From the unmoved nodes the contacts
 /// start stuck, where that model is exact, and the hub edge's compression
 /// (a few micrometres) is the grip's piecewise model's to resolve
-/// (docs/WIRE.md "Slow pushes start from the unmoved wire").
+/// (docs/WIRE.md "Slow pushes start from the unmoved wire"). This bound
+/// matters only after a step that ended off equilibrium: after one that
+/// settled, no feed slides (docs/WIRE.md "Pushes start from the unmoved
+/// wire once it has settled").
 pub const SLIDE_MIN_FEED_SMOOTHINGS: f64 = 10.0;
 
 /// The default `residual_tolerance_n` (docs/WIRE.md "Fast pulls", change 4).
