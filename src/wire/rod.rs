@@ -1359,14 +1359,14 @@ impl Wire {
             let k = coef[j].stretch;
             let st = self.len[j] - s.rest[j];
             let slipping = j == 1 && (k * st).abs() > f_grip;
-            // The Hessian keeps the holding grip's stiffness where it slips
-            // too (`Wire::newton_direction` chooses the piece).
-            let (force, k_axial) = if slipping {
+            // The Hessian keeps the holding grip's axial stiffness k where
+            // it slips too (`Wire::newton_direction` chooses the piece).
+            let force = if slipping {
                 energy += f_grip * st.abs() - 0.5 * f_grip * f_grip / k;
-                (f_grip * st.signum(), k)
+                f_grip * st.signum()
             } else {
                 energy += 0.5 * k * st * st;
-                (k * st, k)
+                k * st
             };
             if assemble {
                 let t = self.tan[j];
@@ -1379,7 +1379,7 @@ impl Wire {
                     continue;
                 }
                 let geo = (force * self.inv_len[j]).max(0.0);
-                let kt = k_axial - geo;
+                let kt = k - geo;
                 let mut km = [[0.0; 3]; 3];
                 for (r, row) in km.iter_mut().enumerate() {
                     for (c, v) in row.iter_mut().enumerate() {
