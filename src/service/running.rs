@@ -72,30 +72,32 @@ pub(super) trait RunningService: Send {
     fn faults(&self) -> Arc<FaultSwitches>;
 }
 
-/// Sets the stop flag when dropped, unless emptied first: every thread a
-/// failed start had already spawned sees it and ends.
-struct StopOnDrop(Option<Arc<AtomicBool>>);
-
-impl Drop for StopOnDrop {
-    fn drop(&mut self) {
-        if let Some(s) = &self.0 {
-            s.store(true, Ordering::Relaxed);
-        }
-    }
-}
-
-/// What a start that fails part-way undoes when dropped: the device, while
-/// this holds it (started or not), is stopped (its force set to zero), and
-/// the memory lock the start took is released, unless `unlock_memory` was
-/// cleared once the service was handed out. An embedding application whose
-/// start fails keeps neither a device pushing nor its memory locked.
+/// What a start that fails part-way undoes when dropped, until
+/// [`UndoOnFailure::disarm`] once the service is handed out: the stop flag
+/// is set, so every thread it had already spawned ends; the device, while
+/// this holds it (started or not), is stopped (its force set to zero); the
+/// memory lock the start took is released. An embedding application whose
+/// start fails keeps neither threads running, nor a device pushing, nor its
+/// memory locked.
 struct UndoOnFailure {
+    stop: Option<Arc<AtomicBool>>,
     device: Option<Box<dyn HapticDevice>>,
     unlock_memory: bool,
 }
 
+impl UndoOnFailure {
+    /// The start succeeded: nothing to undo.
+    fn disarm(&mut self) {
+        self.stop = None;
+        self.unlock_memory = false;
+    }
+}
+
 impl Drop for UndoOnFailure {
     fn drop(&mut self) {
+        if let Some(s) = &self.stop {
+            s.store(true, Ordering::Relaxed);
+        }
         if let Some(d) = self.device.as_mut() {
             d.stop();
         }
@@ -427,9 +429,13 @@ pub(super) fn start_with<const R: usize>(p: Prepared) -> Result<Running<R>, Serv
     let (model_tx, model_rx) = rtrb::RingBuffer::<Box<LoopModel<R>>>::new(rings.model);
     let (ret_tx, ret_rx) = rtrb::RingBuffer::<Box<LoopModel<R>>>::new(rings.returned);
     let stop = Arc::new(AtomicBool::new(false));
-    // A start that fails after spawning threads stops them (disarmed once
-    // the service is handed out).
-    let mut stop_on_failure = StopOnDrop(Some(stop.clone()));
+    // A start that fails from here undoes what it did (`UndoOnFailure`:
+    // disarmed once the service is handed out).
+    let mut undo = UndoOnFailure {
+        stop: Some(stop.clone()),
+        device: None,
+        unlock_memory: false,
+    };
     let live = Arc::new(LiveStats::default());
     let faults = Arc::new(FaultSwitches::default());
     let (state_tx, state_rx) = rtrb::RingBuffer::<StateSnapshot<R>>::new(rings.state);
@@ -446,10 +452,8 @@ pub(super) fn start_with<const R: usize>(p: Prepared) -> Result<Running<R>, Serv
     }
     // From here a start that fails stops the device (force to zero) and
     // releases the memory lock it took, as a stop would.
-    let mut undo = UndoOnFailure {
-        device: Some(device),
-        unlock_memory: memory_locked,
-    };
+    undo.device = Some(device);
+    undo.unlock_memory = memory_locked;
     let device_name = match undo.device.as_mut() {
         Some(d) => {
             d.start().map_err(|e| ServiceError::Device(e.to_string()))?;
@@ -712,8 +716,7 @@ pub(super) fn start_with<const R: usize>(p: Prepared) -> Result<Running<R>, Serv
         Ok(c) if cfg.servo.keep_cpu_awake => crate::rt::thread::spawn_keep_awake_noting(c, stop.clone(), &mut refusals),
         _ => None,
     };
-    stop_on_failure.0 = None;
-    undo.unlock_memory = false;
+    undo.disarm();
     Ok(Running {
         stop,
         live,
