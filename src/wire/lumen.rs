@@ -471,7 +471,20 @@ impl Lumen for CurvedTube {
         let s_out = (p - self.arc_end).dot(&self.out_tangent).max(0.0);
         let c_out = self.arc_end + self.out_tangent * s_out;
         let q = p - self.center;
-        let phi = q.dot(&self.y).atan2(q.dot(&self.x)).clamp(0.0, self.angle);
+        // The angle about the bend's centre in [0, 2π), then the nearer
+        // end of the arc if it lies beyond it (an arc of more than π
+        // reaches angles atan2 gives as negative).
+        let mut phi = q.dot(&self.y).atan2(q.dot(&self.x));
+        if phi < 0.0 {
+            phi += std::f64::consts::TAU;
+        }
+        if phi > self.angle {
+            phi = if phi - self.angle < std::f64::consts::TAU - phi {
+                self.angle
+            } else {
+                0.0
+            };
+        }
         let (sn, cs) = phi.sin_cos();
         let c_arc = self.center + (self.x * cs + self.y * sn) * self.bend_radius;
         let mut best = (c_in, self.tangent);
@@ -519,6 +532,166 @@ pub struct TriangleLumen {
     /// Sum over vertex updates of the largest vertex displacement (m): a
     /// bound on how far any wall point moved between two of its values.
     moved: f64,
+    /// The surface's openings (boundary loops that end a tube), each
+    /// continued beyond its plane by a straight rigid tube.
+    openings: Vec<Opening>,
+}
+
+/// An opening of a [`TriangleLumen`]: a boundary loop of its surface that
+/// ends a tube (a vessel's inlet or outlet, a branch stub's end). Beyond
+/// its plane a surface with a hole has no inside: the lumen continues the
+/// vessel there by a straight rigid tube along the opening's axis, of the
+/// loop's largest radius, so a wire may leave the mesh through it and is
+/// held as the continuing vessel would hold it (docs/WIRE.md "Open ends").
+#[derive(Debug, Clone, PartialEq)]
+pub struct Opening {
+    /// The loop's vertices, in order.
+    ring: Vec<u32>,
+    /// Centre of the loop (mean of its vertices, m).
+    pub centre: Vec3,
+    /// Unit normal of the loop's plane pointing out of the mesh.
+    pub axis: Vec3,
+    /// Largest distance of a loop vertex from the axis (m): the
+    /// continuation's radius.
+    pub radius: f64,
+}
+
+impl Opening {
+    /// The loop's vertices (indices into the lumen's vertices), in order.
+    pub fn ring(&self) -> &[u32] {
+        &self.ring
+    }
+
+    /// Centre, outward axis and radius from the ring's current vertices
+    /// (Newell's normal, signed by `outward`); false if degenerate.
+    fn measure(&mut self, verts: &[Vec3], outward: Vec3) -> bool {
+        let k = self.ring.len() as f64;
+        let c = self.ring.iter().map(|&i| verts[i as usize]).sum::<Vec3>() / k;
+        let mut n = Vec3::zeros();
+        for (a, &i) in self.ring.iter().enumerate() {
+            let j = self.ring[(a + 1) % self.ring.len()];
+            n += (verts[i as usize] - c).cross(&(verts[j as usize] - c));
+        }
+        let nn = n.norm();
+        if !(nn > 0.0 && nn.is_finite()) {
+            return false;
+        }
+        let mut axis = n / nn;
+        if axis.dot(&outward) < 0.0 {
+            axis = -axis;
+        }
+        let radius = self
+            .ring
+            .iter()
+            .map(|&i| {
+                let r = verts[i as usize] - c;
+                (r - axis * r.dot(&axis)).norm()
+            })
+            .fold(0.0, f64::max);
+        self.centre = c;
+        self.axis = axis;
+        self.radius = radius;
+        radius > 0.0
+    }
+
+    /// The continuation's wall seen from `p` if `p` lies beyond the
+    /// opening's plane and within twice its radius of the axis (its
+    /// distance may then be beyond `range`): `Some(None)` when the wall is
+    /// farther than `range`; `None` when the opening does not apply.
+    fn probe(&self, p: Vec3, range: f64) -> Option<Option<WallHit>> {
+        let q = p - self.centre;
+        let h = q.dot(&self.axis);
+        if h <= 0.0 {
+            return None;
+        }
+        let r = q - self.axis * h;
+        if r.norm_squared() >= 4.0 * self.radius * self.radius {
+            return None;
+        }
+        let hit = tube_hit(p, self.centre + self.axis * h, self.radius, perpendicular(self.axis));
+        Some((hit.distance <= range).then_some(hit))
+    }
+}
+
+/// The boundary loops of a triangle surface that end a tube, with the
+/// direction out of the surface at each. A loop counts when it is nearly
+/// planar (its vertices within a quarter of its radius of its plane) and
+/// the triangles along it lie on one side of that plane (their third
+/// vertices, on average, at least 30 % of the loop's mean edge from it):
+/// a flat sheet's border is not an opening.
+fn find_openings(verts: &[Vec3], tris: &[[u32; 3]]) -> Vec<Opening> {
+    use std::collections::HashMap;
+    let mut uses: HashMap<(u32, u32), u32> = HashMap::new();
+    for t in tris {
+        for k in 0..3 {
+            let (a, b) = (t[k], t[(k + 1) % 3]);
+            *uses.entry((a.min(b), a.max(b))).or_default() += 1;
+        }
+    }
+    // Boundary edges as the triangles wind them, and each one's third vertex.
+    let mut next: HashMap<u32, (u32, u32)> = HashMap::new();
+    for t in tris {
+        for k in 0..3 {
+            let (a, b, c) = (t[k], t[(k + 1) % 3], t[(k + 2) % 3]);
+            if uses[&(a.min(b), a.max(b))] == 1 {
+                next.insert(a, (b, c));
+            }
+        }
+    }
+    let mut starts: Vec<u32> = next.keys().copied().collect();
+    starts.sort_unstable();
+    let mut seen = std::collections::HashSet::new();
+    let mut out = Vec::new();
+    for s in starts {
+        if seen.contains(&s) {
+            continue;
+        }
+        let (mut ring, mut third) = (Vec::new(), Vec::new());
+        let mut v = s;
+        let closed = loop {
+            if !seen.insert(v) {
+                break v == s;
+            }
+            let Some(&(b, c)) = next.get(&v) else { break false };
+            ring.push(v);
+            third.push(c);
+            v = b;
+        };
+        if !closed || ring.len() < 3 {
+            continue;
+        }
+        let mut o = Opening {
+            ring,
+            centre: Vec3::zeros(),
+            axis: Vec3::z(),
+            radius: 0.0,
+        };
+        if !o.measure(verts, Vec3::zeros()) {
+            continue;
+        }
+        let side = third
+            .iter()
+            .map(|&c| (verts[c as usize] - o.centre).dot(&o.axis))
+            .sum::<f64>()
+            / third.len() as f64;
+        let n = o.ring.len();
+        let edge = (0..n)
+            .map(|a| (verts[o.ring[(a + 1) % n] as usize] - verts[o.ring[a] as usize]).norm())
+            .sum::<f64>()
+            / n as f64;
+        let flat = o
+            .ring
+            .iter()
+            .all(|&i| (verts[i as usize] - o.centre).dot(&o.axis).abs() <= 0.25 * o.radius);
+        if !flat || side.abs() < 0.3 * edge {
+            continue;
+        }
+        if side > 0.0 {
+            o.axis = -o.axis;
+        }
+        out.push(o);
+    }
+    out
 }
 
 impl Clone for TriangleLumen {
@@ -541,6 +714,7 @@ impl Clone for TriangleLumen {
             compliance: self.compliance.clone(),
             stamp: new_stamp(),
             moved: self.moved,
+            openings: self.openings.clone(),
         }
     }
 }
@@ -590,6 +764,7 @@ impl TriangleLumen {
             compliance: Vec::new(),
             stamp: new_stamp(),
             moved: 0.0,
+            openings: find_openings(vertices, triangles),
         };
         l.rebuild();
         Ok(l)
@@ -703,7 +878,36 @@ impl TriangleLumen {
         [0, 1, 2].map(|k| (((p[k] - self.lo[k]) * self.inv_cell[k]).max(0.0) as usize).min(self.dims[k] - 1))
     }
 
+    /// The surface's openings, each continued beyond its plane by a
+    /// straight rigid tube (see [`Opening`]).
+    pub fn openings(&self) -> &[Opening] {
+        &self.openings
+    }
+
+    /// The wall seen from `p` with the openings continued: beyond an
+    /// opening's plane (within twice its radius of its axis) the
+    /// continuation's wall, or a piece of the surface on `p`'s side nearer
+    /// than it (the surface's "beyond the wall" means nothing there: it
+    /// has a hole); elsewhere the surface's `mesh` hit.
+    fn continued(&self, p: Vec3, range: f64, mesh: Option<WallHit>) -> Option<WallHit> {
+        for o in &self.openings {
+            if let Some(cont) = o.probe(p, range) {
+                return match (mesh, cont) {
+                    (Some(m), Some(c)) if m.distance > 0.0 && m.distance < c.distance => Some(m),
+                    (Some(m), None) if m.distance > 0.0 => Some(m),
+                    (_, c) => c,
+                };
+            }
+        }
+        mesh
+    }
+
     fn rebuild(&mut self) {
+        // The openings follow the wall (the loops' vertices move with it).
+        for o in &mut self.openings {
+            let out = o.axis;
+            o.measure(&self.verts, out);
+        }
         let (lo, hi) = bounds(&self.verts);
         self.lo = lo;
         for k in 0..3 {
@@ -976,9 +1180,15 @@ impl TriangleLumen {
             out.clear();
             let _ = out.push(WallOverlap::from_hit(nearest));
         };
-        // Every triangle within `radius` of p must be a candidate.
+        // Every triangle within `radius` of p must be a candidate; an
+        // opening's continuation (no triangle) is one smooth wall.
         let off = (p - cache.centre).norm() + (self.moved - cache.moved);
-        if nearest.distance <= 0.0 || !cache.usable || cache.stamp != self.stamp || off + radius > cache.reach {
+        if nearest.distance <= 0.0
+            || nearest.triangle == NO_TRIANGLE
+            || !cache.usable
+            || cache.stamp != self.stamp
+            || off + radius > cache.reach
+        {
             return alone(out);
         }
         let comp = |v: u32| {
@@ -1118,11 +1328,11 @@ impl TriangleLumen {
 
 impl Lumen for TriangleLumen {
     fn probe(&self, p: Vec3, range: f64) -> Option<WallHit> {
-        self.probe_triangle(p, range).map(|(h, _)| h)
+        self.continued(p, range, self.probe_triangle(p, range).map(|(h, _)| h))
     }
 
     fn probe_cached(&self, p: Vec3, range: f64, cache: &mut ProbeCache) -> Option<WallHit> {
-        self.probe_triangle_cached(p, range, cache).map(|(h, _)| h)
+        self.continued(p, range, self.probe_triangle_cached(p, range, cache).map(|(h, _)| h))
     }
 
     fn overlaps_cached(&self, p: Vec3, radius: f64, nearest: &WallHit, cache: &mut ProbeCache, out: &mut WallOverlaps) {
@@ -1414,6 +1624,67 @@ mod tests {
             }
         })
         .is_err());
+    }
+
+    /// Arcs beyond π: every point at ρ from the arc's centreline is at
+    /// radius − ρ from the wall (atan2's negative angles were clamped to
+    /// the arc's start: up to 70 mm off at 1.5π).
+    #[test]
+    fn a_curved_tube_beyond_half_a_turn_measures_its_wall() {
+        let (r, bend) = (3e-3, 0.05);
+        for angle in [0.5, 1.0, 1.2, 1.5, 1.75].map(|f| f * std::f64::consts::PI) {
+            let c = CurvedTube::new(&CurvedTubeShape {
+                start: Vec3::new(0.01, -0.02, 0.003),
+                tangent: Vec3::new(1.0, 0.2, 0.0),
+                toward: Vec3::new(0.0, 1.0, 0.3),
+                inlet: 0.02,
+                bend_radius: bend,
+                angle,
+                outlet: 0.02,
+                radius: r,
+            })
+            .unwrap();
+            let mut worst: f64 = 0.0;
+            for k in 0..=200 {
+                let s = 0.02 + bend * (0.05 + (angle - 0.1) * k as f64 / 200.0);
+                let (p, t) = c.centreline(s);
+                let u = perpendicular(t);
+                let v = t.cross(&u);
+                for (j, rho) in [0.0, 0.5 * r, 0.9 * r].into_iter().enumerate() {
+                    let a = 0.7 * k as f64 + 2.1 * j as f64;
+                    let q = p + (u * a.cos() + v * a.sin()) * rho;
+                    let h = c.probe(q, 1.0).unwrap();
+                    worst = worst.max((h.distance - (r - rho)).abs());
+                }
+            }
+            assert!(worst < 1e-9, "angle {angle}: wall distance off by {worst} m");
+        }
+    }
+
+    /// An open tube has two openings, at its ends, their axes out of it
+    /// and their radius the ring's; a flat sheet's border is none.
+    #[test]
+    fn an_open_tube_has_two_openings_and_a_sheet_none() {
+        let (v, t) = tube_wall(0.01, 0.05, 4e-3, 16, 10, 0.0);
+        let l = TriangleLumen::new(&v, &t).unwrap();
+        let mut o: Vec<&Opening> = l.openings().iter().collect();
+        o.sort_by(|a, b| a.centre.x.total_cmp(&b.centre.x));
+        assert_eq!(o.len(), 2, "{o:?}");
+        assert!((o[0].centre - Vec3::new(0.01, 0.0, 0.0)).norm() < 1e-12);
+        assert!((o[0].axis + Vec3::x()).norm() < 1e-12, "{:?}", o[0].axis);
+        assert!((o[1].centre - Vec3::new(0.06, 0.0, 0.0)).norm() < 1e-12);
+        assert!((o[1].axis - Vec3::x()).norm() < 1e-12);
+        assert!((o[1].radius - 4e-3).abs() < 1e-12);
+        assert_eq!(o[1].ring().len(), 16);
+        // Beyond the far end, 1 mm from the continued wall: inside, and
+        // 2 mm beyond it radially: beyond the wall, pushed back in.
+        let h = l.probe(Vec3::new(0.08, 3e-3, 0.0), 1.0).unwrap();
+        assert!((h.distance - 1e-3).abs() < 1e-12, "{h:?}");
+        let h = l.probe(Vec3::new(0.08, 0.0, 6e-3), 1.0).unwrap();
+        assert!((h.distance + 2e-3).abs() < 1e-12 && h.normal.z < -0.99, "{h:?}");
+        // On the axis beyond the end, nothing within 1 mm.
+        assert!(l.probe(Vec3::new(0.08, 0.0, 0.0), 1e-3).is_none());
+        assert!(sheet(0.0).openings().is_empty());
     }
 
     /// A flat square of 4 × 4 cells on z = 0, each cut into two triangles

@@ -23,7 +23,9 @@ pub mod lumen;
 pub mod rod;
 
 pub use drive::{DriveParams, HubCommand, HubDrive};
-pub use lumen::{CurvedTube, CurvedTubeShape, Lumen, LumenError, NoWall, StraightTube, TriangleLumen, WallHit};
+pub use lumen::{
+    CurvedTube, CurvedTubeShape, Lumen, LumenError, NoWall, Opening, StraightTube, TriangleLumen, WallHit,
+};
 pub use rod::{StepReport, Wire, WireContact, WireError, WireFault};
 
 use crate::config::{load_toml, parse_toml, Checker, ConfigError};
