@@ -148,6 +148,39 @@ basis_refresh_m = 1e-5
     for key in ["p50", "p99", "p999", "max"] {
         assert!(json["tick_compute_us"].get(key).is_some());
     }
+    // Where the tick's time goes: every tick runs the rings, contact, the
+    // step, the filter and the output; swaps and cross-fades ran; the
+    // phases and the unattributed rest add up to the whole compute time.
+    let ph = &report.tick_phases;
+    for key in ["drain", "contact", "step", "filter", "output", "other"] {
+        assert_eq!(ph.phases[key].ticks, report.ticks, "tick_phases.phases.{key}");
+        sane(key, &ph.phases[key].us);
+    }
+    assert_eq!(ph.phases["swap"].ticks, report.model_swaps);
+    assert!(ph.phases["fade"].ticks > 0, "the cross-fade ran");
+    assert_eq!(ph.phases["series"].ticks, report.watchdog.compliance_ticks);
+    assert_eq!(ph.phases["wire"].ticks, 0, "no wire in this scene");
+    let shares: f64 = ph
+        .phases
+        .iter()
+        .filter(|(k, _)| !matches!(**k, "series" | "qp_solve"))
+        .map(|(_, st)| st.share)
+        .sum();
+    assert!(
+        (shares - 1.0).abs() < 1e-6,
+        "the outer phases and `other` make up the tick: {shares}"
+    );
+    let slowest = ph.slowest_tick_us["compute"];
+    assert_eq!(slowest, report.tick_compute_us.max);
+    for key in ["p50", "p99", "p999", "max"] {
+        assert!(json["tick_phases"]["phases"]["contact"]["us"].get(key).is_some());
+    }
+    for key in ["ticks", "mean_us", "per_tick_us", "share"] {
+        assert!(json["tick_phases"]["phases"]["step"].get(key).is_some());
+    }
+    for key in ["slowest_tick_us", "tail_threshold_us", "tail_ticks", "tail_mean_us"] {
+        assert!(json["tick_phases"].get(key).is_some(), "tick_phases.{key}");
+    }
     for key in [
         "solves",
         "active_norm",

@@ -429,6 +429,9 @@ pub struct ContactOutput<const R: usize> {
     /// Spheres whose triangles were searched for on the grid this
     /// evaluation (the others reused their kept triangles, [`Motion`]).
     pub searches: usize,
+    /// Time the residual-compliance series solve took this evaluation (ns;
+    /// 0 without one), for the loop's phase timing.
+    pub series_ns: i64,
     /// Reaction on each tool sphere (N), in the order given.
     pub sphere_forces: heapless::Vec<Vec3, MAX_SPHERES>,
     active: heapless::Vec<ActiveNode, MAX_CONTACT_NODES>,
@@ -649,6 +652,7 @@ impl<const R: usize> Default for ContactOutput<R> {
             corrected: false,
             iterations: 0,
             searches: 0,
+            series_ns: 0,
             sphere_forces: heapless::Vec::new(),
             active: heapless::Vec::new(),
             patches: heapless::Vec::new(),
@@ -757,6 +761,7 @@ pub fn evaluate_spheres<'r, const R: usize>(
     out.samples = 0;
     out.positions = 0;
     out.searches = 0;
+    out.series_ns = 0;
     for (s, center) in centers.iter().take(MAX_SPHERES).enumerate() {
         let _ = out.sphere_forces.push(Vec3::zeros());
         press_sphere(
@@ -774,7 +779,11 @@ pub fn evaluate_spheres<'r, const R: usize>(
         return;
     }
     match compliance {
-        Some(w) => series_patches(w, &rows, out),
+        Some(w) => {
+            let t0 = crate::rt::clock::now_ns();
+            series_patches(w, &rows, out);
+            out.series_ns = crate::rt::clock::now_ns() - t0;
+        }
         None => plain_patches(&rows, out),
     }
     let mut fr = SVector::<f64, R>::zeros();

@@ -14,6 +14,7 @@ pub mod frame;
 #[cfg(feature = "openhaptics")]
 pub mod openhaptics;
 pub mod passivity;
+pub mod phases;
 pub mod servo;
 pub mod tick;
 pub mod touchx;

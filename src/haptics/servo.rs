@@ -11,9 +11,11 @@
 
 use super::contact::{self, Candidates, ContactOutput, ContactParams, SurfaceIndex};
 use super::device::DeviceSample;
+use super::phases::{Phase, TickSplit};
 use crate::math::Vec3;
 use crate::reduced::compliance::LocalCompliance;
 use crate::reduced::{ReducedDynamics, ReducedPart};
+use crate::rt::clock;
 use nalgebra::{SMatrix, SVector};
 use std::sync::Arc;
 
@@ -346,6 +348,8 @@ pub struct Servo<const R: usize> {
     point_loads: heapless::Vec<(u32, Vec3), MAX_POINT_LOADS>,
     /// The share of the current model's state the point loads caused.
     loads_part: ReducedPart<R>,
+    /// This tick's time in contact, the step and the cross-fade.
+    split: TickSplit,
 }
 
 /// Most point loads [`Servo::set_point_loads`] keeps.
@@ -385,6 +389,7 @@ impl<const R: usize> Servo<R> {
             events: ContactEvents::default(),
             point_loads: heapless::Vec::new(),
             loads_part: ReducedPart::default(),
+            split: TickSplit::default(),
         }
     }
 
@@ -608,6 +613,12 @@ impl<const R: usize> Servo<R> {
         }
     }
 
+    /// The last tick's time in its phases: contact (with the series solve),
+    /// the reduced step and the cross-fade's old model.
+    pub fn split(&self) -> &TickSplit {
+        &self.split
+    }
+
     /// The share of the current model's reduced state that the point loads
     /// caused (by linearity of the reduced step).
     pub fn point_load_part(&self) -> &ReducedPart<R> {
@@ -621,6 +632,7 @@ impl<const R: usize> Servo<R> {
     pub fn tick(&mut self, sample: Option<&DeviceSample>, now_s: f64, overrun_streak: u32) -> TickOutput {
         self.counters.ticks += 1;
         self.now_s = now_s;
+        self.split.clear();
         let mut fl = 0u32;
         let p = self.params;
         if let Some(s) = sample {
@@ -665,6 +677,7 @@ impl<const R: usize> Servo<R> {
         for c in self.extra.iter() {
             let _ = self.centers.push(*c);
         }
+        let t0 = clock::now_ns();
         eval_contact(
             &self.model,
             &self.index,
@@ -673,6 +686,10 @@ impl<const R: usize> Servo<R> {
             &mut self.scratch,
             &mut self.contact,
         );
+        self.split.add_since(Phase::Contact, t0);
+        if self.contact.series_ns > 0 {
+            self.split.add(Phase::Series, self.contact.series_ns);
+        }
         if !self.contact.nodes.is_empty() {
             fl |= flags::CONTACT;
             self.counters.contact_ticks += 1;
@@ -692,6 +709,7 @@ impl<const R: usize> Servo<R> {
         if !c.nodes.is_empty() && self.model.compliance.is_some() {
             self.counters.compliance_ticks += 1;
         }
+        let t0 = clock::now_ns();
         let (mut desired, mut finite) = step_model(
             &mut self.model,
             &self.contact,
@@ -699,6 +717,7 @@ impl<const R: usize> Servo<R> {
             Some(&mut self.loads_part),
             &mut self.counters,
         );
+        let t0 = self.split.add_since(Phase::Step, t0);
         // A cross-fade: the old model runs on and the force blends over.
         if let Some(old) = self.fading.as_mut() {
             eval_contact(
@@ -716,6 +735,7 @@ impl<const R: usize> Servo<R> {
             if self.blend >= 1.0 {
                 self.retired = self.fading.take();
             }
+            self.split.add_since(Phase::Fade, t0);
         }
         if !finite {
             fl |= flags::NONFINITE;

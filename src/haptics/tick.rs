@@ -16,6 +16,7 @@
 
 use super::device::DeviceSample;
 use super::passivity::{predict_velocity, PassivityFilter, PassivityStats, QpStatus};
+use super::phases::{Phase, TickSplit};
 use super::servo::{flags, LoopModel, Servo, ServoCounters};
 use crate::math::Vec3;
 use crate::rt::clock;
@@ -66,6 +67,7 @@ pub struct HapticTick<const R: usize> {
     last_sample_s: f64,
     rt_granted: bool,
     external: Vec3,
+    split: TickSplit,
 }
 
 impl<const R: usize> HapticTick<R> {
@@ -80,6 +82,7 @@ impl<const R: usize> HapticTick<R> {
             last_sample_s: f64::NAN,
             rt_granted: false,
             external: Vec3::zeros(),
+            split: TickSplit::default(),
         }
     }
 
@@ -151,7 +154,14 @@ impl<const R: usize> HapticTick<R> {
         let fo = self.filter.filter(out.desired, x, v_pred);
         let filtered = fo.force;
         let qp_solved = !matches!(fo.status, QpStatus::Interior | QpStatus::NotRun);
-        let qp_us = (clock::now_ns() - q0) as f64 * 1e-3;
+        let q1 = clock::now_ns();
+        let qp_us = (q1 - q0) as f64 * 1e-3;
+        self.split = *self.servo.split();
+        self.split
+            .add(if qp_solved { Phase::QpSolve } else { Phase::Filter }, q1 - q0);
+        if qp_solved {
+            self.split.add(Phase::Filter, q1 - q0);
+        }
         let mut fl = out.flags;
         if self.rt_granted {
             fl |= flags::RT_GRANTED;
@@ -168,6 +178,7 @@ impl<const R: usize> HapticTick<R> {
             // energy observer and the rate row must see that one.
             self.filter.set_commanded(force);
         }
+        self.split.add_since(Phase::Output, q1);
         TickResult {
             force,
             desired: out.desired,
@@ -177,6 +188,12 @@ impl<const R: usize> HapticTick<R> {
             qp_us,
             qp_solved,
         }
+    }
+
+    /// The last tick's time in its phases (contact, series solve, step,
+    /// cross-fade, filter, QP solve, gain).
+    pub fn split(&self) -> &TickSplit {
+        &self.split
     }
 
     /// Swaps in a refreshed model (see [`Servo::swap`]); returns the model

@@ -12,6 +12,7 @@ use super::publisher::StateSnapshot;
 use crate::haptics::device::DeviceSample;
 use crate::haptics::frame::DeviceFrame;
 use crate::haptics::passivity::PassivityStats;
+use crate::haptics::phases::{Phase, TickPhases, TickSplit};
 use crate::haptics::servo::{LoopModel, ServoCounters};
 use crate::haptics::tick::{HapticTick, TickInput};
 use crate::rt::clock::{self, Nanos};
@@ -29,6 +30,7 @@ pub(super) struct LoopResult {
     pub compute: Histogram,
     pub baseline: Histogram,
     pub qp_us: Histogram,
+    pub phases: TickPhases,
     pub grant: RtGrant,
     pub counters: ServoCounters,
     pub contact: crate::service::report::ContactReport,
@@ -91,6 +93,7 @@ pub(super) fn loop_thread<const R: usize>(mut tick: HapticTick<R>, mut io: LoopI
         compute: Histogram::new(),
         baseline: Histogram::new(),
         qp_us: Histogram::new(),
+        phases: TickPhases::new(crate::haptics::phases::TAIL_US),
         grant,
         counters: ServoCounters::default(),
         contact: Default::default(),
@@ -140,12 +143,14 @@ pub(super) fn loop_thread<const R: usize>(mut tick: HapticTick<R>, mut io: LoopI
         let wake = clock::now_ns();
         res.jitter.record((wake - next) as f64 * 1e-3);
         n += 1;
+        let mut split = TickSplit::starting_at(wake);
 
         // Freshest pose (drain).
         while let Ok(s) = io.pose.pop() {
             last_pose_time = (s.time_s * 1e9) as Nanos + clock::epoch();
             last = Some(s);
         }
+        split.lap(Phase::Drain);
         // A new model between ticks; only if the models it retires can be
         // returned (never freed here).
         if !io.models.is_empty() && !io.faults.holding_models() {
@@ -156,6 +161,7 @@ pub(super) fn loop_thread<const R: usize>(mut tick: HapticTick<R>, mut io: LoopI
                             pending_return = Some(old);
                         }
                     }
+                    split.lap(Phase::Swap);
                 }
             } else {
                 res.swaps_deferred += 1;
@@ -164,6 +170,7 @@ pub(super) fn loop_thread<const R: usize>(mut tick: HapticTick<R>, mut io: LoopI
         let now_s = clock::to_s(wake);
         if let Some(w) = io.wire.as_mut() {
             w.before_tick(last.as_ref(), now_s, &mut tick);
+            split.lap(Phase::Wire);
         }
         let scene_sample = match (&plan.frame, &last) {
             (Some(f), Some(s)) => Some(f.sample_to_scene(s)),
@@ -174,6 +181,7 @@ pub(super) fn loop_thread<const R: usize>(mut tick: HapticTick<R>, mut io: LoopI
             now_s,
             overrun_streak: streak,
         });
+        split.absorb(tick.split());
         let device_force = match &plan.frame {
             Some(f) => f.force_to_device(out.force),
             None => out.force,
@@ -217,9 +225,11 @@ pub(super) fn loop_thread<const R: usize>(mut tick: HapticTick<R>, mut io: LoopI
                 pending_return = Some(old);
             }
         }
+        split.lap(Phase::Output);
         let end = clock::now_ns();
         let compute = end - wake;
         res.compute.record(compute as f64 * 1e-3);
+        res.phases.record(&split, compute);
         window_max_us = window_max_us.max(compute as f64 * 1e-3);
         io.live.record_tick(n, now_s, &out, res.misses);
         io.live.record_model(tick.servo().model().epoch, tick.servo().gain());

@@ -180,6 +180,12 @@ pub struct Report {
     pub period_jitter_us: Percentiles,
     /// Work per tick, wake-up to force pushed (µs).
     pub tick_compute_us: Percentiles,
+    /// Where the tick's work goes: per phase (rings, swap, wire, contact
+    /// and its series solve, step, cross-fade, filter and its QP solves,
+    /// output) p50, p99, p99.9 and max over the ticks it ran, its share,
+    /// the slowest tick's split and the mean split of the ticks over
+    /// [`crate::haptics::phases::TAIL_US`].
+    pub tick_phases: crate::haptics::phases::PhasesReport,
     /// Device sample time to that sample's force written to the device (µs).
     pub pose_to_force_latency_us: Percentiles,
     /// A bare absolute-deadline sleep loop on the loop's thread and CPU,
@@ -373,6 +379,7 @@ impl Report {
         s += &format!("  period jitter (µs):   {}\n", p(&self.period_jitter_us));
         s += &format!("  baseline jitter (µs): {}\n", p(&self.baseline_jitter_us));
         s += &format!("  tick compute (µs):    {}\n", p(&self.tick_compute_us));
+        s += &self.tick_phases.render();
         s += &format!("  pose→force (µs):      {}\n", p(&self.pose_to_force_latency_us));
         s += &format!(
             "  loop page faults after start: {}\n",

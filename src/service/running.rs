@@ -268,6 +268,7 @@ impl<const R: usize> RunningService for Running<R> {
             deadline_misses_compute: lr.misses_compute,
             period_jitter_us: lr.jitter.percentiles(),
             tick_compute_us: lr.compute.percentiles(),
+            tick_phases: lr.phases.report(),
             pose_to_force_latency_us: dr.latency.percentiles(),
             baseline_jitter_us: lr.baseline.percentiles(),
             allocations_after_start: lr.allocations
