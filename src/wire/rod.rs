@@ -127,6 +127,14 @@ struct State {
     /// compliance through this step (docs/WIRE.md "The wall's compliance
     /// held through a step").
     comp: Vec<f64>,
+    /// Each node's stick anchor: where friction's slip is measured from
+    /// (docs/WIRE.md "Friction that holds and turns"). It stays put while
+    /// the contact sticks and trails the node by the smoothing length
+    /// once it slips, so a load below μλ holds still instead of creeping.
+    anchor: Vec<Vec3>,
+    /// The twist of the edge at each node's contact when its anchor was
+    /// set (rad): the spin's share of the slip is measured from it.
+    anchor_twist: Vec<f64>,
     inserted: f64,
     roll: f64,
 }
@@ -145,6 +153,8 @@ impl State {
             lam: vec![0.0; cap],
             nrm: vec![Vec3::zeros(); cap],
             comp: vec![-1.0; cap],
+            anchor: vec![Vec3::zeros(); cap],
+            anchor_twist: vec![0.0; cap],
             inserted: 0.0,
             roll: 0.0,
         }
@@ -162,6 +172,8 @@ impl State {
         self.lam.copy_from_slice(&o.lam);
         self.nrm.copy_from_slice(&o.nrm);
         self.comp.copy_from_slice(&o.comp);
+        self.anchor.copy_from_slice(&o.anchor);
+        self.anchor_twist.copy_from_slice(&o.anchor_twist);
         self.inserted = o.inserted;
         self.roll = o.roll;
     }
@@ -242,6 +254,10 @@ pub struct Wire {
     th_near: Vec<(f64, f64, f64)>,
     /// Per node: the same for the reference twist `rt0`.
     rt_near: Vec<(f64, f64, f64)>,
+    /// Per node: the direction the wire's surface at its contact moves
+    /// per radian of twist of the contact's edge, times the radius (n × t
+    /// r, fixed through a step; zero out of contact).
+    spin: Vec<Vec3>,
 }
 
 /// The terms' coefficients at a node i and the edge j = i that leaves it,
@@ -509,6 +525,7 @@ impl Wire {
             inv_len: vec![0.0; cap],
             th_near: vec![(0.0, 0.0, 1.0); cap],
             rt_near: vec![(0.0, 0.0, 1.0); cap],
+            spin: vec![Vec3::zeros(); cap],
         };
         w.lay_straight(inserted_m);
         w.save_good_state();
@@ -539,6 +556,8 @@ impl Wire {
             s.ref_twist[i] = 0.0;
             s.lam[i] = 0.0;
             s.comp[i] = -1.0;
+            s.anchor[i] = s.x[i];
+            s.anchor_twist[i] = s.theta[i];
         }
         for j in 0..n - 1 {
             s.rest[j] = s.u[j] - s.u[j + 1];
@@ -707,6 +726,8 @@ impl Wire {
                     s.lam[i + 1] = s.lam[i];
                     s.nrm[i + 1] = s.nrm[i];
                     s.comp[i + 1] = s.comp[i];
+                    s.anchor[i + 1] = s.anchor[i];
+                    s.anchor_twist[i + 1] = s.anchor_twist[i];
                     s.ref_twist[i + 1] = s.ref_twist[i];
                 }
                 self.probe_cache[2..=n].rotate_right(1);
@@ -727,6 +748,7 @@ impl Wire {
                 s.u[2] = s.u[3] + h;
                 s.lam[2] = 0.0;
                 s.comp[2] = -1.0;
+                s.anchor[2] = s.x[2];
                 s.ref_twist[2] = 0.0;
                 s.rest[2] = h;
                 s.n = n + 1;
@@ -747,6 +769,8 @@ impl Wire {
                     s.lam[i] = s.lam[i + 1];
                     s.nrm[i] = s.nrm[i + 1];
                     s.comp[i] = s.comp[i + 1];
+                    s.anchor[i] = s.anchor[i + 1];
+                    s.anchor_twist[i] = s.anchor_twist[i + 1];
                     s.ref_twist[i] = s.ref_twist[i + 1];
                 }
                 self.probe_cache[2..n].rotate_left(1);
@@ -791,6 +815,15 @@ impl Wire {
             let e = self.s.x[j + 1] - self.s.x[j];
             // As `geometry` computes it: unmoved frames stay bit for bit.
             self.t0[j] = e * (1.0 / e.norm());
+        }
+        let r_w = 0.5 * self.p.diameter_m;
+        for i in 0..n {
+            self.spin[i] = if i >= 2 && self.s.lam[i] > 0.0 {
+                let t = self.t0[Self::contact_edge(i, n)];
+                self.s.nrm[i].cross(&t) * r_w
+            } else {
+                Vec3::zeros()
+            };
         }
         self.coefficients();
     }
@@ -1509,6 +1542,12 @@ impl Wire {
                 touched = true;
             }
             let lam = s.lam[i];
+            // Friction's slip includes the surface's spin (the edge's twist
+            // times the radius, along n × t): it resists roll as well as
+            // sliding. Its gradient and Hessian on that twist.
+            let mut g_spin = 0.0;
+            let mut h_xs = Vec3::zeros();
+            let mut h_ss = 0.0;
             if mu > 0.0 && lam > 0.0 {
                 let (pm, ut, un) = self.slip(i);
                 energy += mu
@@ -1518,21 +1557,35 @@ impl Wire {
                     } else {
                         un - 0.5 * eps_v
                     };
-                g += friction_gradient(ut, un, mu * lam, eps_v);
-                if un < eps_v {
-                    hm += pm * (mu * lam / eps_v);
+                let gf = friction_gradient(ut, un, mu * lam, eps_v);
+                g += gf;
+                let hf = if un < eps_v {
+                    pm * (mu * lam / eps_v)
                 } else {
                     let uh = ut / un;
-                    hm += (pm - outer(&uh, &uh)) * (mu * lam / un);
-                }
+                    (pm - outer(&uh, &uh)) * (mu * lam / un)
+                };
+                hm += hf;
+                let b = self.spin[i];
+                g_spin = b.dot(&gf);
+                h_xs = hf * b;
+                h_ss = b.dot(&h_xs);
                 touched = true;
             }
             if assemble && touched {
+                let ts = 4 * Self::contact_edge(i, n) + 3;
+                self.grad[ts] += g_spin;
+                if hess && h_ss > 0.0 {
+                    self.h.add(ts, ts, h_ss);
+                }
                 for r in 0..3 {
                     self.grad[4 * i + r] += g[r];
                     if hess {
                         for c in 0..=r {
                             self.h.add(4 * i + r, 4 * i + c, hm[(r, c)]);
+                        }
+                        if h_ss > 0.0 {
+                            self.h.add(4 * i + r, ts, h_xs[r]);
                         }
                     }
                 }
@@ -1582,8 +1635,19 @@ impl Wire {
     fn slip(&self, i: usize) -> (Mat3, Vec3, f64) {
         let nn = self.s.nrm[i];
         let pm = Mat3::identity() - outer(&nn, &nn);
-        let ut = pm * (self.xt[i] - self.x0[i]);
+        let j = Self::contact_edge(i, self.s.n);
+        let ut = pm * (self.xt[i] - self.s.anchor[i]) + self.spin[i] * (self.tht[j] - self.s.anchor_twist[i]);
         (pm, ut, ut.norm())
+    }
+
+    /// The edge whose twist turns the wire's surface at node `i`'s
+    /// contact: the edge leaving it, the tip's last edge at the tip.
+    fn contact_edge(i: usize, n: usize) -> usize {
+        if i + 1 < n {
+            i
+        } else {
+            i - 1
+        }
     }
 
     /// The contact list at the trial state, from the wall probes and
@@ -1604,9 +1668,12 @@ impl Wire {
             // (the nearest wall's normal against one piece of wall).
             let f = self.wall_force[i];
             let lam = f.norm();
+            let j = Self::contact_edge(i, n);
             let Some(hit) = self.hits[i].filter(|_| lam > 0.0) else {
                 self.s.lam[i] = 0.0;
                 self.s.comp[i] = -1.0;
+                self.s.anchor[i] = self.xt[i];
+                self.s.anchor_twist[i] = self.tht[j];
                 continue;
             };
             // The compliance this step's contact had (the held one, or the
@@ -1623,9 +1690,22 @@ impl Wire {
             // and normal.
             let lam_prev = self.s.lam[i];
             let friction = if mu > 0.0 && lam_prev > 0.0 {
-                let (_, ut, un) = self.slip(i);
+                let (pm, ut, un) = self.slip(i);
+                // The anchor stays while the contact sticks (slip below the
+                // smoothing) and trails the node by the smoothing once it
+                // slips: its slip, translation and spin alike, is cut back
+                // to the smoothing length.
+                if un > eps_v {
+                    let cut = 1.0 - eps_v / un;
+                    let (a, at) = (self.s.anchor[i], self.s.anchor_twist[i]);
+                    self.s.anchor[i] = a + pm * (self.xt[i] - a) * cut;
+                    self.s.anchor_twist[i] = at + (self.tht[j] - at) * cut;
+                }
                 -friction_gradient(ut, un, mu * lam_prev, eps_v)
             } else {
+                // A new contact sticks where it begins.
+                self.s.anchor[i] = self.xt[i];
+                self.s.anchor_twist[i] = self.tht[j];
                 Vec3::zeros()
             };
             self.s.lam[i] = lam;
