@@ -45,4 +45,5 @@ pub mod simulate;
 pub mod soak;
 pub mod solver;
 pub mod stream;
+pub mod task;
 pub mod wire;

@@ -112,6 +112,8 @@ enum Command {
     View(cli::stream::ViewArgs),
     /// Publish a synthetic stream (a dent pressed into the arch) for trying the viewer.
     StreamDemo(cli::stream::DemoArgs),
+    /// Summarise a session file (written with `[task] session_dir`) and plot its forces.
+    Session(cli::stream::SessionArgs),
 }
 
 #[derive(Subcommand)]
@@ -551,6 +553,7 @@ fn main() -> ExitCode {
         Command::Replay(a) => cli::stream::replay(a),
         Command::View(a) => cli::stream::view(a),
         Command::StreamDemo(a) => cli::stream::demo(a),
+        Command::Session(a) => cli::stream::session(a),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

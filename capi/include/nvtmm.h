@@ -54,6 +54,41 @@ int nvtmm_snapshot(const NvtmmService *service, NvtmmSnapshot *out);
  * (0 before the first frame), or -1 on a NULL argument. */
 int64_t nvtmm_frame_positions(const NvtmmService *service, float *xyz, size_t max_vertices);
 
+/* As nvtmm_start, with the host application as the haptic device: the
+ * configured device backend is replaced by the poses the host pushes with
+ * nvtmm_push_pose; the force comes back through nvtmm_force. */
+NvtmmService *nvtmm_start_host(const char *config_path, const char *config_toml, double seconds);
+
+/* Pushes the host's device pose (a service from nvtmm_start_host), each tick
+ * of the host's device loop: position (m, device frame, 3 doubles), gimbal
+ * (rad, 3 doubles in HD_CURRENT_GIMBAL_ANGLES order, the stylus roll last;
+ * NULL: zeros), buttons (bit 0 instrument switch, bit 1 contrast, bit 2
+ * fluoroscopy). A pose older than the watchdog's device_timeout_ms ramps
+ * the force to zero. Never blocks. Returns 0; -1 on a NULL argument or a
+ * service without a host device; -2 for a non-finite number or a gimbal
+ * angle beyond +-2 pi; -3 when the pose ring was full (the pose is dropped). */
+int nvtmm_push_pose(const NvtmmService *service, const double position[3], const double gimbal[3], uint32_t buttons);
+
+/* The newest force the service commanded on the host's device (N, device
+ * frame) into out[3]; zero before the first and once stopped. Returns 0, or
+ * -1 on a NULL argument or a service without a host device. */
+int nvtmm_force(const NvtmmService *service, double out[3]);
+
+/* Copies the latest frame's surface triangles (3 indices into the vertices of
+ * nvtmm_frame_positions, counter-clockwise seen from outside the tissue)
+ * into tri, which has room for max_triangles. Returns the number copied;
+ * with tri NULL and max_triangles 0, the number there are; 0 before the
+ * first frame; -1 on a NULL service. */
+int64_t nvtmm_frame_triangles(const NvtmmService *service, uint32_t *tri, size_t max_triangles);
+
+/* Copies instrument `instrument`'s polyline in the latest frame (points hub
+ * to tip, x y z each, m, scene frame) into xyz, which has room for
+ * max_points. Instrument 0 is the guidewire. Returns the number copied; with
+ * xyz NULL and max_points 0, the number there are; 0 before the first frame
+ * or without a wire; -1 on a NULL service or an instrument that does not
+ * exist. */
+int64_t nvtmm_instrument_polyline(const NvtmmService *service, uint32_t instrument, float *xyz, size_t max_points);
+
 /* Stops the service and frees it. Returns the end-of-run report as JSON
  * (docs/SERVICE.md lists its keys; free it with nvtmm_string_free), or NULL
  * on error. The service pointer is invalid afterwards either way. */

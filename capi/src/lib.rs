@@ -33,6 +33,8 @@ fn set_error(msg: impl Into<String>) {
 /// An opaque running service.
 pub struct NvtmmService {
     handle: Handle,
+    /// The host's device port (`nvtmm_start_host`), None otherwise.
+    host: Option<std::sync::Arc<nvtmm::haptics::host::HostPort>>,
 }
 
 /// Live figures (mirrors `nvtmm_snapshot` in `include/nvtmm.h`).
@@ -92,6 +94,34 @@ pub unsafe extern "C" fn nvtmm_start(
     seconds: f64,
 ) -> *mut NvtmmService {
     // SAFETY: forwarded from this function's contract.
+    unsafe { start(config_path, config_toml, seconds, false) }
+}
+
+/// As `nvtmm_start`, with the host as the device: the configured backend is
+/// replaced by poses the host pushes with `nvtmm_push_pose`; the force comes
+/// back through `nvtmm_force`.
+///
+/// # Safety
+/// As `nvtmm_start`.
+#[no_mangle]
+pub unsafe extern "C" fn nvtmm_start_host(
+    config_path: *const c_char,
+    config_toml: *const c_char,
+    seconds: f64,
+) -> *mut NvtmmService {
+    // SAFETY: forwarded from this function's contract.
+    unsafe { start(config_path, config_toml, seconds, true) }
+}
+
+/// # Safety
+/// As `nvtmm_start`.
+unsafe fn start(
+    config_path: *const c_char,
+    config_toml: *const c_char,
+    seconds: f64,
+    with_host: bool,
+) -> *mut NvtmmService {
+    // SAFETY: forwarded from this function's contract.
     let path = match unsafe { opt_str(config_path) } {
         Ok(p) => p.map(PathBuf::from),
         Err(e) => {
@@ -114,8 +144,15 @@ pub unsafe extern "C" fn nvtmm_start(
     if seconds.is_finite() && seconds > 0.0 {
         opts.seconds = Some(seconds);
     }
+    let host = if with_host {
+        let (factory, port) = nvtmm::haptics::host::host_device();
+        opts.device = Some(factory);
+        Some(port)
+    } else {
+        None
+    };
     match catch_unwind(AssertUnwindSafe(|| Service::start(opts))) {
-        Ok(Ok(handle)) => Box::into_raw(Box::new(NvtmmService { handle })),
+        Ok(Ok(handle)) => Box::into_raw(Box::new(NvtmmService { handle, host })),
         Ok(Err(e)) => {
             set_error(e.to_string());
             std::ptr::null_mut()
@@ -207,6 +244,170 @@ pub unsafe extern "C" fn nvtmm_frame_positions(
         }
     }
     n as i64
+}
+
+/// Copies the latest frame's surface triangles (3 vertex indices each,
+/// into the positions of `nvtmm_frame_positions`, counter-clockwise seen
+/// from outside the tissue) into `tri` (room for `max_triangles`). Returns
+/// the number copied; with `tri` NULL and `max_triangles` 0, the number
+/// there are. 0 before the first frame; -1 on a null service.
+///
+/// # Safety
+/// `service` as for `nvtmm_snapshot`; `tri` is valid for
+/// `3 * max_triangles` integers.
+#[no_mangle]
+pub unsafe extern "C" fn nvtmm_frame_triangles(
+    service: *const NvtmmService,
+    tri: *mut u32,
+    max_triangles: usize,
+) -> i64 {
+    if service.is_null() || (tri.is_null() && max_triangles > 0) {
+        set_error("nvtmm_frame_triangles: null argument");
+        return -1;
+    }
+    // SAFETY: non-null and, by the contract, a live service.
+    let s = unsafe { &*service };
+    let Ok(frame) = catch_unwind(AssertUnwindSafe(|| s.handle.snapshot().frame)) else {
+        set_error("nvtmm_frame_triangles panicked");
+        return -1;
+    };
+    let Some(frame) = frame else { return 0 };
+    if tri.is_null() {
+        return frame.triangles.len() as i64;
+    }
+    let n = frame.triangles.len().min(max_triangles);
+    // SAFETY: `tri` is valid for 3 * max_triangles integers and n <= max_triangles.
+    let dst = unsafe { std::slice::from_raw_parts_mut(tri, 3 * n) };
+    for (k, t) in frame.triangles.iter().take(n).enumerate() {
+        dst[3 * k..3 * k + 3].copy_from_slice(t);
+    }
+    n as i64
+}
+
+/// Copies instrument `instrument`'s polyline in the latest frame (points
+/// hub to tip, x y z each, m, scene frame) into `xyz` (room for
+/// `max_points`). Instrument 0 is the guidewire. Returns the number copied;
+/// with `xyz` NULL and `max_points` 0, the number there are; 0 before the
+/// first frame or without a wire; -1 on a null service or an instrument
+/// that does not exist.
+///
+/// # Safety
+/// `service` as for `nvtmm_snapshot`; `xyz` is valid for `3 * max_points`
+/// floats.
+#[no_mangle]
+pub unsafe extern "C" fn nvtmm_instrument_polyline(
+    service: *const NvtmmService,
+    instrument: u32,
+    xyz: *mut f32,
+    max_points: usize,
+) -> i64 {
+    if service.is_null() || (xyz.is_null() && max_points > 0) {
+        set_error("nvtmm_instrument_polyline: null argument");
+        return -1;
+    }
+    if instrument != 0 {
+        set_error(format!(
+            "nvtmm_instrument_polyline: no instrument {instrument} (0 is the guidewire)"
+        ));
+        return -1;
+    }
+    // SAFETY: non-null and, by the contract, a live service.
+    let s = unsafe { &*service };
+    let Ok(frame) = catch_unwind(AssertUnwindSafe(|| s.handle.snapshot().frame)) else {
+        set_error("nvtmm_instrument_polyline panicked");
+        return -1;
+    };
+    let Some(frame) = frame else { return 0 };
+    if xyz.is_null() {
+        return frame.wire.len() as i64;
+    }
+    let n = frame.wire.len().min(max_points);
+    // SAFETY: `xyz` is valid for 3 * max_points floats and n <= max_points.
+    let dst = unsafe { std::slice::from_raw_parts_mut(xyz, 3 * n) };
+    for (k, p) in frame.wire.iter().take(n).enumerate() {
+        dst[3 * k..3 * k + 3].copy_from_slice(p);
+    }
+    n as i64
+}
+
+/// Pushes the host's device pose (a service from `nvtmm_start_host`):
+/// `position` (m, device frame, 3 doubles), `gimbal` (rad, 3 doubles, the
+/// stylus roll last; NULL: zeros), `buttons` (bit 0 instrument switch, bit 1
+/// contrast, bit 2 fluoroscopy). Call it each tick of the host's device
+/// loop; the service takes the newest at its device rate, and a pose older
+/// than `watchdog.device_timeout_ms` ramps the force to zero. Returns 0; -1
+/// on a null argument or a service without a host device; -2 for a
+/// non-finite number or a gimbal angle beyond ±2π; -3 when the pose ring
+/// was full (the pose is dropped). Never blocks.
+///
+/// # Safety
+/// `service` as for `nvtmm_snapshot`; `position` valid for 3 doubles;
+/// `gimbal` NULL or valid for 3 doubles.
+#[no_mangle]
+pub unsafe extern "C" fn nvtmm_push_pose(
+    service: *const NvtmmService,
+    position: *const f64,
+    gimbal: *const f64,
+    buttons: u32,
+) -> c_int {
+    if service.is_null() || position.is_null() {
+        set_error("nvtmm_push_pose: null argument");
+        return -1;
+    }
+    // SAFETY: non-null and, by the contract, a live service.
+    let s = unsafe { &*service };
+    let Some(port) = s.host.as_ref() else {
+        set_error("nvtmm_push_pose: the service was not started with nvtmm_start_host");
+        return -1;
+    };
+    // SAFETY: valid for 3 doubles by the contract.
+    let p = unsafe { std::slice::from_raw_parts(position, 3) };
+    let g = if gimbal.is_null() {
+        [0.0; 3]
+    } else {
+        // SAFETY: valid for 3 doubles by the contract.
+        let g = unsafe { std::slice::from_raw_parts(gimbal, 3) };
+        [g[0], g[1], g[2]]
+    };
+    let pose = nvtmm::haptics::host::HostPose {
+        position: [p[0], p[1], p[2]],
+        gimbal_rad: g,
+        buttons,
+    };
+    match port.push_pose(&pose) {
+        Ok(()) => 0,
+        Err(e) => {
+            set_error(format!("nvtmm_push_pose: {e}"));
+            match e {
+                nvtmm::haptics::host::PushError::Invalid => -2,
+                nvtmm::haptics::host::PushError::Full => -3,
+            }
+        }
+    }
+}
+
+/// The newest force the service commanded on the host's device (N, device
+/// frame, into 3 doubles of `out`); zero before the first and once stopped.
+/// Returns 0, or -1 on a null argument or a service without a host device.
+///
+/// # Safety
+/// `service` as for `nvtmm_snapshot`; `out` valid for 3 doubles.
+#[no_mangle]
+pub unsafe extern "C" fn nvtmm_force(service: *const NvtmmService, out: *mut f64) -> c_int {
+    if service.is_null() || out.is_null() {
+        set_error("nvtmm_force: null argument");
+        return -1;
+    }
+    // SAFETY: non-null and, by the contract, a live service.
+    let s = unsafe { &*service };
+    let Some(port) = s.host.as_ref() else {
+        set_error("nvtmm_force: the service was not started with nvtmm_start_host");
+        return -1;
+    };
+    let f = port.force();
+    // SAFETY: valid for 3 doubles by the contract.
+    unsafe { std::slice::from_raw_parts_mut(out, 3) }.copy_from_slice(&f);
+    0
 }
 
 /// Stops the service and frees it. Returns the report as JSON (free it with

@@ -3,6 +3,11 @@
  * and check the report. Also: a bad configuration is refused with a message
  * naming the key. Exit status 0 on success; prints what it checked.
  *
+ * Then the host as the device (nvtmm_start_host on rt-config/host.toml, or
+ * the second argument): poses pushed at 1 kHz insert the guidewire, forces
+ * come back, bad poses are refused, the surface's triangles and the wire's
+ * polyline are read, and silence ramps the force to zero.
+ *
  * Build and run (what .ci/run does):
  *   cargo build --release -p nvtmm-capi
  *   cc capi/tests/embed_test.c -Icapi/include -Ltarget/release -lnvtmm_capi -o target/embed_test
@@ -20,6 +25,65 @@
 static void sleep_ms(long ms) {
     struct timespec t = { ms / 1000, (ms % 1000) * 1000000L };
     nanosleep(&t, NULL);
+}
+
+/* The host as the device: push poses, read forces, triangles, polylines. */
+static int host_checks(const char *config) {
+    NvtmmService *s = nvtmm_start_host(config, NULL, 0.0);
+    CHECK(s != NULL, "nvtmm_start_host(%s): %s", config, nvtmm_last_error());
+    double nan3[3] = { NAN, 0.0, 0.0 }, wild[3] = { 0.0, 0.0, 7.0 }, zero[3] = { 0.0, 0.0, 0.0 };
+    CHECK(nvtmm_push_pose(s, nan3, NULL, 0) == -2, "a NaN pose is refused");
+    CHECK(nvtmm_push_pose(s, zero, wild, 0) == -2, "a gimbal angle beyond 2 pi is refused");
+    CHECK(nvtmm_push_pose(s, NULL, NULL, 0) == -1, "NULL is refused");
+    CHECK(nvtmm_instrument_polyline(s, 1, NULL, 0) == -1, "no instrument 1");
+    /* 2 s at 1 kHz: the stylus 10 mm along -z (30 mm of wire in). */
+    double peak = 0.0;
+    long ok = 0;
+    for (int k = 0; k < 2000; k++) {
+        double pos[3] = { 0.0, 0.0, 0.0333 - 0.010 * k / 2000.0 };
+        if (nvtmm_push_pose(s, pos, NULL, 0) == 0) ok++;
+        double f[3];
+        CHECK(nvtmm_force(s, f) == 0, "nvtmm_force");
+        CHECK(isfinite(f[0]) && isfinite(f[1]) && isfinite(f[2]), "finite force");
+        double m = sqrt(f[0] * f[0] + f[1] * f[1] + f[2] * f[2]);
+        if (m > peak) peak = m;
+        sleep_ms(1);
+    }
+    CHECK(ok > 1900, "poses accepted: %ld of 2000", ok);
+    CHECK(peak > 0.0, "a force came back from the wire");
+    NvtmmSnapshot snap;
+    CHECK(nvtmm_snapshot(s, &snap) == 0 && snap.frame_vertices > 0, "a frame");
+    int64_t nt = nvtmm_frame_triangles(s, NULL, 0);
+    CHECK(nt > 0, "triangles: %lld", (long long)nt);
+    uint32_t *tri = malloc(sizeof(uint32_t) * 3 * (size_t)nt);
+    float *xyz = malloc(sizeof(float) * 3 * snap.frame_vertices);
+    CHECK(tri && xyz, "malloc");
+    int64_t nv = nvtmm_frame_positions(s, xyz, snap.frame_vertices);
+    int64_t got = nvtmm_frame_triangles(s, tri, (size_t)nt);
+    CHECK(got > 0 && got <= nt, "triangles copied: %lld", (long long)got);
+    for (int64_t k = 0; k < 3 * got; k++) CHECK((int64_t)tri[k] < nv, "triangle index %u < %lld", tri[k], (long long)nv);
+    free(tri);
+    free(xyz);
+    int64_t nw = nvtmm_instrument_polyline(s, 0, NULL, 0);
+    CHECK(nw >= 2, "the wire's polyline: %lld points", (long long)nw);
+    float *w = malloc(sizeof(float) * 3 * (size_t)nw);
+    CHECK(w != NULL, "malloc");
+    int64_t gw = nvtmm_instrument_polyline(s, 0, w, (size_t)nw);
+    CHECK(gw >= 2, "polyline copied");
+    for (int64_t k = 0; k < 3 * gw; k++) CHECK(isfinite(w[k]), "finite polyline");
+    printf("host: %ld poses, force peak %.3f N, %lld triangles, wire %lld points, tip (%.1f, %.1f, %.1f) mm\n", ok, peak,
+           (long long)nt, (long long)gw, 1e3 * w[3 * gw - 3], 1e3 * w[3 * gw - 2], 1e3 * w[3 * gw - 1]);
+    free(w);
+    /* Silence: the watchdog ramps the force to zero. */
+    sleep_ms(300);
+    double f[3];
+    CHECK(nvtmm_force(s, f) == 0 && f[0] == 0.0 && f[1] == 0.0 && f[2] == 0.0,
+          "silence ramps the force to zero: (%g, %g, %g)", f[0], f[1], f[2]);
+    char *report = nvtmm_stop(s);
+    CHECK(report != NULL, "nvtmm_stop: %s", nvtmm_last_error());
+    CHECK(strstr(report, "\"device\":\"host\"") != NULL, "the report names the host device");
+    nvtmm_string_free(report);
+    return 0;
 }
 
 int main(int argc, char **argv) {
@@ -68,6 +132,8 @@ int main(int argc, char **argv) {
           "the report has its keys");
     printf("report: %.160s...\n", report);
     nvtmm_string_free(report);
+    CHECK(nvtmm_push_pose(NULL, NULL, NULL, 0) == -1, "NULL service is refused");
+    if (host_checks(argc > 2 ? argv[2] : "rt-config/host.toml") != 0) return 1;
     printf("C ABI: all checks passed\n");
     return 0;
 }

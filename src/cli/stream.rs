@@ -43,6 +43,76 @@ pub struct ViewArgs {
     /// UDP address to receive the stream on.
     #[arg(long, default_value = "127.0.0.1:7878")]
     stream: SocketAddr,
+    /// Drive mode: the page becomes the device of the service configured by
+    /// CONFIG (its `device.backend` must be "udp"; docs/DRIVING.md).
+    #[arg(long, value_name = "CONFIG")]
+    drive: Option<PathBuf>,
+    /// The token a driving page must present (`?token=...`); needed to drive
+    /// from anywhere but this machine. Also read from NVTMM_DRIVE_TOKEN.
+    #[arg(long)]
+    token: Option<String>,
+    /// Allow --listen on an address other than loopback while driving (the
+    /// page then controls a haptic device from the network; needs --token).
+    #[arg(long)]
+    allow_lan: bool,
+}
+
+/// `nvtmm session`.
+#[derive(Args)]
+pub struct SessionArgs {
+    /// A session file (`[task] session_dir`).
+    file: PathBuf,
+    /// Where to write the force plot (PNG); default: FILE with `.png`.
+    #[arg(long, value_name = "PNG")]
+    plot: Option<PathBuf>,
+}
+
+/// Prints a session's summary and plots its forces over time.
+pub fn session(a: SessionArgs) -> Result<()> {
+    let s = nvtmm::task::Session::load(&a.file)?;
+    print!("{}", s.render());
+    let png = a.plot.unwrap_or_else(|| a.file.with_extension("png"));
+    s.plot(&png)?;
+    println!("forces over time: {}", png.display());
+    Ok(())
+}
+
+/// The drive server's setup from a service configuration.
+fn drive_setup(path: &std::path::Path, token: Option<String>) -> Result<(viewer::ViewOptions, String)> {
+    let cfg = nvtmm::service::config::ServiceConfig::load(path)?;
+    let drive = nvtmm::stream::drive::DriveSetup::from_service(&cfg, token)?;
+    let task = match cfg.task.as_ref().map(|t| t.hud_target.as_str()) {
+        Some(t) if !t.is_empty() => Some(t.parse()?),
+        _ => None,
+    };
+    // The lumen for the X-ray view: the scene's inner wall at rest.
+    let wall_set = cfg.guidewire.as_ref().map_or("inner_wall", |g| g.wall_set.as_str());
+    let mesh = nvtmm::scene::Scene::load(&cfg.resolve(&cfg.scene))?.build_mesh()?;
+    let wall = nvtmm::wire::coupling::InnerWall::from_mesh(&mesh, wall_set)?;
+    let lumen = (
+        wall.rest()
+            .iter()
+            .map(|x| [x.x as f32, x.y as f32, x.z as f32])
+            .collect(),
+        wall.triangles().to_vec(),
+    );
+    let what = format!(
+        "driving the wire of {} through udp://{}{}",
+        path.display(),
+        drive.device,
+        task.map(|t: SocketAddr| format!(", task figures on udp://{t}"))
+            .unwrap_or_default()
+    );
+    Ok((
+        viewer::ViewOptions {
+            listen: "127.0.0.1:0".parse()?,
+            stream: "127.0.0.1:0".parse()?,
+            drive: Some(drive),
+            task,
+            lumen: Some(lumen),
+        },
+        what,
+    ))
 }
 
 /// `nvtmm stream-demo`.
@@ -112,10 +182,32 @@ pub fn replay(a: ReplayArgs) -> Result<()> {
 }
 
 /// Runs the viewer until killed.
-pub fn view(a: ViewArgs) -> Result<()> {
-    let v = viewer::start(a.listen, a.stream)?;
+pub fn view(mut a: ViewArgs) -> Result<()> {
+    if a.token.is_none() {
+        a.token = std::env::var("NVTMM_DRIVE_TOKEN").ok().filter(|t| !t.is_empty());
+    }
+    let v = match &a.drive {
+        None => viewer::start(a.listen, a.stream)?,
+        Some(path) => {
+            let lan_ok = a.allow_lan && a.token.as_deref().is_some_and(|t| t.len() >= 8);
+            if !(a.listen.ip().is_loopback() || lan_ok) {
+                return Err(format!(
+                    "--listen {}: driving from the network needs --allow-lan and a --token of at least 8 characters",
+                    a.listen
+                )
+                .into());
+            }
+            let (mut opts, what) = drive_setup(path, a.token.clone())?;
+            opts.listen = a.listen;
+            opts.stream = a.stream;
+            let v = viewer::start_with(opts)?;
+            println!("nvtmm view: {what}");
+            v
+        }
+    };
+    let token = a.token.as_deref().map(|t| format!("?token={t}")).unwrap_or_default();
     println!(
-        "nvtmm view: open http://{}/ (stream on udp://{})",
+        "nvtmm view: open http://{}/{token} (stream on udp://{})",
         v.http_addr(),
         v.stream_addr()
     );

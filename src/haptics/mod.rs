@@ -11,6 +11,7 @@
 pub mod contact;
 pub mod device;
 pub mod frame;
+pub mod host;
 #[cfg(feature = "openhaptics")]
 pub mod openhaptics;
 pub mod passivity;

@@ -56,6 +56,10 @@ pub struct ServiceConfig {
     /// `[wire]`).
     #[serde(default)]
     pub guidewire: Option<super::wire::GuidewireConfig>,
+    /// A training task and its metrics (`[task]`, docs/DRIVING.md); None:
+    /// no task.
+    #[serde(default)]
+    pub task: Option<crate::task::TaskConfig>,
     /// The file this was read from (for messages and relative paths).
     #[serde(skip)]
     pub path: PathBuf,
@@ -116,6 +120,9 @@ pub enum Backend {
     Udp,
     /// OpenHaptics HD (cargo feature `openhaptics`).
     Openhaptics,
+    /// The host application pushes the poses in process
+    /// (`haptics::host::host_device`, the C ABI's `nvtmm_start_host`).
+    Host,
 }
 
 /// The device and its I/O thread.
@@ -439,6 +446,12 @@ impl ServiceConfig {
             }
             (None, Some(_)) => return Err(c.err("wire", "[guidewire] needs a [wire] table (docs/WIRE.md)")),
             (None, None) => {}
+        }
+        if let Some(t) = &self.task {
+            if self.wire.is_none() {
+                return Err(c.err("task", "a task needs an instrument: add [wire] and [guidewire]"));
+            }
+            t.validate(&c)?;
         }
         Ok(())
     }

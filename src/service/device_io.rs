@@ -43,6 +43,8 @@ pub(super) struct DeviceIo {
     pub pose: rtrb::Producer<DeviceSample>,
     pub force: rtrb::Consumer<ForceCmd>,
     pub stop: Arc<AtomicBool>,
+    /// The newest sample's buttons, for the task metrics (publisher side).
+    pub buttons: Arc<std::sync::atomic::AtomicU32>,
 }
 
 /// The device thread's body.
@@ -75,6 +77,7 @@ pub(super) fn device_thread(
         res.ticks += 1;
         match dev.read(clock::now_s()) {
             Ok(s) => {
+                io.buttons.store(s.buttons, Ordering::Relaxed);
                 if io.pose.push(s).is_err() {
                     res.pose_ring_full += 1;
                 }

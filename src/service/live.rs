@@ -39,6 +39,12 @@ pub struct FrameSnapshot {
     pub force: [f32; 3],
     /// Stream status bits (`crate::stream::flags`).
     pub flags: u32,
+    /// The surface's triangles (indices into `positions`, counter-clockwise
+    /// seen from outside the tissue).
+    pub triangles: Vec<[u32; 3]>,
+    /// The guidewire's polyline, hub to tip (m, scene frame; empty without
+    /// a wire).
+    pub wire: Vec<[f32; 3]>,
 }
 
 /// Shared live state of one service run.

@@ -31,6 +31,7 @@ pub mod report;
 pub mod running;
 pub mod script;
 pub mod setup;
+mod task_feed;
 pub mod wire;
 
 pub use config::ServiceConfig;

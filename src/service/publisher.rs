@@ -44,6 +44,8 @@ pub(super) struct PublisherResult {
     /// Largest displacement of an inner-wall vertex under the guidewire's
     /// wall loads (m), over the snapshots published.
     pub wire_dent_max_m: f64,
+    /// The task's figures at the end (None without `[task]`).
+    pub task: Option<crate::task::TaskSummary>,
 }
 
 /// What the publisher thread needs.
@@ -64,6 +66,8 @@ pub(super) struct PublisherPlan<const R: usize> {
     /// The guidewire's part: the inner wall it is sent, the polyline it
     /// sends (None: no wire).
     pub wire: Option<super::wire::PublisherWire>,
+    /// The task metrics, fed one sample per state frame (None: no task).
+    pub task: Option<super::task_feed::TaskFeed>,
 }
 
 /// The stream publisher (normal priority): turns loop snapshots into stream
@@ -195,6 +199,18 @@ pub(super) fn publisher_thread<const R: usize>(mut p: PublisherPlan<R>) -> Publi
             tick_p99_us: p99,
             wire: p.wire.as_ref().map(|w| w.points.as_slice()).unwrap_or(&[]),
         };
+        if let Some(t) = p.task.as_mut() {
+            let wall = p.wire.as_ref().map_or(0.0, |w| w.contact_force_n);
+            // The force as the stream carries it (f32), so that a script over
+            // the recording finds the same peak.
+            let f = frame.force.map(f64::from);
+            t.push(
+                s.time_s,
+                frame.wire,
+                (f[0] * f[0] + f[1] * f[1] + f[2] * f[2]).sqrt(),
+                wall,
+            );
+        }
         p.live.record_frame(FrameSnapshot {
             time_s: s.time_s,
             node_ids: topo.node_ids.clone(),
@@ -202,6 +218,8 @@ pub(super) fn publisher_thread<const R: usize>(mut p: PublisherPlan<R>) -> Publi
             tool_position: frame.tool_position,
             force: frame.force,
             flags: fl,
+            triangles: topo.triangles.clone(),
+            wire: frame.wire.to_vec(),
         });
         if !p.send {
             continue;
@@ -219,11 +237,19 @@ pub(super) fn publisher_thread<const R: usize>(mut p: PublisherPlan<R>) -> Publi
             first_error.get_or_insert_with(|| e.to_string());
         }
     }
+    let task = p.task.map(|t| {
+        let (summary, error) = t.finish();
+        if let Some(e) = error {
+            first_error.get_or_insert(e);
+        }
+        summary
+    });
     PublisherResult {
         frames,
         errors,
         first_error,
         igtl,
         wire_dent_max_m,
+        task,
     }
 }

@@ -271,6 +271,8 @@ pub struct Report {
     pub device_loop_silent_periods: u64,
     /// The guidewire (None without `[wire]`).
     pub wire: Option<WireReport>,
+    /// The task's metrics (None without `[task]`; docs/DRIVING.md).
+    pub task: Option<crate::task::TaskSummary>,
 }
 
 /// Contact anywhere in the run (the `contact` keys of the report).
@@ -554,6 +556,24 @@ impl Report {
                 } else {
                     "    wall under the wire: not loaded (guidewire.load_wall = false)\n".to_string()
                 }
+            );
+        }
+        if let Some(t) = &self.task {
+            s += &format!(
+                "  task: {} ({}), tip path {:.1} mm, {} pull-backs, hub force peak {:.3} N, wall force peak {:.3} N ({:.2} s above 0.5 N, {:.2} s above 1.5 N), fluoroscopy {:.1} s, {} contrast injections\n",
+                t.target_segment,
+                match t.time_to_target_s {
+                    Some(x) => format!("success at {x:.2} s"),
+                    None => "not reached".into(),
+                },
+                t.tip_path_m * 1e3,
+                t.pullbacks,
+                t.hub_force_peak_n,
+                t.wall_force_peak_n,
+                t.wall_above_0_5_n_s,
+                t.wall_above_1_5_n_s,
+                t.fluoroscopy_s,
+                t.contrast_injections
             );
         }
         if let Some(g) = &self.igtl {

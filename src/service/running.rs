@@ -323,6 +323,7 @@ impl<const R: usize> RunningService for Running<R> {
             threads_lost,
             device_loop_silent_periods: dr.loop_silent,
             wire,
+            task: pr.task,
         })
     }
 }
@@ -614,6 +615,8 @@ pub(super) fn start_with<const R: usize>(p: Prepared) -> Result<Running<R>, Serv
         None => None,
     };
 
+    // The device's buttons, for the task metrics on the publisher's side.
+    let buttons = Arc::new(std::sync::atomic::AtomicU32::new(0));
     // Stream publisher: always runs (it also keeps the latest frame for
     // `Handle::snapshot`); it sends only where `[stream]` or `--record` say.
     let pub_handle = {
@@ -633,6 +636,10 @@ pub(super) fn start_with<const R: usize>(p: Prepared) -> Result<Running<R>, Serv
             live: live.clone(),
             faults: faults.clone(),
             wire: wire_pub,
+            task: match &cfg.task {
+                Some(t) => Some(super::task_feed::TaskFeed::new(&cfg, t, &mesh, buttons.clone())?),
+                None => None,
+            },
         };
         std::thread::Builder::new()
             .name("nvtmm-stream".into())
@@ -651,6 +658,7 @@ pub(super) fn start_with<const R: usize>(p: Prepared) -> Result<Running<R>, Serv
         pose: pose_tx,
         force: force_rx,
         stop: stop.clone(),
+        buttons,
     };
     // The device thread stops the device when it ends (the stop flag of a
     // start that fails later ends it).

@@ -206,6 +206,11 @@ pub fn make_device(
             Ok(Box::new(UdpDevice::new(params)))
         }
         Backend::Openhaptics => open_openhaptics(command_timeout_s),
+        Backend::Host => Err(ServiceError::Device(
+            "device.backend = \"host\": the host application starts the service with its device \
+             (haptics::host::host_device in StartOptions::device, or nvtmm_start_host in the C ABI)"
+                .into(),
+        )),
     }
 }
 

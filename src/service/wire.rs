@@ -246,6 +246,9 @@ pub(super) struct PolylineMsg {
     points: heapless::Vec<[f32; 3], MAX_POLYLINE>,
     /// The wall loads of the step it was taken at (for the stream's dent).
     loads: heapless::Vec<WallLoad, MAX_WALL_LOADS>,
+    /// Largest force of one wire–wall contact (N) over the steps since the
+    /// previous polyline (the task metrics' wall force).
+    contact_force_max_n: f64,
 }
 
 /// The loop's side: the hub drive, the rings to and from the wire thread.
@@ -419,6 +422,9 @@ pub(super) struct PublisherWire {
     /// residual dent under the wire too ([`PublisherWire::add_residual_dent`]).
     pub residual: Option<Arc<crate::reduced::compliance::LocalCompliance>>,
     pub loads: Vec<WallLoad>,
+    /// Largest wire–wall contact force (N) over the polylines taken by the
+    /// last [`PublisherWire::update`].
+    pub contact_force_n: f64,
 }
 
 impl PublisherWire {
@@ -442,7 +448,9 @@ impl PublisherWire {
                 Err(_) => self.spare = Some(lumen),
             }
         }
+        self.contact_force_n = 0.0;
         while let Ok(p) = self.polyline.pop() {
+            self.contact_force_n = self.contact_force_n.max(p.contact_force_max_n);
             self.points.clear();
             self.points.extend_from_slice(&p.points);
             self.loads.clear();
@@ -534,6 +542,7 @@ pub(super) fn build<const R: usize>(
         spare: None,
         residual: if g.load_wall { vessel.compliance.clone() } else { None },
         loads: Vec::with_capacity(MAX_WALL_LOADS),
+        contact_force_n: 0.0,
     };
     let link = WireLink {
         drive,
@@ -622,6 +631,7 @@ pub(super) fn wire_thread(mut p: WirePlan) -> WireResult {
     let mut poly = PolylineMsg {
         points: heapless::Vec::new(),
         loads: heapless::Vec::new(),
+        contact_force_max_n: 0.0,
     };
     let radius = 0.5 * p.wire.params().diameter_m;
     let diameter = 2.0 * radius;
@@ -671,6 +681,10 @@ pub(super) fn wire_thread(mut p: WirePlan) -> WireResult {
                 res.axial_force_max_n = res.axial_force_max_n.max(rep.hub_axial_force_n.abs());
                 for c in p.wire.contacts() {
                     res.deflection_max = res.deflection_max.max(c.wall_deflection);
+                    let f = (c.normal * c.normal_force + c.friction).norm();
+                    if f.is_finite() {
+                        poly.contact_force_max_n = poly.contact_force_max_n.max(f);
+                    }
                 }
                 res.iterations_max = res.iterations_max.max(rep.iterations);
                 res.evaluations_max = res.evaluations_max.max(rep.evaluations);
@@ -716,6 +730,7 @@ pub(super) fn wire_thread(mut p: WirePlan) -> WireResult {
             }
             poly.loads.clone_from(&msg.loads);
             let _ = p.polyline.push(poly.clone());
+            poly.contact_force_max_n = 0.0;
         }
         // Re-phase after an overrun instead of bursting.
         let now = clock::now_ns();

@@ -19,6 +19,7 @@
 
 pub mod decimate;
 pub mod demo;
+pub mod drive;
 pub mod format;
 pub mod igtl;
 pub mod publisher;

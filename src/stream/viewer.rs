@@ -46,6 +46,12 @@ struct Shared {
     latest: Mutex<Latest>,
     changed: Condvar,
     connections: AtomicUsize,
+    /// The browser as a device (`nvtmm view --drive`).
+    drive: Option<Arc<super::drive::DriveServer>>,
+    /// The newest task summary (JSON) from the service (`[task] hud_target`).
+    task: Mutex<Option<String>>,
+    /// The lumen for the X-ray view (JSON), if known.
+    lumen: Option<String>,
 }
 
 impl Shared {
@@ -106,6 +112,73 @@ fn stats_json(s: &DecoderStats, clients: usize) -> String {
 /// Binds the HTTP listener at `listen` and the UDP receiver at `stream`, and
 /// starts the threads. Returns once both are bound.
 pub fn start(listen: SocketAddr, stream: SocketAddr) -> Result<Viewer, StreamError> {
+    start_with(ViewOptions {
+        listen,
+        stream,
+        drive: None,
+        task: None,
+        lumen: None,
+    })
+}
+
+/// A lumen surface: vertex positions (m) and triangles.
+pub type Lumen = (Vec<[f32; 3]>, Vec<[u32; 3]>);
+
+/// What [`start_with`] serves.
+#[derive(Debug, Clone)]
+pub struct ViewOptions {
+    /// Where to serve the page.
+    pub listen: SocketAddr,
+    /// Where the stream is received.
+    pub stream: SocketAddr,
+    /// The browser as a device: the drive server's setup (None: view only).
+    pub drive: Option<super::drive::DriveSetup>,
+    /// Where task summaries from the service are received (`[task]
+    /// hud_target`); None: none.
+    pub task: Option<SocketAddr>,
+    /// The vessel's lumen for the X-ray view's contrast (its wall's rest
+    /// positions, m, and triangles whose normals point into the lumen);
+    /// None: the page uses the streamed surface.
+    pub lumen: Option<Lumen>,
+}
+
+/// [`start`] with a drive server and a task receiver.
+pub fn start_with(opts: ViewOptions) -> Result<Viewer, StreamError> {
+    let ViewOptions {
+        listen,
+        stream,
+        drive,
+        task,
+        lumen,
+    } = opts;
+    let lumen = lumen.map(|(p, t)| {
+        serde_json::json!({
+            "positions": p.iter().flatten().collect::<Vec<_>>(),
+            "triangles": t.iter().flatten().collect::<Vec<_>>(),
+        })
+        .to_string()
+    });
+    let drive = match drive {
+        Some(d) => {
+            let device = d.device;
+            Some(Arc::new(super::drive::DriveServer::start(d).map_err(|source| {
+                StreamError::Socket {
+                    what: "open the drive socket toward",
+                    addr: device.to_string(),
+                    source,
+                }
+            })?))
+        }
+        None => None,
+    };
+    let task_sock = match task {
+        Some(a) => Some(UdpSocket::bind(a).map_err(|source| StreamError::Socket {
+            what: "bind the task receiver at",
+            addr: a.to_string(),
+            source,
+        })?),
+        None => None,
+    };
     let udp = UdpSocket::bind(stream).map_err(|source| StreamError::Socket {
         what: "bind UDP stream receiver at",
         addr: stream.to_string(),
@@ -123,7 +196,21 @@ pub fn start(listen: SocketAddr, stream: SocketAddr) -> Result<Viewer, StreamErr
             msg: "no local address".into(),
         });
     };
-    let shared = Arc::new(Shared::default());
+    let shared = Arc::new(Shared {
+        drive,
+        lumen,
+        ..Shared::default()
+    });
+    if let Some(sock) = task_sock {
+        let sh = shared.clone();
+        std::thread::Builder::new()
+            .name("view-task".into())
+            .spawn(move || receive_task(sock, &sh))
+            .map_err(|source| StreamError::Io {
+                path: "(thread view-task)".into(),
+                source,
+            })?;
+    }
     let sh = shared.clone();
     std::thread::Builder::new()
         .name("view-udp".into())
@@ -177,6 +264,11 @@ impl Viewer {
         self.stream
     }
 
+    /// The drive server (with `--drive`).
+    pub fn drive(&self) -> Option<&Arc<super::drive::DriveServer>> {
+        self.shared.drive.as_ref()
+    }
+
     /// Counters now.
     pub fn stats(&self) -> ViewerStats {
         let l = self.shared.lock();
@@ -210,6 +302,9 @@ fn receive(udp: UdpSocket, sh: &Shared) {
                 }
             }
             Ok(Some(Decoded::State(s))) => {
+                if let Some(d) = &sh.drive {
+                    d.note_stream_inserted(polyline_length(&s.wire));
+                }
                 l.state = Some(ws_message(KIND_STATE, s.epoch, s.seq, |m| {
                     format::encode_state(&s.as_frame(), m)
                 }));
@@ -220,6 +315,44 @@ fn receive(udp: UdpSocket, sh: &Shared) {
         l.stats = dec.stats().clone();
         drop(l);
         sh.changed.notify_all();
+    }
+}
+
+/// Arc length (m) of a polyline.
+fn polyline_length(p: &[[f32; 3]]) -> f64 {
+    p.windows(2)
+        .map(|w| {
+            let d = [0, 1, 2].map(|k| f64::from(w[1][k] - w[0][k]));
+            (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt()
+        })
+        .sum()
+}
+
+/// Most bytes of one task datagram.
+const MAX_TASK_DATAGRAM: usize = 4096;
+
+/// Keeps the newest task summary (a JSON object) the service sends.
+fn receive_task(udp: UdpSocket, sh: &Shared) {
+    let mut buf = vec![0u8; MAX_TASK_DATAGRAM + 1];
+    loop {
+        let n = match udp.recv(&mut buf) {
+            Ok(n) => n,
+            Err(_) => {
+                std::thread::sleep(Duration::from_millis(10));
+                continue;
+            }
+        };
+        if n > MAX_TASK_DATAGRAM {
+            continue;
+        }
+        let ok = std::str::from_utf8(&buf[..n])
+            .ok()
+            .and_then(|t| serde_json::from_str::<crate::task::TaskSummary>(t).ok());
+        if let Some(summary) = ok {
+            if let Ok(text) = serde_json::to_string(&summary) {
+                *sh.task.lock().unwrap_or_else(|e| e.into_inner()) = Some(text);
+            }
+        }
     }
 }
 
@@ -259,8 +392,8 @@ fn serve(mut s: TcpStream, sh: &Shared) {
             k.trim().eq_ignore_ascii_case(name).then(|| v.trim().to_string())
         })
     };
-    let path = req.get(1).copied().unwrap_or("");
-    let path = path.split('?').next().unwrap_or("");
+    let target = req.get(1).copied().unwrap_or("");
+    let (path, query) = target.split_once('?').unwrap_or((target, ""));
     if req.first() != Some(&"GET") {
         let _ = respond(s, "405 Method Not Allowed", "text/plain", b"GET only\n");
         return;
@@ -279,6 +412,66 @@ fn serve(mut s: TcpStream, sh: &Shared) {
         "/snapshot" => {
             let body = snapshot(sh);
             let _ = respond(s, "200 OK", "application/octet-stream", &body);
+        }
+        "/xray/lumen" => match &sh.lumen {
+            Some(body) => {
+                let _ = respond(s, "200 OK", "application/json", body.as_bytes());
+            }
+            None => {
+                let _ = respond(
+                    s,
+                    "404 Not Found",
+                    "text/plain",
+                    b"no lumen: the X-ray view uses the streamed surface\n",
+                );
+            }
+        },
+        "/drive/info" => {
+            let body = match &sh.drive {
+                Some(d) => format!("{{\"enabled\":true,\"token_required\":{}}}", !d.authorized(None)),
+                None => "{\"enabled\":false}".to_string(),
+            };
+            let _ = respond(s, "200 OK", "application/json", body.as_bytes());
+        }
+        "/drive" => {
+            let Some(d) = sh.drive.clone() else {
+                let _ = respond(
+                    s,
+                    "404 Not Found",
+                    "text/plain",
+                    b"not driving: start nvtmm view with --drive CONFIG\n",
+                );
+                return;
+            };
+            let token = query.split('&').find_map(|kv| kv.strip_prefix("token="));
+            if !d.authorized(token) {
+                d.count_unauthorized();
+                let _ = respond(
+                    s,
+                    "403 Forbidden",
+                    "text/plain",
+                    b"a drive token is required: /drive?token=...\n",
+                );
+                return;
+            }
+            let Some(key) = header("Sec-WebSocket-Key") else {
+                let _ = respond(s, "400 Bad Request", "text/plain", b"WebSocket upgrade expected\n");
+                return;
+            };
+            if !d.connect() {
+                let _ = respond(s, "409 Conflict", "text/plain", b"another page is driving\n");
+                return;
+            }
+            let accept = tungstenite::handshake::derive_accept_key(key.as_bytes());
+            let ok = write!(
+                s,
+                "HTTP/1.1 101 Switching Protocols\r\nUpgrade: websocket\r\nConnection: Upgrade\r\nSec-WebSocket-Accept: {accept}\r\n\r\n"
+            );
+            if ok.is_ok() {
+                let _ = s.set_read_timeout(Some(Duration::from_millis(20)));
+                drive_session(WebSocket::from_raw_socket(s, Role::Server, None), &d);
+            }
+            d.disconnect();
         }
         "/ws" => match header("Sec-WebSocket-Key") {
             Some(key) if header("Upgrade").is_some_and(|u| u.eq_ignore_ascii_case("websocket")) => {
@@ -323,6 +516,37 @@ fn snapshot(sh: &Shared) -> Vec<u8> {
     out
 }
 
+/// One driving page: its commands in, its status out (every 100 ms),
+/// until it goes away.
+fn drive_session(mut ws: WebSocket<TcpStream>, d: &super::drive::DriveServer) {
+    let mut last_status = std::time::Instant::now() - Duration::from_secs(1);
+    loop {
+        match ws.read() {
+            Ok(Message::Text(t)) => {
+                let _ = d.handle_text(t.as_str());
+            }
+            Ok(Message::Binary(_)) => {
+                d.handle_binary();
+            }
+            Ok(Message::Close(_)) => return,
+            Ok(_) => {}
+            Err(tungstenite::Error::Io(e))
+                if matches!(e.kind(), std::io::ErrorKind::WouldBlock | std::io::ErrorKind::TimedOut) => {}
+            Err(_) => return,
+        }
+        if last_status.elapsed() >= Duration::from_millis(100) {
+            last_status = std::time::Instant::now();
+            let body = serde_json::json!({ "drive": d.status() }).to_string();
+            match ws.send(Message::text(body)) {
+                Ok(()) => {}
+                Err(tungstenite::Error::Io(e))
+                    if matches!(e.kind(), std::io::ErrorKind::WouldBlock | std::io::ErrorKind::TimedOut) => {}
+                Err(_) => return,
+            }
+        }
+    }
+}
+
 /// Sends the latest topology and state to one client until it goes away.
 fn forward(mut ws: WebSocket<TcpStream>, sh: &Shared) {
     let (mut topo_v, mut state_v) = (0u64, 0u64);
@@ -340,6 +564,11 @@ fn forward(mut ws: WebSocket<TcpStream>, sh: &Shared) {
             topo_v = l.topology_version;
             state_v = l.state_version;
             (topo, state, stats_json(&l.stats, l.clients))
+        };
+        let task = sh.task.lock().unwrap_or_else(|e| e.into_inner()).clone();
+        let stats = match task {
+            Some(t) => format!("{{\"task\":{t},{}", &stats[1..]),
+            None => stats,
         };
         let mut send = |m: Message| ws.send(m).is_ok();
         if let Some(t) = topo {

@@ -105,3 +105,29 @@ pub fn run_unless_the_machine_paused(cfg: &Path) -> nvtmm::service::Report {
         );
     }
 }
+
+/// Writes the guidewire service on the UDP bridge (poses to `device`), its
+/// stream to `stream`, the task summary to `hud`; returns the config path.
+pub fn write_udp(dir: &Path, device: &str, stream: &str, hud: &str) -> PathBuf {
+    let base = write(dir, 300.0, "[]", true);
+    let text = std::fs::read_to_string(&base).unwrap();
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let udp = std::fs::read_to_string(root.join("rt-config/udp_browser.toml"))
+        .unwrap()
+        .replace("127.0.0.1:47010", device);
+    std::fs::write(dir.join("udp.toml"), udp).unwrap();
+    let text = text
+        .replace("[device]\n", "[device]\nbackend = \"udp\"\nudp = \"udp.toml\"\n")
+        .replace(
+            "[stream]\nenabled = false",
+            &format!("[stream]\nenabled = true\ntarget = \"{stream}\"\ndecimate_vertices = 800"),
+        )
+        .replace("script = []\n", "")
+        + &format!(
+            "[watchdog]\ndevice_timeout_ms = 20.0\n[task]\ntarget_segment = \"left_subclavian\"\nhud_target = \"{hud}\"\nsession_dir = \"{}\"\n",
+            dir.join("sessions").display()
+        );
+    let path = dir.join("drive.toml");
+    std::fs::write(&path, text).unwrap();
+    path
+}
