@@ -29,19 +29,23 @@
 #![warn(missing_docs)]
 #![warn(clippy::undocumented_unsafe_blocks)]
 
+#[cfg(feature = "tools")]
 pub mod bench;
 pub mod config;
+#[cfg(feature = "tools")]
 pub mod experiment;
 pub mod haptics;
 pub mod material;
 pub mod math;
 pub mod mesh;
 pub mod model;
+pub mod observe;
 pub mod reduced;
 pub mod rt;
 pub mod scene;
 pub mod service;
 pub mod simulate;
+#[cfg(feature = "tools")]
 pub mod soak;
 pub mod solver;
 pub mod stream;

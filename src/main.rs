@@ -358,9 +358,10 @@ enum MeshCmd {
         #[arg(long)]
         edge_length: Option<f64>,
     },
-    /// Print a mesh's size, volume and element quality.
+    /// Print a mesh's size, volume and element quality; for a surface file,
+    /// its openings and the `mesh vessel` command that makes a wall of it.
     Info {
-        /// Mesh file (.msh .vtk .vtu .node/.ele).
+        /// Mesh file (.msh .vtk .vtu .node/.ele), or a surface (.stl .obj .ply .vtk .vtp).
         file: PathBuf,
         /// Print JSON instead of text.
         #[arg(long)]

@@ -83,9 +83,9 @@ fn median<T: Copy + PartialOrd>(v: &mut [T]) -> Option<T> {
     Some(v[v.len() / 2])
 }
 
-/// Runs `scene`, writing outputs into `out_dir` (created if needed). With
-/// `progress`, shows a progress bar on stderr.
-pub fn run(scene: &Scene, out_dir: &Path, progress: bool) -> Result<RunSummary, SimError> {
+/// Runs `scene`, writing outputs into `out_dir` (created if needed). Its
+/// progress (steps, task `"simulate"`) goes to `observer`.
+pub fn run(scene: &Scene, out_dir: &Path, observer: &crate::observe::Observe) -> Result<RunSummary, SimError> {
     let mut built = scene.build()?;
     let mesh = &built.mesh;
     let n = mesh.num_nodes();
@@ -129,16 +129,7 @@ pub fn run(scene: &Scene, out_dir: &Path, progress: bool) -> Result<RunSummary, 
         None
     };
 
-    let bar = if progress {
-        let b = indicatif::ProgressBar::new(steps as u64);
-        b.set_style(
-            indicatif::ProgressStyle::with_template("{bar:40} {pos}/{len} steps  t={msg}  eta {eta}")
-                .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
-        );
-        Some(b)
-    } else {
-        None
-    };
+    let mut detail = String::new();
 
     let mut times = Vec::with_capacity(steps);
     let mut cg = Vec::with_capacity(steps);
@@ -151,9 +142,7 @@ pub fn run(scene: &Scene, out_dir: &Path, progress: bool) -> Result<RunSummary, 
         let rep: StepReport = euler.step(&mut state, built.model.as_mut(), &built.loads, &built.fixed);
         times.push(t0.elapsed().as_secs_f64() * 1e3);
         if let Some(f) = rep.failure {
-            if let Some(b) = &bar {
-                b.abandon();
-            }
+            observer.finished("simulate", false);
             return Err(SimError::StepFailed {
                 step,
                 t: state.t,
@@ -193,17 +182,15 @@ pub fn run(scene: &Scene, out_dir: &Path, progress: bool) -> Result<RunSummary, 
             )
             .map_err(|e| out_err(out_dir, &e))?;
         }
-        if let Some(b) = &bar {
-            b.inc(1);
-            if step % 50 == 0 {
-                b.set_message(format!("{:.3}s", state.t));
+        if observer.is_active() {
+            if step % 50 == 1 {
+                detail = format!("{:.3}s", state.t);
             }
+            observer.progress("simulate", step as f64, steps as f64, &detail);
         }
     }
     let wall_s = t_start.elapsed().as_secs_f64();
-    if let Some(b) = &bar {
-        b.finish_and_clear();
-    }
+    observer.finished("simulate", true);
     if let Some(mut w) = csv {
         w.flush().map_err(|e| out_err(&csv_path, &e))?;
     }
@@ -218,10 +205,15 @@ pub fn run(scene: &Scene, out_dir: &Path, progress: bool) -> Result<RunSummary, 
         edges: false,
         ..Default::default()
     };
+    #[cfg_attr(not(feature = "tools"), allow(unused_mut))]
     let mut rgb = crate::mesh::render::render_surface(mesh, Some(&pos), Some(&mag), &opt);
+    #[cfg(feature = "tools")]
     let (lo, hi) = mag
         .iter()
         .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &x| (a.min(x), b.max(x)));
+    // The caption and colour bar need the plotting library (feature
+    // `tools`); without it the picture has none.
+    #[cfg(feature = "tools")]
     crate::experiment::plot::annotate_render(
         &mut rgb,
         opt.width,

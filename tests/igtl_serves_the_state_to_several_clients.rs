@@ -339,9 +339,9 @@ fn pyigtl_receives_the_tip_transform_and_the_status() {
     assert!(out.status.success(), "pyigtl client failed: {text}");
     let v: serde_json::Value = serde_json::from_str(text.trim()).unwrap();
     assert_eq!(v["tip_type"], "TRANSFORM");
-    // The tool at (0.01, 0.02, 0.03) m arrives in millimetres.
+    // The tool at (0.01, 0.02, 0.03) m (LPS) arrives in RAS millimetres.
     let m = &v["tip_matrix"];
-    for (row, want) in [(0, 10.0), (1, 20.0), (2, 30.0)] {
+    for (row, want) in [(0, -10.0), (1, -20.0), (2, 30.0)] {
         let got = m[row][3].as_f64().unwrap();
         assert!((got - want).abs() < 1e-4, "translation row {row}: {got}");
     }

@@ -502,3 +502,92 @@ fn cli_meshes_a_fixture_and_prints_the_openings() {
     assert!(stdout.contains("centre (0.000, 0.000, 5.000) mm"), "{stdout}");
     assert!(bad_out.exists());
 }
+
+/// A bend (as [`torus_section`]) closed at both ends by flat fans around the
+/// end centres: what a segmentation tool's capped export looks like.
+fn capped_bend(rb: f64, r: f64, sweep: f64, around: usize, segments: usize) -> SurfaceMesh {
+    let mut s = torus_section(rb, r, sweep, around, segments);
+    let id = |j: usize, k: usize| (j * around + k % around) as u32;
+    let c0 = s.vertices.len() as u32;
+    s.vertices.push(Vec3::new(rb, 0.0, 0.0));
+    s.vertices.push(Vec3::new(rb * sweep.cos(), rb * sweep.sin(), 0.0));
+    for k in 0..around {
+        s.triangles.push([c0, id(0, k), id(0, k + 1)]);
+        s.triangles.push([c0 + 1, id(segments, k + 1), id(segments, k)]);
+    }
+    s
+}
+
+#[test]
+fn a_closed_surface_opened_by_its_caps_says_so_when_the_wall_fails() {
+    use nvtmm::mesh::vessel::pipeline::{mesh_vessel, VesselOptions};
+    // Closed, its two flat ends found as caps and removed; then a wall
+    // thicker than the bend's inner radius fails. The error keeps its cause
+    // and adds where the openings came from and the way out (--cut).
+    let c = checked(&capped_bend(0.015, 0.005, PI / 2.0, 32, 32));
+    assert!(c.report.boundary_loops.is_empty(), "the test surface must be closed");
+    let opts = |t: f64| VesselOptions {
+        wall: WallOptions {
+            thickness: Thickness::Absolute(t),
+            layers: 1,
+        },
+        ..VesselOptions::default()
+    };
+    let ok = mesh_vessel(&c, &opts(0.002)).expect("a thin wall on the opened bend");
+    assert_eq!(ok.caps.len(), 2, "both flat ends are found as caps");
+    let e = mesh_vessel(&c, &opts(0.015)).unwrap_err();
+    let msg = e.to_string();
+    println!("{msg}");
+    assert!(matches!(e, VesselError::OpenedByCaps { caps: 2, .. }), "{e:?}");
+    for want in [
+        "wall thickness too large",
+        "was closed",
+        "2 planar cap(s)",
+        "--cut px,py,pz,nx,ny,nz",
+    ] {
+        assert!(msg.contains(want), "'{want}' not in: {msg}");
+    }
+}
+
+#[test]
+fn mesh_info_on_a_surface_points_to_mesh_vessel() {
+    let dir = tempfile::tempdir().unwrap();
+    let info = |name: &str, s: &SurfaceMesh| {
+        let path = dir.path().join(name);
+        let mut text = String::new();
+        for p in &s.vertices {
+            text += &format!("v {} {} {}\n", p.x, p.y, p.z);
+        }
+        for t in &s.triangles {
+            text += &format!("f {} {} {}\n", t[0] + 1, t[1] + 1, t[2] + 1);
+        }
+        std::fs::write(&path, text).unwrap();
+        let o = Command::new(env!("CARGO_BIN_EXE_nvtmm"))
+            .args(["mesh", "info"])
+            .arg(&path)
+            .output()
+            .unwrap();
+        let out = String::from_utf8_lossy(&o.stdout).into_owned();
+        println!("{name}: {out}{}", String::from_utf8_lossy(&o.stderr));
+        assert!(o.status.success(), "{name}");
+        out
+    };
+    // A closed sphere: no opening; the way out is named.
+    let out = info("ball.obj", &sphere(0.01, 24, 12));
+    for want in [
+        "a surface, not a volume",
+        "openings           0",
+        "closed",
+        "nvtmm mesh vessel",
+        "--cut",
+    ] {
+        assert!(out.contains(want), "'{want}' not in: {out}");
+    }
+    // An open tube: two openings, and the command that makes its wall.
+    let out = info("tube.obj", &tube(0.005, 0.04, 16, 5, false));
+    assert!(
+        out.contains("openings           2") && out.contains("nvtmm mesh vessel"),
+        "{out}"
+    );
+    assert!(!out.contains("--cut"), "{out}");
+}

@@ -194,7 +194,7 @@ pub fn bench_wire_tick(config: &Path, o: &WireTickOptions) -> Result<WireTickBen
     let p = prepare(&StartOptions {
         config: ConfigSource::File(config.to_path_buf()),
         seconds: None,
-        progress: false,
+        observer: crate::observe::Observe::none(),
         record: None,
         device: None,
     })

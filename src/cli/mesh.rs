@@ -284,7 +284,15 @@ fn info_of(m: &TetMesh) -> Info {
 }
 
 pub fn info(file: &Path, json: bool, scale: f64) -> Result<()> {
-    let m = read_mesh_scaled(file, scale)?;
+    let m = match read_mesh_scaled(file, scale) {
+        Ok(m) => m,
+        // Not a volume mesh: a lumen surface is described, with the way to
+        // a wall mesh; anything else keeps the volume reader's error.
+        Err(e) => match read_and_check(file, scale, &CheckOptions::default()) {
+            Ok(s) => return surface_info(file, &s, json),
+            Err(_) => return Err(e.into()),
+        },
+    };
     let i = info_of(&m);
     if json {
         println!("{}", serde_json::to_string_pretty(&i)?);
@@ -310,6 +318,58 @@ pub fn info(file: &Path, json: bool, scale: f64) -> Result<()> {
         for (k, n) in &i.node_sets {
             println!("  node set {k:<18} {n} nodes");
         }
+    }
+    Ok(())
+}
+
+/// `mesh info` on a surface file: its openings, and how to mesh a wall
+/// from it.
+fn surface_info(file: &Path, s: &nvtmm::mesh::surface::CheckedSurface, json: bool) -> Result<()> {
+    let loops = &s.report.boundary_loops;
+    let f = file.display();
+    let next = if loops.is_empty() {
+        format!(
+            "a closed surface (no opening): `nvtmm mesh vessel {f} --out wall.vtu` removes flat end caps if it \
+             finds them; otherwise open each end with --cut px,py,pz,nx,ny,nz (a plane; the side the normal \
+             points to is removed)"
+        )
+    } else {
+        format!("a lumen surface: `nvtmm mesh vessel {f} --out wall.vtu` builds the vessel wall's tet mesh")
+    };
+    if json {
+        let openings: Vec<serde_json::Value> = loops
+            .iter()
+            .map(|l| {
+                serde_json::json!({
+                    "centre_m": [l.centre.x, l.centre.y, l.centre.z],
+                    "normal": [l.normal.x, l.normal.y, l.normal.z],
+                    "perimeter_m": l.perimeter,
+                })
+            })
+            .collect();
+        let v = serde_json::json!({
+            "kind": "surface",
+            "vertices": s.mesh.vertices.len(),
+            "triangles": s.mesh.triangles.len(),
+            "openings": openings,
+            "next": next,
+        });
+        println!("{}", serde_json::to_string_pretty(&v)?);
+    } else {
+        println!("{f}: a surface, not a volume (tet) mesh");
+        println!("  vertices           {}", s.mesh.vertices.len());
+        println!("  triangles          {}", s.mesh.triangles.len());
+        println!("  openings           {}", loops.len());
+        for (k, l) in loops.iter().enumerate() {
+            println!(
+                "    opening {k}: centre ({:.1}, {:.1}, {:.1}) mm, perimeter {:.1} mm",
+                l.centre.x * 1e3,
+                l.centre.y * 1e3,
+                l.centre.z * 1e3,
+                l.perimeter * 1e3
+            );
+        }
+        println!("  {next}");
     }
     Ok(())
 }

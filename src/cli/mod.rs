@@ -4,6 +4,7 @@
 
 pub mod cubic;
 pub mod mesh;
+pub mod progress;
 pub mod reduced;
 pub mod run;
 pub mod sim;

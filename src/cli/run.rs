@@ -16,7 +16,7 @@ pub fn run(
     let config = config.map(Path::to_path_buf).unwrap_or_else(default_config);
     let opts = StartOptions {
         seconds,
-        progress: !quiet,
+        observer: crate::cli::progress::terminal(quiet),
         record,
         ..StartOptions::file(config)
     };
@@ -67,7 +67,7 @@ pub fn soak(config: Option<PathBuf>, minutes: f64, seed: u64, json: Option<&Path
         minutes,
         seed,
         stiff_fraction: 0.25,
-        progress: !quiet,
+        observer: crate::cli::progress::terminal(quiet),
     })?;
     print!("{}", report.render());
     if let Some(p) = json {

@@ -15,7 +15,7 @@ pub fn simulate(scene_path: &Path, out: Option<&Path>, quiet: bool) -> Result<()
     let scene = Scene::load(scene_path)?;
     let default_out = Path::new("out").join(scene_path.file_stem().unwrap_or_default());
     let out = out.unwrap_or(&default_out);
-    let summary = nvtmm::simulate::run(&scene, out, !quiet)?;
+    let summary = nvtmm::simulate::run(&scene, out, &crate::cli::progress::terminal(quiet))?;
     println!(
         "{} on {} nodes / {} tets: {} steps, {:.4} s simulated in {:.2} s wall ({:.3} ms/step median, {} CG iterations median, {} unconverged steps, {} split steps)",
         summary.model,

@@ -51,6 +51,78 @@ fn range(points: impl Iterator<Item = f64>, log: bool) -> (f64, f64) {
 /// Error of a plot.
 pub type PlotResult = Result<(), String>;
 
+/// A tick label on a logarithmic axis: only at 1, 2 and 5 times a power of
+/// ten (plotters puts ticks at every integer multiple, whose labels run
+/// into each other: "8.09.010.0"), written short ("0.01", "2", "50").
+pub fn log_tick_label(v: f64) -> String {
+    if !(v.is_finite() && v > 0.0) {
+        return String::new();
+    }
+    let decade = 10f64.powf(v.log10().floor());
+    let m = v / decade;
+    let near = |x: f64| (m - x).abs() < 1e-6 * x;
+    if !(near(1.0) || near(2.0) || near(5.0) || near(10.0)) {
+        return String::new();
+    }
+    let rounded = (m.round() * decade * 1e12).round() / 1e12;
+    format!("{rounded}")
+}
+
+/// Where the legend covers the fewest data: the corner (a box about
+/// `w` × `h` of the plot, in axis fractions; `x`, `y` the axis ranges,
+/// `log` whether each is logarithmic) with the fewest points of the series
+/// and of their segments sampled along.
+pub fn legend_corner(
+    series: &[Series],
+    x: (f64, f64),
+    y: (f64, f64),
+    log: (bool, bool),
+    w: f64,
+    h: f64,
+) -> SeriesLabelPosition {
+    let frac = |v: f64, (lo, hi): (f64, f64), log: bool| {
+        if log {
+            (v.ln() - lo.ln()) / (hi.ln() - lo.ln())
+        } else {
+            (v - lo) / (hi - lo)
+        }
+    };
+    let mut pts = Vec::new();
+    for s in series {
+        let p: Vec<(f64, f64)> = s
+            .points
+            .iter()
+            .map(|&(a, b)| (frac(a, x, log.0), frac(b, y, log.1)))
+            .filter(|(a, b)| a.is_finite() && b.is_finite())
+            .collect();
+        for k in 0..p.len() {
+            pts.push(p[k]);
+            if k + 1 < p.len() {
+                for j in 1..20 {
+                    let t = j as f64 / 20.0;
+                    pts.push((p[k].0 + t * (p[k + 1].0 - p[k].0), p[k].1 + t * (p[k + 1].1 - p[k].1)));
+                }
+            }
+        }
+    }
+    let corners = [
+        (SeriesLabelPosition::UpperRight, 1.0 - w, 1.0 - h),
+        (SeriesLabelPosition::UpperLeft, 0.0, 1.0 - h),
+        (SeriesLabelPosition::LowerLeft, 0.0, 0.0),
+        (SeriesLabelPosition::LowerRight, 1.0 - w, 0.0),
+    ];
+    let count = |(x0, y0): (f64, f64)| {
+        pts.iter()
+            .filter(|(a, b)| (x0..=x0 + w).contains(a) && (y0..=y0 + h).contains(b))
+            .count()
+    };
+    corners
+        .into_iter()
+        .min_by_key(|&(_, x0, y0)| count((x0, y0)))
+        .map(|c| c.0)
+        .unwrap_or(SeriesLabelPosition::UpperRight)
+}
+
 /// A line plot of several series, with linear or logarithmic axes.
 pub fn line_plot(
     path: &Path,
@@ -66,6 +138,12 @@ pub fn line_plot(
     root.fill(&WHITE).map_err(|e| e.to_string())?;
     let (x0, x1) = range(series.iter().flat_map(|s| s.points.iter().map(|p| p.0)), log_x);
     let (y0, y1) = range(series.iter().flat_map(|s| s.points.iter().map(|p| p.1)), log_y);
+    // The legend box: about 20 px a series plus margins, 300 px wide, as a
+    // share of the plot area (about 880 × 590 px).
+    let legend_h = ((series.len() as f64 * 24.0 + 20.0) / 590.0).min(0.9);
+    let corner = legend_corner(series, (x0, x1), (y0, y1), (log_x, log_y), 300.0 / 880.0, legend_h);
+    let x_fmt = |v: &f64| if log_x { log_tick_label(*v) } else { format!("{v}") };
+    let y_fmt = |v: &f64| if log_y { log_tick_label(*v) } else { format!("{v}") };
     macro_rules! draw {
         ($chart:expr) => {{
             let mut chart = $chart;
@@ -73,6 +151,8 @@ pub fn line_plot(
                 .configure_mesh()
                 .x_desc(x_label)
                 .y_desc(y_label)
+                .x_label_formatter(&x_fmt)
+                .y_label_formatter(&y_fmt)
                 .label_style(("sans-serif", 18))
                 .axis_desc_style(("sans-serif", 20))
                 .draw()
@@ -92,6 +172,7 @@ pub fn line_plot(
             }
             chart
                 .configure_series_labels()
+                .position(corner.clone())
                 .label_font(("sans-serif", 18))
                 .background_style(WHITE.mix(0.8))
                 .border_style(BLACK)

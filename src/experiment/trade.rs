@@ -335,64 +335,8 @@ pub fn run(out: &Path, quick: bool) -> Result<(Vec<TradeRow>, usize), Experiment
         )
         .map_err(|e| ExperimentError::io(&csv, e))?;
     }
-    let colors = [
-        RGBColor(31, 119, 180),
-        RGBColor(255, 127, 14),
-        RGBColor(44, 160, 44),
-        RGBColor(214, 39, 40),
-        RGBColor(148, 103, 189),
-        RGBColor(90, 90, 90),
-    ];
-    let mut series = Vec::new();
-    for (i, m) in ["msm", "tmm", "nvtmm", "fem"].iter().enumerate() {
-        let mut pts: Vec<(f64, f64)> = rows
-            .iter()
-            .filter(|r| r.knob == "dt" && r.model == *m)
-            .map(|r| (r.wall_per_sim_s, r.err_load_disp.max(1e-9)))
-            .collect();
-        pts.sort_by(|a, b| a.0.total_cmp(&b.0));
-        series.push(Series {
-            name: format!("{m}: dt 0.5-10 ms"),
-            color: colors[i],
-            points: pts,
-            markers: true,
-        });
-    }
-    let mut mesh_pts: Vec<(f64, f64)> = rows
-        .iter()
-        .filter(|r| r.knob == "mesh_nodes" && r.err_load_disp > 0.0)
-        .map(|r| (r.wall_per_sim_s, r.err_load_disp))
-        .collect();
-    mesh_pts.sort_by(|a, b| a.0.total_cmp(&b.0));
-    series.push(Series {
-        name: "nvtmm: mesh resolution".into(),
-        color: colors[4],
-        points: mesh_pts,
-        markers: true,
-    });
-    let mut solver_pts: Vec<(f64, f64)> = rows
-        .iter()
-        .filter(|r| matches!(r.knob.as_str(), "cg_tol" | "newton_iters"))
-        .map(|r| (r.wall_per_sim_s, r.err_load_disp.max(1e-9)))
-        .collect();
-    solver_pts.sort_by(|a, b| a.0.total_cmp(&b.0));
-    series.push(Series {
-        name: "nvtmm: Newton iters, CG tol".into(),
-        color: colors[5],
-        points: solver_pts,
-        markers: true,
-    });
     let png = out.join("trade.png");
-    line_plot(
-        &png,
-        "Speed for accuracy (arch, standard load, error at t = 40 ms)",
-        "wall time per simulated second (s)",
-        "relative error of the loaded node's displacement",
-        &series,
-        true,
-        true,
-    )
-    .map_err(|e| ExperimentError::Plot(png.clone(), e))?;
+    plot(&rows, &png)?;
     let md = out.join("trade.md");
     std::fs::write(&md, markdown(&rows, finest_nodes)).map_err(|e| ExperimentError::io(&md, e))?;
     Ok((rows, finest_nodes))
@@ -661,4 +605,99 @@ pub fn markdown(rows: &[TradeRow], finest: usize) -> String {
         }
     }
     s
+}
+
+/// Draws `trade.png` from the rows (the curves per model over dt, the mesh
+/// resolution and the solver's knobs).
+pub fn plot(rows: &[TradeRow], png: &Path) -> Result<(), ExperimentError> {
+    let colors = [
+        RGBColor(31, 119, 180),
+        RGBColor(255, 127, 14),
+        RGBColor(44, 160, 44),
+        RGBColor(214, 39, 40),
+        RGBColor(148, 103, 189),
+        RGBColor(90, 90, 90),
+    ];
+    let mut series = Vec::new();
+    for (i, m) in ["msm", "tmm", "nvtmm", "fem"].iter().enumerate() {
+        let mut pts: Vec<(f64, f64)> = rows
+            .iter()
+            .filter(|r| r.knob == "dt" && r.model == *m)
+            .map(|r| (r.wall_per_sim_s, r.err_load_disp.max(1e-9)))
+            .collect();
+        pts.sort_by(|a, b| a.0.total_cmp(&b.0));
+        series.push(Series {
+            name: format!("{m}: dt 0.5-10 ms"),
+            color: colors[i],
+            points: pts,
+            markers: true,
+        });
+    }
+    let mut mesh_pts: Vec<(f64, f64)> = rows
+        .iter()
+        .filter(|r| r.knob == "mesh_nodes" && r.err_load_disp > 0.0)
+        .map(|r| (r.wall_per_sim_s, r.err_load_disp))
+        .collect();
+    mesh_pts.sort_by(|a, b| a.0.total_cmp(&b.0));
+    series.push(Series {
+        name: "nvtmm: mesh resolution".into(),
+        color: colors[4],
+        points: mesh_pts,
+        markers: true,
+    });
+    let mut solver_pts: Vec<(f64, f64)> = rows
+        .iter()
+        .filter(|r| matches!(r.knob.as_str(), "cg_tol" | "newton_iters"))
+        .map(|r| (r.wall_per_sim_s, r.err_load_disp.max(1e-9)))
+        .collect();
+    solver_pts.sort_by(|a, b| a.0.total_cmp(&b.0));
+    series.push(Series {
+        name: "nvtmm: Newton iters, CG tol".into(),
+        color: colors[5],
+        points: solver_pts,
+        markers: true,
+    });
+    line_plot(
+        png,
+        "Speed for accuracy (arch, standard load, error at t = 40 ms)",
+        "wall time per simulated second (s)",
+        "relative error of the loaded node's displacement",
+        &series,
+        true,
+        true,
+    )
+    .map_err(|e| ExperimentError::Plot(png.to_path_buf(), e))?;
+    Ok(())
+}
+
+/// Reads a `trade.csv` written by [`run`] (e.g. docs/trade.csv), to plot
+/// it again.
+pub fn read_csv(path: &Path) -> Result<Vec<TradeRow>, ExperimentError> {
+    let text = std::fs::read_to_string(path).map_err(|e| ExperimentError::io(path, e))?;
+    let bad = |line: usize, what: &str| {
+        ExperimentError::io(
+            path,
+            std::io::Error::new(std::io::ErrorKind::InvalidData, format!("line {line}: {what}")),
+        )
+    };
+    let mut rows = Vec::new();
+    for (i, line) in text.lines().enumerate().skip(1) {
+        let f: Vec<&str> = line.split(',').collect();
+        if f.len() != 9 {
+            return Err(bad(i + 1, "expected 9 fields"));
+        }
+        let num = |k: usize| f[k].trim().parse::<f64>().map_err(|_| bad(i + 1, "not a number"));
+        rows.push(TradeRow {
+            knob: f[0].to_string(),
+            value: f[1].to_string(),
+            model: f[2].to_string(),
+            nodes: f[3].trim().parse().map_err(|_| bad(i + 1, "nodes: not an integer"))?,
+            ms_per_step: num(4)?,
+            wall_per_sim_s: num(5)?,
+            err_load_disp: num(6)?,
+            err_rms_surface: num(7)?,
+            err_reaction: num(8)?,
+        });
+    }
+    Ok(rows)
 }

@@ -136,8 +136,10 @@ pub const MAX_LEVEL: usize = 16;
 pub const MAX_SAMPLES: usize = 8192;
 
 /// Contact parameters.
+// `default`: a `[contact]` table that gives some keys takes the others'
+// defaults, as every other table of the service file does.
 #[derive(Debug, Clone, Copy, PartialEq, serde::Deserialize, serde::Serialize)]
-#[serde(deny_unknown_fields)]
+#[serde(deny_unknown_fields, default)]
 pub struct ContactParams {
     /// Tool sphere radius ρ (m).
     pub tool_radius_m: f64,

@@ -101,8 +101,9 @@ pub struct StartOptions {
     /// the configuration's `seconds`. The service itself runs until
     /// [`Handle::stop`].
     pub seconds: Option<f64>,
-    /// Print progress to stderr while preparing.
-    pub progress: bool,
+    /// Where progress and messages go (preparation, the run's elapsed
+    /// time); silent by default. The library never prints.
+    pub observer: crate::observe::Observe,
     /// Record the state stream to this file (also when `[stream]` is off).
     pub record: Option<PathBuf>,
     /// Builds the device in place of the configured backend (the soak's
@@ -152,7 +153,7 @@ impl StartOptions {
         StartOptions {
             config: ConfigSource::File(path.into()),
             seconds: None,
-            progress: false,
+            observer: crate::observe::Observe::none(),
             record: None,
             device: None,
         }
@@ -167,7 +168,7 @@ impl StartOptions {
                 path: path.into(),
             },
             seconds: None,
-            progress: false,
+            observer: crate::observe::Observe::none(),
             record: None,
             device: None,
         }
@@ -250,32 +251,24 @@ impl Drop for Handle {
 }
 
 /// The whole of `nvtmm run`: start, let it run for the configured time
-/// (with a progress bar if `opts.progress`), stop, return the report.
+/// (its progress, in seconds, to `opts.observer` as task `"run"`), stop,
+/// return the report.
 pub fn run_service(opts: &StartOptions) -> Result<Report, ServiceError> {
     let handle = Service::start(opts.clone())?;
     let total = handle.planned_seconds();
     let t0 = std::time::Instant::now();
-    let bar = opts.progress.then(|| {
-        let b = indicatif::ProgressBar::new((total * 10.0) as u64);
-        b.set_style(
-            indicatif::ProgressStyle::with_template("{bar:40} {elapsed}/{duration} {msg}")
-                .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
-        );
-        b
-    });
+    let obs = &opts.observer;
     while t0.elapsed().as_secs_f64() < total + 0.05 {
         std::thread::sleep(std::time::Duration::from_millis(100));
-        if let Some(b) = &bar {
-            b.set_position((t0.elapsed().as_secs_f64() * 10.0) as u64);
-            b.set_message(format!("{} ticks", handle.snapshot().ticks));
+        if obs.is_active() {
+            let detail = format!("{} ticks", handle.snapshot().ticks);
+            obs.progress("run", t0.elapsed().as_secs_f64().min(total), total, &detail);
         }
         if handle.is_finished() {
             break;
         }
     }
-    if let Some(b) = bar {
-        b.finish_and_clear();
-    }
+    obs.finished("run", true);
     handle.stop()
 }
 

@@ -84,14 +84,14 @@ pub fn prepare(opts: &StartOptions) -> Result<Prepared, ServiceError> {
         Vec::new()
     };
     let mass = built.mesh.lumped_mass(built.material.density);
-    if opts.progress {
-        eprintln!(
+    if opts.observer.is_active() {
+        opts.observer.message(&format!(
             "nvtmm run: {} nodes, {} tets; basis r = {} ({} contact nodes)...",
             built.mesh.num_nodes(),
             built.mesh.tets().len(),
             red.r,
             contact.len()
-        );
+        ));
     }
     let req = BasisRequest {
         mesh: &built.mesh,
@@ -123,9 +123,8 @@ pub fn prepare(opts: &StartOptions) -> Result<Prepared, ServiceError> {
     };
     let compliance = match scene.compliance_params() {
         Some(cp) => {
-            if opts.progress {
-                eprintln!("nvtmm run: residual compliance for contact anywhere...");
-            }
+            opts.observer
+                .message("nvtmm run: residual compliance for contact anywhere...");
             let mut k = BlockTangent::zeros(&built.mesh);
             let zeros = vec![Vec3::zeros(); built.mesh.num_nodes()];
             built.model.add_stiffness(&zeros, &mut k);

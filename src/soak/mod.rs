@@ -88,8 +88,8 @@ pub struct SoakOptions {
     pub seed: u64,
     /// Share of the time spent in the stiff leg.
     pub stiff_fraction: f64,
-    /// Print progress to stderr.
-    pub progress: bool,
+    /// Where its progress lines go (silent: [`crate::observe::Observe::none`]).
+    pub observer: crate::observe::Observe,
 }
 
 /// Why the soak could not run.
@@ -982,15 +982,15 @@ fn run_leg(
             )) as Box<dyn crate::haptics::device::HapticDevice>)
         }))
     };
-    if opts.progress {
-        eprintln!(
+    if opts.observer.is_active() {
+        opts.observer.message(&format!(
             "nvtmm soak: leg {} ({:.0} s{}), preparing...",
             name,
             seconds,
             youngs_pa
                 .map(|e| format!(", E = {:.0} MPa", e * 1e-6))
                 .unwrap_or_default()
-        );
+        ));
     }
     let start = StartOptions {
         seconds: Some(seconds),
@@ -1335,12 +1335,12 @@ fn run_leg(
                 }
             }
         }
-        if opts.progress && now - bar_t >= 10.0 {
+        if opts.observer.is_active() && now - bar_t >= 10.0 {
             bar_t = now;
-            eprintln!(
+            opts.observer.message(&format!(
                 "nvtmm soak: leg {name}: {:.0} / {:.0} s, {} ticks, gain {:.2}",
                 now, seconds, snap.ticks, snap.gain
-            );
+            ));
         }
         std::thread::sleep(Duration::from_millis(2));
     }

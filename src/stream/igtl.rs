@@ -15,16 +15,25 @@
 //!
 //! The CRC is CRC-64/ECMA-182 (polynomial 0x42F0E1EBA9EA3693, initial value
 //! 0, no reflection, no final xor), as the reference implementation's
-//! `igtl_util.c` computes it. Content sent each frame:
+//! `igtl_util.c` computes it.
 //!
-//! - `POLYDATA` "VesselSurface": the stream surface, points in mm (float32
+//! Coordinates: the scene frame is LPS (x to the patient's left, y
+//! posterior, z superior: DICOM's patient frame, the built-in arch's);
+//! Slicer's world frame, where OpenIGTLinkIF puts what it receives, is RAS.
+//! Every point, translation and force is sent in RAS millimetres (newtons
+//! for the force), [`scene_to_ras_mm`]: x and y negated, a half turn about
+//! the superior axis, so no triangle changes its winding
+//! (docs/reference/coordinates.md). Content sent each frame:
+//!
+//! - `POLYDATA` "VesselSurface": the stream surface, points in RAS mm (float32
 //!   x y z) and triangles as POLYGONS cells (u32 count 3, u32 indices). The
 //!   full polydata goes every frame: Slicer replaces a model's whole
 //!   polydata with each message, so a points-only message would drop its
 //!   faces; the connectivity bytes are encoded once per topology and copied.
 //! - `TRANSFORM` "ToolTip" (and "WireTip" once the wire streams): 12
-//!   float32, the rotation column-major then the translation in mm.
-//! - `STRING` "Status": `t=… s force=fx,fy,fz N |F|=… N flags=0x… loop=… Hz`
+//!   float32, the rotation column-major then the translation in RAS mm.
+//! - `STRING` "Status": `t=… s force=fx,fy,fz N |F|=… N flags=0x… loop=… Hz`,
+//!   the force on the hand in RAS
 //!   (u16 encoding 3 = US-ASCII, u16 length, bytes).
 //! - `POLYDATA` "Wire" (when a wire polyline is given): points in mm and one
 //!   LINES cell.
@@ -163,6 +172,11 @@ fn put_f32(out: &mut Vec<u8>, v: f32) {
 
 fn put_u32(out: &mut Vec<u8>, v: u32) {
     out.extend_from_slice(&v.to_be_bytes());
+}
+
+/// A scene point (m, LPS) in Slicer's RAS frame (mm): x and y negated.
+pub fn scene_to_ras_mm(p: &[f32; 3]) -> [f32; 3] {
+    [-p[0] * 1e3, -p[1] * 1e3, p[2] * 1e3]
 }
 
 /// TRANSFORM content: a pure translation (mm).
@@ -581,7 +595,7 @@ impl IgtlServer {
         if self.clients.is_empty() {
             return;
         }
-        let mm = |p: &[f32; 3]| [p[0] * 1e3, p[1] * 1e3, p[2] * 1e3];
+        let mm = scene_to_ras_mm;
         let mut buf = std::mem::take(&mut self.buf);
         buf.clear();
         let pts: Vec<[f32; 3]> = f.positions.iter().map(mm).collect();
@@ -603,7 +617,8 @@ impl IgtlServer {
                 });
             }
         }
-        let fv = f.force;
+        // The force in RAS too, like the points.
+        let fv = [-f.force[0], -f.force[1], f.force[2]];
         let norm = (fv[0] * fv[0] + fv[1] * fv[1] + fv[2] * fv[2]).sqrt();
         let text = format!(
             "t={:.3} s force={:.4},{:.4},{:.4} N |F|={:.4} N flags=0x{:x} loop={:.0} Hz",

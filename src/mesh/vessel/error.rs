@@ -27,6 +27,24 @@ pub enum VesselError {
         /// Triangles of the surface.
         triangles: usize,
     },
+    /// The surface was closed and was opened by removing the flat caps
+    /// found on it; a later step failed. The caps may not be the vessel's
+    /// ends (a segmentation can have flat patches that are not caps, and a
+    /// cap that shares a vertex with another is kept).
+    #[error(
+        "{source}\n(the input surface was closed: it was opened by removing {caps} planar cap(s) detected on it, \
+         centred at {centres}; if these are not the vessel's ends, open it where the vessel is cut instead: \
+         --cut px,py,pz,nx,ny,nz per end (a plane; the side the normal points to is removed), \
+         or `nvtmm mesh info FILE` to see its openings)"
+    )]
+    OpenedByCaps {
+        /// How many caps were removed.
+        caps: usize,
+        /// Their centres (mm), for the message.
+        centres: String,
+        /// What failed after the opening.
+        source: Box<VesselError>,
+    },
     /// A cutting plane is unusable.
     #[error("cut {index} (point {}, normal ({:.3}, {:.3}, {:.3})): {what}", mm(point), normal.x, normal.y, normal.z)]
     BadCut {

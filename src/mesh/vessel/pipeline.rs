@@ -87,6 +87,32 @@ pub fn mesh_vessel(checked: &CheckedSurface, opts: &VesselOptions) -> Result<Ves
         )));
     }
     let opened = open_surface(checked, &opts.cuts, &opts.caps)?;
+    // A closed input opened only by removing caps: a later failure may come
+    // from caps that are not the vessel's ends, so the error says so and
+    // names the way out.
+    let by_caps_only = checked.report.boundary_loops.is_empty() && opts.cuts.is_empty() && !opened.caps.is_empty();
+    let caps: Vec<Vec3> = opened.caps.iter().map(|c| c.centre).collect();
+    mesh_opened(opened, opts).map_err(|e| {
+        // An option out of range is not the openings' fault.
+        if by_caps_only && !matches!(e, VesselError::BadOption(_)) {
+            VesselError::OpenedByCaps {
+                caps: caps.len(),
+                centres: caps
+                    .iter()
+                    .map(|c| format!("({:.1}, {:.1}, {:.1}) mm", c.x * 1e3, c.y * 1e3, c.z * 1e3))
+                    .collect::<Vec<_>>()
+                    .join(", "),
+                source: Box::new(e),
+            }
+        } else {
+            e
+        }
+    })
+}
+
+/// [`mesh_vessel`] after the opening.
+fn mesh_opened(opened: super::caps::Opened, opts: &VesselOptions) -> Result<VesselMesh, VesselError> {
+    let layers = opts.wall.layers;
     let mut surface = opened.surface;
     let mut remesh_info = None;
     if opts.size != SurfaceSize::Input {
