@@ -65,6 +65,19 @@ void nvtmm_string_free(char *s);
 /* The last error on the calling thread ("" if none). */
 const char *nvtmm_last_error(void);
 
+/* Instruments (docs/INSTRUMENTS.md): the number of instruments in the latest
+ * frame (the probe, the guidewire, ...; 0 before the first frame), or -1 on
+ * a NULL argument. */
+int64_t nvtmm_instrument_count(const NvtmmService *service);
+
+/* Copies instrument `index`'s polyline from the latest frame (x, y, z per
+ * point, m, hub to tip; the probe's one point is its sphere's centre) into
+ * xyz, which has room for max_points points, and its kind code into *kind
+ * (1 probe, 2 guidewire, 3 catheter; kind may be NULL). Returns the number
+ * of points copied, or -1 on a NULL argument or an index past the count. */
+int64_t nvtmm_instrument_polyline(const NvtmmService *service, size_t index, uint8_t *kind, float *xyz,
+                                  size_t max_points);
+
 #ifdef __cplusplus
 }
 #endif

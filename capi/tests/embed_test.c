@@ -61,6 +61,18 @@ int main(int argc, char **argv) {
     CHECK(n > 0, "positions copied: %lld", (long long)n);
     for (int64_t k = 0; k < 3 * n; k++) CHECK(isfinite(xyz[k]), "finite position");
     free(xyz);
+    /* The instruments: the probe at least, its one point the tool. */
+    int64_t ni = nvtmm_instrument_count(s);
+    CHECK(ni >= 1, "instruments in the frame: %lld", (long long)ni);
+    for (int64_t i = 0; i < ni; i++) {
+        float pts[3 * 256];
+        uint8_t kind = 0;
+        int64_t np = nvtmm_instrument_polyline(s, (size_t)i, &kind, pts, 256);
+        CHECK(np >= 1 && kind >= 1, "instrument %lld: %lld points, kind %u", (long long)i, (long long)np, kind);
+        for (int64_t k = 0; k < 3 * np; k++) CHECK(isfinite(pts[k]), "finite instrument point");
+        printf("instrument %lld: kind %u, %lld points\n", (long long)i, kind, (long long)np);
+    }
+    CHECK(nvtmm_instrument_polyline(s, (size_t)ni, NULL, NULL, 0) == -1, "an index past the count is refused");
     CHECK(nvtmm_snapshot(NULL, &a) == -1, "NULL is refused");
     char *report = nvtmm_stop(s);
     CHECK(report != NULL, "nvtmm_stop: %s", nvtmm_last_error());

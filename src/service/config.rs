@@ -55,7 +55,7 @@ pub struct ServiceConfig {
     /// How the service runs the guidewire (`[guidewire]`, needed with
     /// `[wire]`).
     #[serde(default)]
-    pub guidewire: Option<super::wire::GuidewireConfig>,
+    pub guidewire: Option<super::instrument::guidewire::GuidewireConfig>,
     /// The file this was read from (for messages and relative paths).
     #[serde(skip)]
     pub path: PathBuf,

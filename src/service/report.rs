@@ -263,8 +263,11 @@ pub struct Report {
     /// Device periods in which the device thread zeroed the force itself
     /// because the loop had sent no command for 20 ms.
     pub device_loop_silent_periods: u64,
-    /// The guidewire (None without `[wire]`).
+    /// The guidewire (None without `[wire]`); also in `instruments`.
     pub wire: Option<WireReport>,
+    /// Every instrument of the run, in the loop's order: its id, kind,
+    /// faults raised and its kind's own keys (docs/INSTRUMENTS.md).
+    pub instruments: Vec<crate::service::instrument::InstrumentReport>,
 }
 
 /// Contact anywhere in the run (the `contact` keys of the report).
@@ -547,6 +550,12 @@ impl Report {
                 } else {
                     "    wall under the wire: not loaded (guidewire.load_wall = false)\n".to_string()
                 }
+            );
+        }
+        for i in &self.instruments {
+            s += &format!(
+                "  instrument {} ({}): {}; {} faults raised\n",
+                i.id, i.kind, i.summary, i.faults
             );
         }
         if let Some(g) = &self.igtl {

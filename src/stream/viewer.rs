@@ -211,7 +211,7 @@ fn receive(udp: UdpSocket, sh: &Shared) {
             }
             Ok(Some(Decoded::State(s))) => {
                 l.state = Some(ws_message(KIND_STATE, s.epoch, s.seq, |m| {
-                    format::encode_state(&s.as_frame(), m)
+                    format::encode_state(&s.as_frame(&s.lines()), m)
                 }));
                 l.state_version += 1;
             }
@@ -398,7 +398,7 @@ mod tests {
                 flags: 0,
                 loop_rate_hz: 1000.0,
                 tick_p99_us: 10.0,
-                wire: &[],
+                instruments: &[],
             };
             p.publish(&f).unwrap();
             match ws.read().unwrap() {
