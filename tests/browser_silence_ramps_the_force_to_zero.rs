@@ -88,8 +88,9 @@ fn silence_from_the_browser_ramps_the_force_to_zero_and_holds_the_wire() {
     let len = |s: &nvtmm::service::Snapshot| {
         s.frame
             .as_ref()
-            .map(|f| {
-                f.wire
+            .and_then(|f| f.instruments.iter().find(|i| i.kind == "guidewire"))
+            .map(|w| {
+                w.points
                     .windows(2)
                     .map(|w| (0..3).map(|k| (w[1][k] - w[0][k]).powi(2)).sum::<f32>().sqrt() as f64)
                     .sum::<f64>()

@@ -19,7 +19,7 @@ use nvtmm::haptics::contact::{ContactParams, SurfaceIndex};
 use nvtmm::haptics::device::HapticDevice;
 use nvtmm::haptics::passivity::{PassivityFilter, PassivityParams};
 use nvtmm::haptics::servo::{Servo, ServoParams};
-use nvtmm::haptics::tick::{HapticTick, TickInput};
+use nvtmm::haptics::tick::{Contribution, HapticTick, TickInput};
 use nvtmm::haptics::touchx::{GimbalWaypoint, TouchXParams, TouchXSim, Waypoint};
 use nvtmm::material::Material;
 use nvtmm::math::Vec3;
@@ -159,12 +159,18 @@ fn run(script: &[(f64, f64, f64, f64)], params: &PassivityParams, wire: &WirePar
             s.position.x += 0.05;
         }
         let cmd = drive.command(&s, t);
-        tick.set_external_force(drive.hand_force(&s, axial));
-        let out = tick.run(TickInput {
-            sample: Some(&s),
-            now_s: t,
-            overrun_streak: 0,
-        });
+        let wire_part = Contribution {
+            force: drive.hand_force(&s, axial),
+            ..Contribution::default()
+        };
+        let out = tick.run_with(
+            TickInput {
+                sample: Some(&s),
+                now_s: t,
+                overrun_streak: 0,
+            },
+            &[Contribution::PROBE, wire_part],
+        );
         let applied = dev.write_force(out.force).unwrap();
         assert!(applied.iter().all(|v| v.is_finite()), "tick {k}: force {applied:?}");
         force_max = force_max.max(applied.norm());

@@ -69,4 +69,18 @@ fn a_short_guidewire_run_reports_finite_wire_keys_and_allocates_nothing() {
     ] {
         assert!(json["wire"].get(k).is_some(), "wire.{k} missing");
     }
+    // Two instruments behind the one seam (the loop above allocated
+    // nothing with both): the report lists each, the guidewire's section
+    // with the same keys as `wire.*`.
+    let ids: Vec<(&str, &str)> = report
+        .instruments
+        .iter()
+        .map(|i| (i.id.as_str(), i.kind.as_str()))
+        .collect();
+    assert_eq!(ids, [("probe", "probe"), ("guidewire", "guidewire")]);
+    let g = &json["instruments"][1]["keys"];
+    assert_eq!(g["steps"], json["wire"]["steps"]);
+    assert_eq!(g["tip_segment"], json["wire"]["tip_segment"]);
+    assert!(g.get("hub_ring_full").is_some());
+    assert_eq!(report.instruments[1].faults, w.resets + w.stalls);
 }

@@ -167,7 +167,7 @@ fn replay_serves_a_recording_over_openigtlink() {
             flags: 0,
             loop_rate_hz: 1000.0,
             tick_p99_us: 10.0,
-            wire: &[],
+            instruments: &[],
         })
         .unwrap();
     }

@@ -91,7 +91,7 @@ fn frame(positions: &[[f32; 3]], t: f64) -> StateFrame<'_> {
         flags: 2,
         loop_rate_hz: 1000.0,
         tick_p99_us: 20.0,
-        wire: &[],
+        instruments: &[],
     }
 }
 
@@ -348,4 +348,72 @@ fn pyigtl_receives_the_tip_transform_and_the_status() {
     assert_eq!(v["status_type"], "STRING");
     let s = v["status"].as_str().unwrap();
     assert!(s.contains("|F|=1.5000 N") && s.contains("flags=0x2"), "{s}");
+}
+
+#[test]
+fn each_instrument_goes_as_its_own_polydata_and_tip_transform() {
+    let n = 50;
+    let mut p = publisher(n);
+    let addr = p.igtl_addr().unwrap();
+    let reader = std::thread::spawn(move || {
+        let mut s = TcpStream::connect(addr).unwrap();
+        s.set_read_timeout(Some(Duration::from_millis(1000))).unwrap();
+        let mut data = Vec::new();
+        let mut buf = vec![0u8; 1 << 16];
+        while let Ok(k) = s.read(&mut buf) {
+            if k == 0 {
+                break;
+            }
+            data.extend_from_slice(&buf[..k]);
+        }
+        split(&data).0
+    });
+    let positions: Vec<[f32; 3]> = (0..n).map(|i| [i as f32 * 1e-3, 0.0, 0.0]).collect();
+    let probe = [[0.01f32, 0.02, 0.03]];
+    let wire = [[0.0f32, 0.0, 0.0], [0.0, 0.0, 0.01], [0.0, 0.002, 0.02]];
+    let lines = [
+        nvtmm::stream::InstrumentLine {
+            id: 0,
+            kind: 1,
+            points: &probe,
+        },
+        nvtmm::stream::InstrumentLine {
+            id: 1,
+            kind: 2,
+            points: &wire,
+        },
+        nvtmm::stream::InstrumentLine {
+            id: 2,
+            kind: 9,
+            points: &wire[..2],
+        },
+    ];
+    let t0 = Instant::now();
+    while p.igtl_stats().unwrap().accepted < 1 && t0.elapsed() < Duration::from_secs(5) {
+        p.publish(&frame(&positions, 0.0)).unwrap();
+        std::thread::sleep(Duration::from_millis(5));
+    }
+    for k in 0..5 {
+        p.publish(&StateFrame {
+            instruments: &lines,
+            ..frame(&positions, k as f64 / 60.0)
+        })
+        .unwrap();
+        std::thread::sleep(Duration::from_millis(10));
+    }
+    drop(p);
+    let msgs = reader.join().unwrap();
+    let last = |kind: &str, device: &str| {
+        msgs.iter()
+            .rev()
+            .find(|m| m.kind == kind && m.device == device)
+            .unwrap_or_else(|| panic!("no {kind} {device}"))
+    };
+    // One polyline per instrument, named for its kind (an unknown kind by
+    // its id), its points and one LINES cell; each with its tip.
+    for (device, points) in [("Probe", 1u32), ("Wire", 3), ("Instrument2", 2)] {
+        let m = last("POLYDATA", device);
+        assert_eq!(polydata_counts(&m.body).0, points, "{device}");
+        last("TRANSFORM", &format!("{device}Tip"));
+    }
 }

@@ -1,6 +1,6 @@
 //! `tools/stream_client.py`, written from docs/STREAM.md alone, decodes a
-//! recording to the same frames as the Rust decoder, the guidewire
-//! polyline included.
+//! recording to the same frames as the Rust decoder, every instrument's
+//! polyline (id, kind, points) included.
 
 use nvtmm::mesh::arch::{generate, ArchParams};
 use nvtmm::stream::record::RecordReader;
@@ -31,8 +31,10 @@ fn python_client_matches_the_rust_decoder() {
     for r in RecordReader::open(&rec).unwrap() {
         if let Ok(Some(Decoded::State(s))) = dec.push(&r.unwrap().1) {
             let sum: f64 = s.positions.iter().flatten().map(|&v| v as f64).sum();
-            let wsum: f64 = s.wire.iter().flatten().map(|&v| v as f64).sum();
-            rust.push((s.seq, s.time_s, s.force, s.flags, sum, s.wire.len(), wsum));
+            let wire = s.polyline_of_kind(2);
+            let wsum: f64 = wire.iter().flatten().map(|&v| v as f64).sum();
+            let ids: Vec<(u8, u8, usize)> = s.instruments.iter().map(|l| (l.id, l.kind, l.points.len())).collect();
+            rust.push((s.seq, s.time_s, s.force, s.flags, sum, wire.len(), wsum, ids));
         }
     }
     assert_eq!(rust.len(), 40);
@@ -55,8 +57,16 @@ fn python_client_matches_the_rust_decoder() {
     assert_eq!(lines[0]["triangles"], topo.triangles.len());
     let py: Vec<&serde_json::Value> = lines.iter().filter(|l| l["kind"] == "state").collect();
     assert_eq!(py.len(), rust.len());
-    for (p, (seq, t, f, flags, sum, nw, wsum)) in py.iter().zip(&rust) {
+    for (p, (seq, t, f, flags, sum, nw, wsum, ids)) in py.iter().zip(&rust) {
         assert!(*nw > 0, "the demo frames carry a wire");
+        // Every instrument's id, kind and point count, in order.
+        let pi = p["instruments"].as_array().expect("instruments");
+        assert_eq!(pi.len(), ids.len());
+        for (a, (id, kind, n)) in pi.iter().zip(ids) {
+            assert_eq!(a["id"], *id);
+            assert_eq!(a["kind"], *kind);
+            assert_eq!(a["points"], *n);
+        }
         assert_eq!(p["wire_points"], *nw);
         let pw = p["wire_sum"].as_f64().unwrap();
         assert!((pw - wsum).abs() <= 1e-9 * wsum.abs().max(1.0), "{pw} vs {wsum}");

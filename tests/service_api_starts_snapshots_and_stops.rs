@@ -76,6 +76,15 @@ enabled = false
     assert!(!frame.positions.is_empty());
     assert_eq!(frame.positions.len(), frame.node_ids.len());
     assert!(frame.positions.iter().flatten().all(|v| v.is_finite()));
+    // Each instrument's polyline: the probe's one point is the tool.
+    assert_eq!(frame.instruments.len(), 1);
+    let probe = &frame.instruments[0];
+    assert_eq!(
+        (probe.id.as_str(), probe.kind.as_str(), probe.kind_code),
+        ("probe", "probe", 1)
+    );
+    assert_eq!(probe.points.len(), 1);
+    assert!(probe.points[0].iter().all(|v| v.is_finite()));
     let report = handle.stop().unwrap();
     assert!(report.ticks >= b.ticks, "the report counts every tick");
     assert_eq!(report.nodes, 1456);

@@ -191,6 +191,18 @@ basis_refresh_m = 1e-5
     ] {
         assert!(json["qp"].get(key).is_some(), "qp.{key}");
     }
+    // The report lists each instrument: here the probe alone.
+    let ids: Vec<(&str, &str)> = report
+        .instruments
+        .iter()
+        .map(|i| (i.id.as_str(), i.kind.as_str()))
+        .collect();
+    assert_eq!(ids, [("probe", "probe")]);
+    assert_eq!(
+        json["instruments"][0]["keys"]["contact_ticks"],
+        report.watchdog.contact_ticks
+    );
+    assert!(report.wire.is_none());
 }
 
 #[test]

@@ -47,7 +47,7 @@ fn slicer_receives_the_arch_in_ras() {
         force: [1.0, 2.0, 3.0],
         flags: 0,
         loop_rate_hz: 1000.0,
-        wire: None,
+        instruments: &[],
     };
     let (mut surface, mut tool, mut status) = (None, None, None);
     let mut data = Vec::new();

@@ -40,7 +40,7 @@ fn stream(n: usize, states: usize) -> (Vec<Vec<Vec<u8>>>, Topology) {
             flags: 0,
             loop_rate_hz: 1000.0,
             tick_p99_us: 20.0,
-            wire: &[],
+            instruments: &[],
         };
         m.clear();
         encode_state(&f, &mut m);

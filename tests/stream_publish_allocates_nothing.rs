@@ -39,7 +39,7 @@ fn publish_allocates_nothing_after_the_first_frame() {
             flags: flags::IN_CONTACT,
             loop_rate_hz: 1000.0,
             tick_p99_us: 30.0,
-            wire: &[],
+            instruments: &[],
         })
         .expect("publish");
     };

@@ -17,8 +17,11 @@ import struct
 import sys
 
 MAGIC = b"NVTS"
-VERSION = 2  # 2: state frames end with the guidewire polyline
-MAX_WIRE_POINTS = 256
+VERSION = 3  # 3: state frames end with one polyline per instrument (id, kind, points)
+VERSION_2 = 2  # 2: with the guidewire's polyline alone (still read)
+MAX_INSTRUMENT_POINTS = 256
+MAX_FRAME_INSTRUMENTS = 8
+INSTRUMENT_KINDS = {1: "probe", 2: "guidewire", 3: "catheter"}
 HEADER = struct.Struct("<4sHBBIIIIHH")  # 28 bytes
 MAX_DATAGRAM = 1200
 KIND_TOPOLOGY, KIND_STATE = 1, 2
@@ -51,7 +54,7 @@ class Reassembler:
         magic, ver, kind, _, seq, epoch, mlen, off, idx, count = HEADER.unpack_from(d)
         if magic != MAGIC:
             return self.reject("bad_magic")
-        if ver != VERSION:
+        if ver not in (VERSION, VERSION_2):
             return self.reject("bad_version")
         if kind not in (KIND_TOPOLOGY, KIND_STATE):
             return self.reject("bad_kind")
@@ -62,10 +65,10 @@ class Reassembler:
             return None
         p = self.partial.get(seq)
         if p is None:
-            p = self.partial[seq] = [(kind, epoch, mlen, count), bytearray(mlen), {}]
+            p = self.partial[seq] = [(ver, kind, epoch, mlen, count), bytearray(mlen), {}]
             if len(self.partial) > 8:  # drop the oldest incomplete message
                 del self.partial[max(self.partial, key=lambda s: (seq - s) % 2**32)]
-        elif p[0] != (kind, epoch, mlen, count):
+        elif p[0] != (ver, kind, epoch, mlen, count):
             return self.reject("inconsistent")
         if idx in p[2]:
             return None
@@ -90,9 +93,33 @@ class Reassembler:
                 self.newest = seq
         else:
             self.newest = seq
-        return self.message(kind, seq, epoch, bytes(p[1]))
+        return self.message(ver, kind, seq, epoch, bytes(p[1]))
 
-    def message(self, kind, seq, epoch, b):
+    @staticmethod
+    def instruments(ver, b, o):
+        """The polylines after the positions: [(id, kind, points)], or None if malformed."""
+        (n,) = struct.unpack_from("<I", b, o)
+        o += 4
+        if ver == VERSION_2:  # the guidewire's polyline alone
+            if n > MAX_INSTRUMENT_POINTS or len(b) != o + 12 * n:
+                return None
+            pts = [struct.unpack_from("<3f", b, o + 12 * i) for i in range(n)]
+            return [(0, 2, pts)] if n else []
+        if n > MAX_FRAME_INSTRUMENTS:
+            return None
+        out = []
+        for _ in range(n):
+            if len(b) < o + 4:
+                return None
+            iid, kind, w = struct.unpack_from("<BBH", b, o)
+            o += 4
+            if w > MAX_INSTRUMENT_POINTS or len(b) < o + 12 * w:
+                return None
+            out.append((iid, kind, [struct.unpack_from("<3f", b, o + 12 * i) for i in range(w)]))
+            o += 12 * w
+        return out if o == len(b) else None
+
+    def message(self, ver, kind, seq, epoch, b):
         if kind == KIND_TOPOLOGY:
             nv, nt = struct.unpack_from("<II", b, 0)
             if len(b) != 8 + 16 * nv + 12 * nt:
@@ -112,12 +139,11 @@ class Reassembler:
         wo = STATE_FIXED.size + 12 * nv
         if len(b) < wo + 4:
             return self.reject("bad_payload")
-        (nw,) = struct.unpack_from("<I", b, wo)
-        if nw > MAX_WIRE_POINTS or len(b) != wo + 4 + 12 * nw:
+        lines = self.instruments(ver, b, wo)
+        if lines is None:
             return self.reject("bad_payload")
         pos = [struct.unpack_from("<3f", b, STATE_FIXED.size + 12 * i) for i in range(nv)]
-        wire = [struct.unpack_from("<3f", b, wo + 4 + 12 * i) for i in range(nw)]
-        if not all(math.isfinite(v) for p in pos + wire for v in p):
+        if not all(math.isfinite(v) for p in pos + [q for ln in lines for q in ln[2]] for v in p):
             return self.reject("bad_payload")
         if self.topology is None or self.topology["epoch"] != epoch:
             return None  # wait for the topology of this epoch
@@ -125,7 +151,8 @@ class Reassembler:
             return self.reject("inconsistent")
         return {"kind": "state", "seq": seq, "epoch": epoch, "time_s": t, "flags": flags,
                 "tool": [tx, ty, tz], "tool_radius": radius, "force": [fx, fy, fz],
-                "loop_rate_hz": rate, "tick_p99_us": p99, "positions": pos, "wire": wire}
+                "loop_rate_hz": rate, "tick_p99_us": p99, "positions": pos,
+                "instruments": [{"id": i, "kind": k, "points": pts} for i, k, pts in lines]}
 
 
 def recording(path):
@@ -169,8 +196,11 @@ def summary(m, topology):
     out["vertices"] = len(m["positions"])
     out["positions_sum"] = sum(v for p in m["positions"] for v in p)
     out["max_displacement"] = disp
-    out["wire_points"] = len(m["wire"])
-    out["wire_sum"] = sum(v for p in m["wire"] for v in p)
+    wire = next((i["points"] for i in m["instruments"] if i["kind"] == 2), [])
+    out["wire_points"] = len(wire)
+    out["wire_sum"] = sum(v for p in wire for v in p)
+    out["instruments"] = [{"id": i["id"], "kind": i["kind"], "name": INSTRUMENT_KINDS.get(i["kind"], "kind %d" % i["kind"]),
+                           "points": len(i["points"])} for i in m["instruments"]]
     return out
 
 

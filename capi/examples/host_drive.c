@@ -59,12 +59,21 @@ int main(int argc, char **argv) {
     NvtmmSnapshot snap;
     nvtmm_snapshot(s, &snap);
     int64_t nt = nvtmm_frame_triangles(s, NULL, 0);
-    int64_t nw = nvtmm_instrument_polyline(s, 0, NULL, 0);
+    /* The guidewire is the instrument of kind 2. */
+    int64_t wi = -1, nw = 0, count = nvtmm_instrument_count(s);
+    for (int64_t i = 0; i < count; i++) {
+        uint8_t kind = 0;
+        int64_t n = nvtmm_instrument_polyline(s, (size_t)i, &kind, NULL, 0);
+        if (kind == 2) {
+            wi = i;
+            nw = n;
+        }
+    }
     printf("pushed %ld poses (%ld refused), force peak %.3f N, %u vertices, %lld triangles, wire %lld points\n",
            pushed, refused, peak, snap.frame_vertices, (long long)nt, (long long)nw);
     if (nw > 0) {
         float *w = malloc(sizeof(float) * 3 * (size_t)nw);
-        if (w && nvtmm_instrument_polyline(s, 0, w, (size_t)nw) == nw)
+        if (w && nvtmm_instrument_polyline(s, (size_t)wi, NULL, w, (size_t)nw) == nw)
             printf("wire tip at (%.1f, %.1f, %.1f) mm\n", 1e3 * w[3 * nw - 3], 1e3 * w[3 * nw - 2], 1e3 * w[3 * nw - 1]);
         free(w);
     }

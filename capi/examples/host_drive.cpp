@@ -85,8 +85,16 @@ int main(int argc, char **argv) {
             nvtmm_frame_positions(svc.get(), xyz.data(), snap.frame_vertices);
             tri.resize(3 * std::max<int64_t>(0, nvtmm_frame_triangles(svc.get(), nullptr, 0)));
             nvtmm_frame_triangles(svc.get(), tri.data(), tri.size() / 3);
-            wire.resize(3 * std::max<int64_t>(0, nvtmm_instrument_polyline(svc.get(), 0, nullptr, 0)));
-            nvtmm_instrument_polyline(svc.get(), 0, wire.data(), wire.size() / 3);
+            // The guidewire is the instrument of kind 2.
+            wire.clear();
+            for (int64_t i = 0, n = nvtmm_instrument_count(svc.get()); i < n; i++) {
+                uint8_t kind = 0;
+                const int64_t np = nvtmm_instrument_polyline(svc.get(), static_cast<size_t>(i), &kind, nullptr, 0);
+                if (kind == 2 && np > 0) {
+                    wire.resize(3 * static_cast<size_t>(np));
+                    nvtmm_instrument_polyline(svc.get(), static_cast<size_t>(i), nullptr, wire.data(), wire.size() / 3);
+                }
+            }
             std::this_thread::sleep_for(std::chrono::milliseconds(33));
         }
         run = false;

@@ -81,14 +81,6 @@ int nvtmm_force(const NvtmmService *service, double out[3]);
  * first frame; -1 on a NULL service. */
 int64_t nvtmm_frame_triangles(const NvtmmService *service, uint32_t *tri, size_t max_triangles);
 
-/* Copies instrument `instrument`'s polyline in the latest frame (points hub
- * to tip, x y z each, m, scene frame) into xyz, which has room for
- * max_points. Instrument 0 is the guidewire. Returns the number copied; with
- * xyz NULL and max_points 0, the number there are; 0 before the first frame
- * or without a wire; -1 on a NULL service or an instrument that does not
- * exist. */
-int64_t nvtmm_instrument_polyline(const NvtmmService *service, uint32_t instrument, float *xyz, size_t max_points);
-
 /* Stops the service and frees it. Returns the end-of-run report as JSON
  * (docs/SERVICE.md lists its keys; free it with nvtmm_string_free), or NULL
  * on error. The service pointer is invalid afterwards either way. */
@@ -99,6 +91,20 @@ void nvtmm_string_free(char *s);
 
 /* The last error on the calling thread ("" if none). */
 const char *nvtmm_last_error(void);
+
+/* Instruments (docs/INSTRUMENTS.md): the number of instruments in the latest
+ * frame (the probe, the guidewire, ...; 0 before the first frame), or -1 on
+ * a NULL argument. */
+int64_t nvtmm_instrument_count(const NvtmmService *service);
+
+/* Copies instrument `index`'s polyline from the latest frame (x, y, z per
+ * point, m, hub to tip; the probe's one point is its sphere's centre) into
+ * xyz, which has room for max_points points, and its kind code into *kind
+ * (1 probe, 2 guidewire, 3 catheter; kind may be NULL). Returns the number
+ * of points copied (with xyz NULL and max_points 0: the number there are),
+ * or -1 on a NULL service or an index past the count. */
+int64_t nvtmm_instrument_polyline(const NvtmmService *service, size_t index, uint8_t *kind, float *xyz,
+                                  size_t max_points);
 
 #ifdef __cplusplus
 }

@@ -1,5 +1,6 @@
 //! The C ABI of the nvtmm haptic service: `nvtmm_start`, `nvtmm_snapshot`,
-//! `nvtmm_frame_positions`, `nvtmm_stop` (see `include/nvtmm.h`, which is
+//! `nvtmm_frame_positions`, `nvtmm_instrument_count`,
+//! `nvtmm_instrument_polyline`, `nvtmm_stop` (see `include/nvtmm.h`, which is
 //! the contract). For engines that are not Rust (Unity, Unreal, Godot, C and
 //! C++ hosts): the service runs on its own threads inside the host process;
 //! the host polls snapshots at its frame rate and stops it when done.
@@ -235,11 +236,20 @@ pub unsafe extern "C" fn nvtmm_frame_positions(
         return -1;
     };
     let Some(frame) = frame else { return 0 };
-    let n = frame.positions.len().min(max_vertices);
+    // SAFETY: forwarded from this function's contract.
+    unsafe { copy_points(&frame.positions, xyz, max_vertices) }
+}
+
+/// Copies at most `max` points into `xyz`; returns how many.
+///
+/// # Safety
+/// `xyz` is valid for `3 * max` floats (or `max` is 0).
+unsafe fn copy_points(points: &[[f32; 3]], xyz: *mut f32, max: usize) -> i64 {
+    let n = points.len().min(max);
     if n > 0 {
-        // SAFETY: `xyz` is valid for 3 * max_vertices floats and n <= max_vertices.
+        // SAFETY: `xyz` is valid for 3 * max floats and n <= max.
         let dst = unsafe { std::slice::from_raw_parts_mut(xyz, 3 * n) };
-        for (k, p) in frame.positions.iter().take(n).enumerate() {
+        for (k, p) in points.iter().take(n).enumerate() {
             dst[3 * k..3 * k + 3].copy_from_slice(p);
         }
     }
@@ -280,52 +290,6 @@ pub unsafe extern "C" fn nvtmm_frame_triangles(
     let dst = unsafe { std::slice::from_raw_parts_mut(tri, 3 * n) };
     for (k, t) in frame.triangles.iter().take(n).enumerate() {
         dst[3 * k..3 * k + 3].copy_from_slice(t);
-    }
-    n as i64
-}
-
-/// Copies instrument `instrument`'s polyline in the latest frame (points
-/// hub to tip, x y z each, m, scene frame) into `xyz` (room for
-/// `max_points`). Instrument 0 is the guidewire. Returns the number copied;
-/// with `xyz` NULL and `max_points` 0, the number there are; 0 before the
-/// first frame or without a wire; -1 on a null service or an instrument
-/// that does not exist.
-///
-/// # Safety
-/// `service` as for `nvtmm_snapshot`; `xyz` is valid for `3 * max_points`
-/// floats.
-#[no_mangle]
-pub unsafe extern "C" fn nvtmm_instrument_polyline(
-    service: *const NvtmmService,
-    instrument: u32,
-    xyz: *mut f32,
-    max_points: usize,
-) -> i64 {
-    if service.is_null() || (xyz.is_null() && max_points > 0) {
-        set_error("nvtmm_instrument_polyline: null argument");
-        return -1;
-    }
-    if instrument != 0 {
-        set_error(format!(
-            "nvtmm_instrument_polyline: no instrument {instrument} (0 is the guidewire)"
-        ));
-        return -1;
-    }
-    // SAFETY: non-null and, by the contract, a live service.
-    let s = unsafe { &*service };
-    let Ok(frame) = catch_unwind(AssertUnwindSafe(|| s.handle.snapshot().frame)) else {
-        set_error("nvtmm_instrument_polyline panicked");
-        return -1;
-    };
-    let Some(frame) = frame else { return 0 };
-    if xyz.is_null() {
-        return frame.wire.len() as i64;
-    }
-    let n = frame.wire.len().min(max_points);
-    // SAFETY: `xyz` is valid for 3 * max_points floats and n <= max_points.
-    let dst = unsafe { std::slice::from_raw_parts_mut(xyz, 3 * n) };
-    for (k, p) in frame.wire.iter().take(n).enumerate() {
-        dst[3 * k..3 * k + 3].copy_from_slice(p);
     }
     n as i64
 }
@@ -463,4 +427,70 @@ pub unsafe extern "C" fn nvtmm_string_free(s: *mut c_char) {
 #[no_mangle]
 pub extern "C" fn nvtmm_last_error() -> *const c_char {
     LAST_ERROR.with(|e| e.borrow().as_ptr())
+}
+
+/// The number of instruments in the latest frame (0 before the first), or
+/// -1 on a null argument.
+///
+/// # Safety
+/// `service` as for `nvtmm_snapshot`.
+#[no_mangle]
+pub unsafe extern "C" fn nvtmm_instrument_count(service: *const NvtmmService) -> i64 {
+    if service.is_null() {
+        set_error("nvtmm_instrument_count: null argument");
+        return -1;
+    }
+    // SAFETY: non-null and, by the contract, a live service.
+    let s = unsafe { &*service };
+    match catch_unwind(AssertUnwindSafe(|| s.handle.snapshot().frame)) {
+        Ok(frame) => frame.map_or(0, |f| f.instruments.len() as i64),
+        Err(_) => {
+            set_error("nvtmm_instrument_count panicked");
+            -1
+        }
+    }
+}
+
+/// Copies instrument `index`'s polyline from the latest frame (m, x y z per
+/// point, hub to tip) into `xyz` (room for `max_points` points) and its
+/// kind code into `kind` (if not null). Returns the number of points
+/// copied (with `xyz` null and `max_points` 0: the number there are), or
+/// -1 on a null service or an index past the count.
+///
+/// # Safety
+/// `service` as for `nvtmm_snapshot`; `xyz` is valid for `3 * max_points`
+/// floats; `kind` is null or valid for a write.
+#[no_mangle]
+pub unsafe extern "C" fn nvtmm_instrument_polyline(
+    service: *const NvtmmService,
+    index: usize,
+    kind: *mut u8,
+    xyz: *mut f32,
+    max_points: usize,
+) -> i64 {
+    if service.is_null() || (xyz.is_null() && max_points > 0) {
+        set_error("nvtmm_instrument_polyline: null argument");
+        return -1;
+    }
+    // SAFETY: non-null and, by the contract, a live service.
+    let s = unsafe { &*service };
+    let Ok(frame) = catch_unwind(AssertUnwindSafe(|| s.handle.snapshot().frame)) else {
+        set_error("nvtmm_instrument_polyline panicked");
+        return -1;
+    };
+    let Some(line) = frame.and_then(|f| f.instruments.into_iter().nth(index)) else {
+        set_error(format!(
+            "nvtmm_instrument_polyline: no instrument {index} in the latest frame"
+        ));
+        return -1;
+    };
+    if !kind.is_null() {
+        // SAFETY: non-null and valid for a write by the contract.
+        unsafe { kind.write(line.kind_code) };
+    }
+    if xyz.is_null() {
+        return line.points.len() as i64;
+    }
+    // SAFETY: forwarded from this function's contract.
+    unsafe { copy_points(&line.points, xyz, max_points) }
 }

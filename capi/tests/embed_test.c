@@ -35,7 +35,7 @@ static int host_checks(const char *config) {
     CHECK(nvtmm_push_pose(s, nan3, NULL, 0) == -2, "a NaN pose is refused");
     CHECK(nvtmm_push_pose(s, zero, wild, 0) == -2, "a gimbal angle beyond 2 pi is refused");
     CHECK(nvtmm_push_pose(s, NULL, NULL, 0) == -1, "NULL is refused");
-    CHECK(nvtmm_instrument_polyline(s, 1, NULL, 0) == -1, "no instrument 1");
+    CHECK(nvtmm_instrument_polyline(s, 99, NULL, NULL, 0) == -1, "no instrument 99");
     /* 2 s at 1 kHz: the stylus 10 mm along -z (30 mm of wire in). */
     double peak = 0.0;
     long ok = 0;
@@ -64,11 +64,21 @@ static int host_checks(const char *config) {
     for (int64_t k = 0; k < 3 * got; k++) CHECK((int64_t)tri[k] < nv, "triangle index %u < %lld", tri[k], (long long)nv);
     free(tri);
     free(xyz);
-    int64_t nw = nvtmm_instrument_polyline(s, 0, NULL, 0);
+    /* The guidewire: the instrument of kind 2. */
+    int64_t wi = -1, nw = 0, count = nvtmm_instrument_count(s);
+    for (int64_t i = 0; i < count; i++) {
+        uint8_t kind = 0;
+        int64_t n = nvtmm_instrument_polyline(s, (size_t)i, &kind, NULL, 0);
+        if (kind == 2) {
+            wi = i;
+            nw = n;
+        }
+    }
+    CHECK(wi >= 0, "a guidewire among %lld instruments", (long long)count);
     CHECK(nw >= 2, "the wire's polyline: %lld points", (long long)nw);
     float *w = malloc(sizeof(float) * 3 * (size_t)nw);
     CHECK(w != NULL, "malloc");
-    int64_t gw = nvtmm_instrument_polyline(s, 0, w, (size_t)nw);
+    int64_t gw = nvtmm_instrument_polyline(s, (size_t)wi, NULL, w, (size_t)nw);
     CHECK(gw >= 2, "polyline copied");
     for (int64_t k = 0; k < 3 * gw; k++) CHECK(isfinite(w[k]), "finite polyline");
     printf("host: %ld poses, force peak %.3f N, %lld triangles, wire %lld points, tip (%.1f, %.1f, %.1f) mm\n", ok, peak,
@@ -125,6 +135,18 @@ int main(int argc, char **argv) {
     CHECK(n > 0, "positions copied: %lld", (long long)n);
     for (int64_t k = 0; k < 3 * n; k++) CHECK(isfinite(xyz[k]), "finite position");
     free(xyz);
+    /* The instruments: the probe at least, its one point the tool. */
+    int64_t ni = nvtmm_instrument_count(s);
+    CHECK(ni >= 1, "instruments in the frame: %lld", (long long)ni);
+    for (int64_t i = 0; i < ni; i++) {
+        float pts[3 * 256];
+        uint8_t kind = 0;
+        int64_t np = nvtmm_instrument_polyline(s, (size_t)i, &kind, pts, 256);
+        CHECK(np >= 1 && kind >= 1, "instrument %lld: %lld points, kind %u", (long long)i, (long long)np, kind);
+        for (int64_t k = 0; k < 3 * np; k++) CHECK(isfinite(pts[k]), "finite instrument point");
+        printf("instrument %lld: kind %u, %lld points\n", (long long)i, kind, (long long)np);
+    }
+    CHECK(nvtmm_instrument_polyline(s, (size_t)ni, NULL, NULL, 0) == -1, "an index past the count is refused");
     CHECK(nvtmm_snapshot(NULL, &a) == -1, "NULL is refused");
     char *report = nvtmm_stop(s);
     CHECK(report != NULL, "nvtmm_stop: %s", nvtmm_last_error());

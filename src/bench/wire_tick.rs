@@ -1,7 +1,7 @@
 //! `nvtmm bench wire --tick`: the whole guidewire tick in one thread, as
 //! issue 16 asks it to be timed: the wire step inside the branched arch's
 //! lumen, its wall loads applied to the reduced vessel model
-//! ([`Servo::set_point_loads`]), the haptic tick (contact, reduced implicit
+//! ([`Servo::add_point_loads`], through the tick's contributions), the haptic tick (contact, reduced implicit
 //! step, passivity QP, [`HapticTick::run`]) and, at the stream's 60 Hz, the
 //! lumen's grid rebuilt from the deformed wall
 //! ([`crate::wire::TriangleLumen::update_vertices`]).
@@ -25,7 +25,7 @@ use crate::haptics::contact::SurfaceIndex;
 use crate::haptics::device::DeviceSample;
 use crate::haptics::passivity::PassivityFilter;
 use crate::haptics::servo::{Servo, ServoParams};
-use crate::haptics::tick::{HapticTick, TickInput};
+use crate::haptics::tick::{Contribution, HapticTick, TickInput};
 use crate::math::Vec3;
 use crate::reduced::{basis_rows, Refresher};
 use crate::rt::stats::Percentiles;
@@ -382,20 +382,26 @@ pub fn bench_wire_tick(config: &Path, o: &WireTickOptions) -> Result<WireTickBen
         for l in &loads {
             let _ = point_loads.push((l.node, l.force));
         }
-        tick.servo_mut().set_point_loads(&point_loads);
         let axial = rep.as_ref().map(|r| r.hub_axial_force_n).unwrap_or(0.0);
-        tick.set_external_force(-axis * axial.clamp(-3.0, 3.0));
+        let wire_part = Contribution {
+            force: -axis * axial.clamp(-3.0, 3.0),
+            point_loads: &point_loads,
+            ..Contribution::default()
+        };
         let t3 = Instant::now();
         let sample = DeviceSample {
             seq: k as u64 + 1,
             time_s: t,
             ..DeviceSample::REST
         };
-        let out = tick.run(TickInput {
-            sample: Some(&sample),
-            now_s: t,
-            overrun_streak: 0,
-        });
+        let out = tick.run_with(
+            TickInput {
+                sample: Some(&sample),
+                now_s: t,
+                overrun_streak: 0,
+            },
+            &[Contribution::PROBE, wire_part],
+        );
         let t4 = Instant::now();
         if k % 100 == 0 && !deep {
             wire.save_good_state();

@@ -254,7 +254,7 @@ pub fn demo(a: DemoArgs) -> Result<()> {
             break;
         }
         clock::sleep_until(start + k * period);
-        p.publish(&dent.frame(t))?;
+        dent.with_frame(t, |f| p.publish(f))?;
         k += 1;
     }
     let s = p.finish()?;

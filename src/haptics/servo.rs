@@ -298,14 +298,19 @@ fn step_model<const R: usize>(
     c: &ContactOutput<R>,
     loads: &[(u32, Vec3)],
     part: Option<&mut ReducedPart<R>>,
+    hand_sphere: bool,
     counters: &mut ServoCounters,
 ) -> (Vec3, bool) {
-    // Point loads of other instruments (the guidewire inside).
+    // Point loads of the instruments (the guidewire inside), summed.
     let f_loads = project_point_loads(&m.dynamics, loads);
     let f = c.reduced_force - m.f_bar + f_loads;
     // The hand feels the tool sphere only (extra spheres are other contact
-    // points of the instrument).
-    let desired = c.sphere_forces.first().copied().unwrap_or(c.tool_force);
+    // points of the instruments); without the probe, no sphere is felt.
+    let desired = if hand_sphere {
+        c.sphere_forces.first().copied().unwrap_or(c.tool_force)
+    } else {
+        Vec3::zeros()
+    };
     let finite = desired.iter().all(|v| v.is_finite()) && f.iter().all(|v| v.is_finite());
     if finite {
         let stiff = match part {
@@ -350,9 +355,13 @@ pub struct Servo<const R: usize> {
     loads_part: ReducedPart<R>,
     /// This tick's time in contact, the step and the cross-fade.
     split: TickSplit,
+    /// Whether the tool sphere at the hand takes part in the contact (the
+    /// sphere probe is an instrument).
+    hand_sphere: bool,
 }
 
-/// Most point loads [`Servo::set_point_loads`] keeps.
+/// Most point loads the servo keeps ([`Servo::set_point_loads`],
+/// [`Servo::add_point_loads`]), over all instruments.
 pub const MAX_POINT_LOADS: usize = 128;
 
 /// How long a fault keeps the force down after its last tick, beyond the
@@ -390,6 +399,7 @@ impl<const R: usize> Servo<R> {
             point_loads: heapless::Vec::new(),
             loads_part: ReducedPart::default(),
             split: TickSplit::default(),
+            hand_sphere: true,
         }
     }
 
@@ -543,11 +553,36 @@ impl<const R: usize> Servo<R> {
     /// skipped. Allocates nothing.
     pub fn set_point_loads(&mut self, loads: &[(u32, Vec3)]) {
         self.point_loads.clear();
+        self.add_point_loads(loads);
+    }
+
+    /// Adds point loads to those already set, for another instrument: the
+    /// reduced model sees the sum (two loads on one node add, by linearity
+    /// of Φᵢᵀ fᵢ). Same rules as [`Servo::set_point_loads`]; beyond
+    /// [`MAX_POINT_LOADS`] in all, the rest are ignored. Allocates nothing.
+    pub fn add_point_loads(&mut self, loads: &[(u32, Vec3)]) {
         for l in loads.iter().filter(|l| l.1.iter().all(|v| v.is_finite())) {
             if self.point_loads.push(*l).is_err() {
                 break;
             }
         }
+    }
+
+    /// Removes every point load (before the instruments add this tick's).
+    pub fn clear_point_loads(&mut self) {
+        self.point_loads.clear();
+    }
+
+    /// The point loads in use (mesh node, N), over all instruments.
+    pub fn point_loads(&self) -> &[(u32, Vec3)] {
+        &self.point_loads
+    }
+
+    /// Whether the tool sphere at the hand takes part in the contact and
+    /// its reaction is the hand's force (the sphere probe; on by default).
+    /// Off, only the extra spheres touch and the hand feels none of them.
+    pub fn set_hand_sphere(&mut self, on: bool) {
+        self.hand_sphere = on;
     }
 
     /// Another part of the loop (the guidewire) saw a fault: the force
@@ -673,7 +708,9 @@ impl<const R: usize> Servo<R> {
         // Contact against the surface as the current state deforms it.
         let tool = self.tool;
         self.centers.clear();
-        let _ = self.centers.push(tool);
+        if self.hand_sphere {
+            let _ = self.centers.push(tool);
+        }
         for c in self.extra.iter() {
             let _ = self.centers.push(*c);
         }
@@ -715,6 +752,7 @@ impl<const R: usize> Servo<R> {
             &self.contact,
             &self.point_loads,
             Some(&mut self.loads_part),
+            self.hand_sphere,
             &mut self.counters,
         );
         let t0 = self.split.add_since(Phase::Step, t0);
@@ -728,7 +766,14 @@ impl<const R: usize> Servo<R> {
                 &mut self.fade_scratch,
                 &mut self.fade_contact,
             );
-            let (f_old, ok_old) = step_model(old, &self.fade_contact, &self.point_loads, None, &mut self.counters);
+            let (f_old, ok_old) = step_model(
+                old,
+                &self.fade_contact,
+                &self.point_loads,
+                None,
+                self.hand_sphere,
+                &mut self.counters,
+            );
             self.blend = (self.blend + p.dt / p.swap_blend_s.max(p.dt)).min(1.0);
             desired = f_old * (1.0 - self.blend) + desired * self.blend;
             finite &= ok_old;

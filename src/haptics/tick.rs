@@ -1,10 +1,15 @@
-//! One haptic tick, in one place: contact → reduced step → passivity QP →
-//! watchdog gain. The service's loop thread and the closed-loop tests call
-//! [`HapticTick::run`]; nothing else strings these steps together.
+//! One haptic tick, in one place: the instruments' contributions → contact
+//! → reduced step → passivity QP → watchdog gain. The service's loop thread
+//! and the closed-loop tests call [`HapticTick::run_with`] (or
+//! [`HapticTick::run`] for the probe alone); nothing else strings these
+//! steps together.
 //!
 //! ```text
-//! sample ─▶ Servo::tick (contact with the deformed surface, reduced step
-//!           with the contact implicit, watchdog flags) ─▶ desired force
+//! contributions (one per instrument, fixed capacity): hand force, point
+//!           loads (summed), contact spheres, the probe's sphere, faults
+//! sample ─▶ Servo::tick (watchdog flags, contact with the deformed surface,
+//!           reduced step with the contact implicit) ─▶ desired force
+//!           + the instruments' hand forces
 //!        ─▶ PassivityFilter::filter (norm, rate and energy-tank rows)
 //!        ─▶ Servo::apply_gain (ramp to zero on a fault, ramp back in)
 //!        ─▶ commanded force; the filter's energy observer is told the
@@ -20,6 +25,46 @@ use super::phases::{Phase, TickSplit};
 use super::servo::{flags, LoopModel, Servo, ServoCounters};
 use crate::math::Vec3;
 use crate::rt::clock;
+
+/// Most instruments one tick takes ([`HapticTick::run_with`]; the rest are
+/// ignored).
+pub const MAX_INSTRUMENTS: usize = 4;
+
+/// What one instrument gives the loop on one tick, the same shape for every
+/// kind (docs/INSTRUMENTS.md): it borrows the instrument's own buffers, so
+/// building it allocates nothing.
+#[derive(Debug, Clone, Copy, Default)]
+pub struct Contribution<'a> {
+    /// Force on the device's channels (N, on the hand, scene frame), added
+    /// to the model's force before the passivity filter (a rod's hub
+    /// resistance). Non-finite counts as zero.
+    pub force: Vec3,
+    /// Point loads on mesh nodes (N, on the tissue): they load the reduced
+    /// model only (Φᵢᵀ fᵢ), summed over the instruments
+    /// ([`Servo::add_point_loads`]); the full solve does not see them.
+    pub point_loads: &'a [(u32, Vec3)],
+    /// Contact spheres (scene frame, the tool's radius) the vessel step
+    /// resolves with the contact implicit; they load the tissue and the
+    /// full solve, and the hand does not feel them.
+    pub spheres: &'a [Vec3],
+    /// A contact sphere at the hand's tool point whose reaction the hand
+    /// feels: the sphere probe.
+    pub hand_sphere: bool,
+    /// The instrument saw a fault (a stalled or reset thread): the
+    /// watchdog ramps the force to zero ([`Servo::raise_fault`]).
+    pub fault: bool,
+}
+
+impl Contribution<'static> {
+    /// The sphere probe's contribution: a sphere at the hand, felt.
+    pub const PROBE: Contribution<'static> = Contribution {
+        force: Vec3::new(0.0, 0.0, 0.0),
+        point_loads: &[],
+        spheres: &[],
+        hand_sphere: true,
+        fault: false,
+    };
+}
 
 /// What one tick takes besides the loop state.
 #[derive(Debug, Clone, Copy)]
@@ -66,8 +111,8 @@ pub struct HapticTick<const R: usize> {
     last_now_s: f64,
     last_sample_s: f64,
     rt_granted: bool,
-    external: Vec3,
     split: TickSplit,
+    spheres: heapless::Vec<Vec3, { crate::haptics::contact::MAX_SPHERES - 1 }>,
 }
 
 impl<const R: usize> HapticTick<R> {
@@ -81,8 +126,8 @@ impl<const R: usize> HapticTick<R> {
             last_now_s: f64::NAN,
             last_sample_s: f64::NAN,
             rt_granted: false,
-            external: Vec3::zeros(),
             split: TickSplit::default(),
+            spheres: heapless::Vec::new(),
         }
     }
 
@@ -98,22 +143,42 @@ impl<const R: usize> HapticTick<R> {
         self.rt_granted = granted;
     }
 
-    /// A force (N, scene frame) added to the model's force from the next
-    /// tick on, before the passivity filter: another instrument the hand
-    /// holds (the guidewire's hub drive). Non-finite counts as zero.
-    pub fn set_external_force(&mut self, f: Vec3) {
-        self.external = if f.iter().all(|v| v.is_finite()) {
-            f
-        } else {
-            Vec3::zeros()
-        };
+    /// One tick with the sphere probe as the only instrument. Allocates
+    /// nothing.
+    pub fn run(&mut self, input: TickInput<'_>) -> TickResult {
+        self.run_with(input, &[Contribution::PROBE])
     }
 
-    /// One tick. Allocates nothing.
-    pub fn run(&mut self, input: TickInput<'_>) -> TickResult {
+    /// One tick with the instruments' `contributions` (at most
+    /// [`MAX_INSTRUMENTS`], the rest ignored): their point loads are summed
+    /// onto the reduced model, their spheres and the probe's join the
+    /// contact, their faults raise the watchdog, and their hand forces are
+    /// added to the model's force before the passivity filter, which sees
+    /// the sum. Allocates nothing.
+    pub fn run_with(&mut self, input: TickInput<'_>, contributions: &[Contribution<'_>]) -> TickResult {
+        let contributions = &contributions[..contributions.len().min(MAX_INSTRUMENTS)];
+        let mut hand_force = Vec3::zeros();
+        let mut hand_sphere = false;
+        self.spheres.clear();
+        self.servo.clear_point_loads();
+        for c in contributions {
+            if c.force.iter().all(|v| v.is_finite()) {
+                hand_force += c.force;
+            }
+            self.servo.add_point_loads(c.point_loads);
+            for x in c.spheres {
+                let _ = self.spheres.push(*x);
+            }
+            hand_sphere |= c.hand_sphere;
+            if c.fault {
+                self.servo.raise_fault();
+            }
+        }
+        self.servo.set_extra_spheres(&self.spheres);
+        self.servo.set_hand_sphere(hand_sphere);
         let mut out = self.servo.tick(input.sample, input.now_s, input.overrun_streak);
         if out.flags & flags::NONFINITE == 0 {
-            out.desired += self.external;
+            out.desired += hand_force;
         }
         let (x, v) = input
             .sample

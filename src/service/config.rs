@@ -55,7 +55,7 @@ pub struct ServiceConfig {
     /// How the service runs the guidewire (`[guidewire]`, needed with
     /// `[wire]`).
     #[serde(default)]
-    pub guidewire: Option<super::wire::GuidewireConfig>,
+    pub guidewire: Option<super::instrument::guidewire::GuidewireConfig>,
     /// A training task and its metrics (`[task]`, docs/DRIVING.md); None:
     /// no task.
     #[serde(default)]

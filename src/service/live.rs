@@ -42,9 +42,24 @@ pub struct FrameSnapshot {
     /// The surface's triangles (indices into `positions`, counter-clockwise
     /// seen from outside the tissue).
     pub triangles: Vec<[u32; 3]>,
-    /// The guidewire's polyline, hub to tip (m, scene frame; empty without
-    /// a wire).
-    pub wire: Vec<[f32; 3]>,
+    /// One polyline per instrument of the run, in the loop's order.
+    pub instruments: Vec<InstrumentPolyline>,
+}
+
+/// An instrument's polyline in a [`FrameSnapshot`].
+#[derive(Debug, Clone, Default, PartialEq, serde::Serialize)]
+pub struct InstrumentPolyline {
+    /// Its id in the run (`probe`, `guidewire`).
+    pub id: String,
+    /// Its kind (`probe`, `guidewire`).
+    pub kind: String,
+    /// Its id on the state stream (its index in the run's list).
+    pub stream_id: u8,
+    /// Its kind's code on the state stream (docs/STREAM.md).
+    pub kind_code: u8,
+    /// Its centreline, hub to tip (m, scene frame; the probe's is its
+    /// sphere's centre).
+    pub points: Vec<[f32; 3]>,
 }
 
 /// Shared live state of one service run.

@@ -1,12 +1,15 @@
 //! The haptic loop thread: absolute-deadline wake-ups at the loop rate, one
 //! [`HapticTick`] per period, and the rings around it (pose in, force out,
 //! contact forces to the background, models in and out, state snapshots to
-//! the publisher). Timing goes into fixed histograms; live figures into
+//! the publisher). Each tick reads top to bottom: device (the newest
+//! pose) → each instrument's contribution → vessel step → passivity →
+//! gain (the last three in [`HapticTick::run_with`]) → push. Timing goes into fixed histograms; live figures into
 //! [`LiveStats`] atomics; nothing here allocates, locks, logs or blocks after
 //! start.
 
 use super::background::{ContactMsg, CONTACT_MSG_NODES};
 use super::device_io::ForceCmd;
+use super::instrument::{Hand, LoopSide};
 use super::live::LiveStats;
 use super::publisher::StateSnapshot;
 use crate::haptics::device::DeviceSample;
@@ -14,7 +17,7 @@ use crate::haptics::frame::DeviceFrame;
 use crate::haptics::passivity::PassivityStats;
 use crate::haptics::phases::{Phase, TickPhases, TickSplit};
 use crate::haptics::servo::{LoopModel, ServoCounters};
-use crate::haptics::tick::{HapticTick, TickInput};
+use crate::haptics::tick::{Contribution, HapticTick, TickInput, MAX_INSTRUMENTS};
 use crate::rt::clock::{self, Nanos};
 use crate::rt::stats::Histogram;
 use crate::rt::thread::{setup_current, RtGrant, RtRequest};
@@ -47,8 +50,6 @@ pub(super) struct LoopResult {
     pub contact_ring_full: u64,
     pub state_ring_full: u64,
     pub swaps_deferred: u64,
-    pub wire_stalls: u64,
-    pub wire_hub_ring_full: u64,
 }
 
 /// Loop-side rings.
@@ -62,8 +63,9 @@ pub(super) struct LoopIo<const R: usize> {
     pub stop: Arc<AtomicBool>,
     pub live: Arc<LiveStats>,
     pub faults: Arc<super::faults::FaultSwitches>,
-    /// The guidewire's hub drive and rings (None: no wire).
-    pub wire: Option<super::wire::WireLink>,
+    /// The instruments' loop sides, in registry order (at most
+    /// [`MAX_INSTRUMENTS`]).
+    pub instruments: Vec<Box<dyn LoopSide>>,
 }
 
 /// When and how the loop runs.
@@ -110,8 +112,6 @@ pub(super) fn loop_thread<const R: usize>(mut tick: HapticTick<R>, mut io: LoopI
         contact_ring_full: 0,
         state_ring_full: 0,
         swaps_deferred: 0,
-        wire_stalls: 0,
-        wire_hub_ring_full: 0,
     };
     let period = plan.period;
     // The jitter baseline: a bare absolute-deadline sleep loop, same thread,
@@ -168,19 +168,29 @@ pub(super) fn loop_thread<const R: usize>(mut tick: HapticTick<R>, mut io: LoopI
             }
         }
         let now_s = clock::to_s(wake);
-        if let Some(w) = io.wire.as_mut() {
-            w.before_tick(last.as_ref(), now_s, &mut tick);
-            split.lap(Phase::Wire);
-        }
         let scene_sample = match (&plan.frame, &last) {
             (Some(f), Some(s)) => Some(f.sample_to_scene(s)),
             _ => last,
         };
-        let out = tick.run(TickInput {
-            sample: scene_sample.as_ref(),
+        // Each instrument's contribution, in one shape (docs/INSTRUMENTS.md).
+        let hand = Hand {
+            sample: last.as_ref(),
             now_s,
-            overrun_streak: streak,
-        });
+        };
+        let mut parts: heapless::Vec<Contribution<'_>, MAX_INSTRUMENTS> = heapless::Vec::new();
+        for inst in io.instruments.iter_mut() {
+            let _ = parts.push(inst.contribute(&hand));
+        }
+        split.lap(Phase::Wire);
+        let out = tick.run_with(
+            TickInput {
+                sample: scene_sample.as_ref(),
+                now_s,
+                overrun_streak: streak,
+            },
+            &parts,
+        );
+        drop(parts);
         split.absorb(tick.split());
         let device_force = match &plan.frame {
             Some(f) => f.force_to_device(out.force),
@@ -212,11 +222,12 @@ pub(super) fn loop_thread<const R: usize>(mut tick: HapticTick<R>, mut io: LoopI
                 res.contact_ring_full += 1;
             }
         }
-        // The wire's wall loads load the reduced model only (`WireLink`):
-        // the full solve does not see them, since the wire already feels the
-        // wall's compliance in series with its contact and a delayed copy of
-        // its own dent in ū would close the loop the lumen leaves open
-        // (docs/WIRE.md, "The wall under the wire").
+        // The instruments' point loads load the reduced model only, never
+        // the contact ring: the full solve does not see them, since the
+        // wire already feels the wall's compliance in series with its
+        // contact and a delayed copy of its own dent in ū would close the
+        // loop the lumen leaves open (docs/WIRE.md, "The wall under the
+        // wire").
         if pending_return.is_none() {
             pending_return = tick.servo_mut().take_retired();
         }
@@ -274,10 +285,6 @@ pub(super) fn loop_thread<const R: usize>(mut tick: HapticTick<R>, mut io: LoopI
     res.counters = *tick.counters();
     res.contact =
         crate::service::report::ContactReport::from_loop(tick.contact_events(), tick.counters(), period as f64 * 1e-9);
-    if let Some(w) = io.wire.as_ref() {
-        res.wire_stalls = w.stalls;
-        res.wire_hub_ring_full = w.hub_ring_full;
-    }
     res.qp = *tick.qp_stats();
     crate::rt::alloc::leave_rt();
     res

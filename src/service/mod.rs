@@ -16,14 +16,17 @@
 //! Threads (docs/ARCHITECTURE.md, docs/SERVICE.md): device I/O
 //! ([`device_io`]), the 1 kHz haptic loop ([`loop_thread`], one
 //! [`crate::haptics::tick::HapticTick`] per period), the background full
-//! NVTMM solve and the basis thread ([`background`]), and the stream
-//! publisher ([`publisher`]). [`setup`] builds what they need before they
-//! start; [`running`] starts and stops them and assembles the [`Report`].
+//! NVTMM solve and the basis thread ([`background`]), the stream
+//! publisher ([`publisher`]), and the instruments' own threads
+//! ([`instrument`]: the probe, the guidewire, behind one seam). [`setup`]
+//! builds what they need before they start; [`running`] starts and stops
+//! them and assembles the [`Report`].
 
 pub mod background;
 pub mod config;
 pub mod device_io;
 pub mod faults;
+pub mod instrument;
 pub mod live;
 pub mod loop_thread;
 pub mod publisher;
@@ -32,10 +35,13 @@ pub mod running;
 pub mod script;
 pub mod setup;
 mod task_feed;
-pub mod wire;
+
+/// The guidewire's service code, under its old path (it lives in
+/// [`instrument::guidewire`]).
+pub use instrument::guidewire as wire;
 
 pub use config::ServiceConfig;
-pub use live::{FaultTicks, FrameSnapshot, Snapshot};
+pub use live::{FaultTicks, FrameSnapshot, InstrumentPolyline, Snapshot};
 pub use report::Report;
 
 use running::RunningService;

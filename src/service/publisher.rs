@@ -5,7 +5,8 @@
 //! only pops rings.
 
 use super::background::OffsetMsg;
-use super::live::{FrameSnapshot, LiveStats};
+use super::instrument::VesselView;
+use super::live::{FrameSnapshot, InstrumentPolyline, LiveStats};
 use crate::haptics::servo::flags;
 use crate::math::Vec3;
 use nalgebra::SVector;
@@ -21,7 +22,7 @@ pub struct StateSnapshot<const R: usize> {
     pub epoch: u64,
     /// Reduced coordinates δq.
     pub q: SVector<f64, R>,
-    /// The share of δq the guidewire's wall loads caused: the wire's lumen
+    /// The share of δq the instruments' point loads caused: a rod's lumen
     /// is the wall without it (`Servo::node_position_without_point_loads`).
     pub q_loads: SVector<f64, R>,
     /// Tool centre (m, scene frame).
@@ -41,9 +42,6 @@ pub(super) struct PublisherResult {
     pub errors: u64,
     pub first_error: Option<String>,
     pub igtl: Option<crate::stream::igtl::IgtlStats>,
-    /// Largest displacement of an inner-wall vertex under the guidewire's
-    /// wall loads (m), over the snapshots published.
-    pub wire_dent_max_m: f64,
     /// The task's figures at the end (None without `[task]`).
     pub task: Option<crate::task::TaskSummary>,
 }
@@ -63,18 +61,25 @@ pub(super) struct PublisherPlan<const R: usize> {
     pub stop: Arc<AtomicBool>,
     pub live: Arc<LiveStats>,
     pub faults: Arc<super::faults::FaultSwitches>,
-    /// The guidewire's part: the inner wall it is sent, the polyline it
-    /// sends (None: no wire).
-    pub wire: Option<super::wire::PublisherWire>,
     /// The task metrics, fed one sample per state frame (None: no task).
     pub task: Option<super::task_feed::TaskFeed>,
+    /// The instruments' publisher sides, in registry order, with their
+    /// stream id (their index in the run's list) and kind.
+    pub instruments: Vec<PublishedInstrument>,
+}
+
+/// One instrument on the publisher thread.
+pub(super) struct PublishedInstrument {
+    pub id: &'static str,
+    pub kind: super::instrument::Kind,
+    pub side: Box<dyn super::instrument::PublisherSide>,
 }
 
 /// The stream publisher (normal priority): turns loop snapshots into stream
 /// frames, x = X + ū + Φ δq at the stream's vertices, and publishes them.
 /// Never blocks the loop (it only pops rings).
 pub(super) fn publisher_thread<const R: usize>(mut p: PublisherPlan<R>) -> PublisherResult {
-    use crate::stream::{flags as sf, StateFrame};
+    use crate::stream::{flags as sf, InstrumentLine, StateFrame};
     let topo = p.publisher.topology().clone();
     let mut positions = vec![[0f32; 3]; topo.node_ids.len()];
     let mut offsets: std::collections::VecDeque<OffsetMsg<R>> = std::collections::VecDeque::new();
@@ -85,7 +90,6 @@ pub(super) fn publisher_thread<const R: usize>(mut p: PublisherPlan<R>) -> Publi
     let mut maxes: std::collections::VecDeque<f32> = std::collections::VecDeque::new();
     let mut errors = 0u64;
     let mut first_error = None;
-    let mut wire_dent_max_m: f64 = 0.0;
     let mut dent = vec![Vec3::zeros(); p.rows.len()];
     let mut dent_touched: Vec<u32> = Vec::new();
     while !p.stop.load(Ordering::Relaxed) {
@@ -121,14 +125,14 @@ pub(super) fn publisher_thread<const R: usize>(mut p: PublisherPlan<R>) -> Publi
             Some((_, o, r)) => (Some(o.clone()), r.clone()),
             None => (None, p.rows.clone()),
         };
-        // The wall's residual dent under the wire's newest loads (the
-        // reduced model's share is in δq).
+        // The wall's residual dent under the instruments' newest loads
+        // (the reduced model's share is in δq).
         for &i in &dent_touched {
             dent[i as usize] = Vec3::zeros();
         }
         dent_touched.clear();
-        if let Some(w) = p.wire.as_ref() {
-            w.add_residual_dent(&mut dent, &mut dent_touched);
+        for inst in &p.instruments {
+            inst.side.add_dent(&mut dent, &mut dent_touched);
         }
         for (k, &node) in topo.node_ids.iter().enumerate() {
             let i = node as usize;
@@ -141,22 +145,30 @@ pub(super) fn publisher_thread<const R: usize>(mut p: PublisherPlan<R>) -> Publi
             let x = rest + ubar + d + dent.get(i).copied().unwrap_or_else(Vec3::zeros);
             positions[k] = [x.x as f32, x.y as f32, x.z as f32];
         }
-        if let Some(w) = p.wire.as_mut() {
-            w.update(|i, rest| {
+        {
+            let q_wall = s.q - s.q_loads;
+            let without_point_loads = |i: u32, rest: Vec3| {
                 let ubar = offset
                     .as_ref()
                     .and_then(|o| o.get(i as usize).copied())
                     .unwrap_or_else(Vec3::zeros);
-                let q = s.q - s.q_loads;
-                rest + ubar + rows.get(i as usize).map(|row| row * q).unwrap_or_else(Vec3::zeros)
-            });
-            if s.q_loads.iter().any(|&v| v != 0.0) || !dent_touched.is_empty() {
-                for &i in &w.nodes {
-                    let residual = dent.get(i as usize).copied().unwrap_or_else(Vec3::zeros);
-                    if let Some(row) = rows.get(i as usize) {
-                        wire_dent_max_m = wire_dent_max_m.max((row * s.q_loads + residual).norm());
-                    }
-                }
+                rest + ubar + rows.get(i as usize).map(|row| row * q_wall).unwrap_or_else(Vec3::zeros)
+            };
+            let point_load_dent = |i: u32| {
+                let residual = dent.get(i as usize).copied().unwrap_or_else(Vec3::zeros);
+                rows.get(i as usize)
+                    .map(|row| row * s.q_loads)
+                    .unwrap_or_else(Vec3::zeros)
+                    + residual
+            };
+            let view = VesselView {
+                tool: s.tool,
+                without_point_loads: &without_point_loads,
+                point_load_dent: &point_load_dent,
+                point_loads_active: s.q_loads.iter().any(|&v| v != 0.0) || !dent_touched.is_empty(),
+            };
+            for inst in p.instruments.iter_mut() {
+                inst.side.update(&view);
             }
         }
         if s.epoch != last_epoch {
@@ -188,6 +200,18 @@ pub(super) fn publisher_thread<const R: usize>(mut p: PublisherPlan<R>) -> Publi
             _ => 0.0,
         };
         let p99 = maxes.iter().copied().fold(0.0f32, f32::max);
+        // One polyline per instrument; its stream id is its place in the
+        // run's list.
+        let lines: Vec<InstrumentLine<'_>> = p
+            .instruments
+            .iter()
+            .enumerate()
+            .map(|(k, i)| InstrumentLine {
+                id: k as u8,
+                kind: i.kind.code,
+                points: i.side.polyline(),
+            })
+            .collect();
         let frame = StateFrame {
             time_s: s.time_s,
             positions: &positions,
@@ -197,16 +221,19 @@ pub(super) fn publisher_thread<const R: usize>(mut p: PublisherPlan<R>) -> Publi
             flags: fl,
             loop_rate_hz: rate as f32,
             tick_p99_us: p99,
-            wire: p.wire.as_ref().map(|w| w.points.as_slice()).unwrap_or(&[]),
+            instruments: &lines,
         };
         if let Some(t) = p.task.as_mut() {
-            let wall = p.wire.as_ref().map_or(0.0, |w| w.contact_force_n);
+            // The task follows the first guidewire of the run.
+            let wire = p.instruments.iter().find(|i| i.kind.name == "guidewire");
+            let wall = wire.map_or(0.0, |w| w.side.wall_force_n());
+            let polyline = wire.map_or(&[][..], |w| w.side.polyline());
             // The force as the stream carries it (f32), so that a script over
             // the recording finds the same peak.
             let f = frame.force.map(f64::from);
             t.push(
                 s.time_s,
-                frame.wire,
+                polyline,
                 (f[0] * f[0] + f[1] * f[1] + f[2] * f[2]).sqrt(),
                 wall,
             );
@@ -219,7 +246,18 @@ pub(super) fn publisher_thread<const R: usize>(mut p: PublisherPlan<R>) -> Publi
             force: frame.force,
             flags: fl,
             triangles: topo.triangles.clone(),
-            wire: frame.wire.to_vec(),
+            instruments: p
+                .instruments
+                .iter()
+                .zip(&lines)
+                .map(|(i, l)| InstrumentPolyline {
+                    id: i.id.to_string(),
+                    kind: i.kind.name.to_string(),
+                    stream_id: l.id,
+                    kind_code: l.kind,
+                    points: l.points.to_vec(),
+                })
+                .collect(),
         });
         if !p.send {
             continue;
@@ -249,7 +287,6 @@ pub(super) fn publisher_thread<const R: usize>(mut p: PublisherPlan<R>) -> Publi
         errors,
         first_error,
         igtl,
-        wire_dent_max_m,
         task,
     }
 }

@@ -269,10 +269,13 @@ pub struct Report {
     /// Device periods in which the device thread zeroed the force itself
     /// because the loop had sent no command for 20 ms.
     pub device_loop_silent_periods: u64,
-    /// The guidewire (None without `[wire]`).
+    /// The guidewire (None without `[wire]`); also in `instruments`.
     pub wire: Option<WireReport>,
     /// The task's metrics (None without `[task]`; docs/DRIVING.md).
     pub task: Option<crate::task::TaskSummary>,
+    /// Every instrument of the run, in the loop's order: its id, kind,
+    /// faults raised and its kind's own keys (docs/INSTRUMENTS.md).
+    pub instruments: Vec<crate::service::instrument::InstrumentReport>,
 }
 
 /// Contact anywhere in the run (the `contact` keys of the report).
@@ -574,6 +577,12 @@ impl Report {
                 t.wall_above_1_5_n_s,
                 t.fluoroscopy_s,
                 t.contrast_injections
+            );
+        }
+        for i in &self.instruments {
+            s += &format!(
+                "  instrument {} ({}): {}; {} faults raised\n",
+                i.id, i.kind, i.summary, i.faults
             );
         }
         if let Some(g) = &self.igtl {

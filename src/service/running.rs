@@ -59,8 +59,8 @@ pub(super) struct Running<const R: usize> {
     scripted_press_depth_m: Option<f64>,
     model_timeout_ms: f64,
     faults: Arc<FaultSwitches>,
-    wire_handle: Option<JoinHandle<super::wire::WireResult>>,
-    wire_wall: Option<Arc<crate::wire::coupling::InnerWall>>,
+    /// The instruments' service sides, in registry order.
+    instruments: Vec<Box<dyn super::instrument::ServiceSide>>,
 }
 
 /// What [`super::Handle`] needs of a running service, whatever its R.
@@ -142,47 +142,6 @@ impl<const R: usize> RunningService for Running<R> {
     fn stop(&mut self) -> Result<Report, ServiceError> {
         self.stop.store(true, Ordering::Relaxed);
         let lr = join(self.loop_handle.take(), "haptic loop")?;
-        let wr = match self.wire_handle.take() {
-            Some(h) => Some(join(Some(h), "wire")?),
-            None => None,
-        };
-        let mut wire = wr.map(|w| {
-            let tip_segment = self
-                .wire_wall
-                .as_ref()
-                .and_then(|wall| wall.segment_at(&w.wall, w.tip).map(str::to_string))
-                .unwrap_or_else(|| "unlabelled".into());
-            let steps = w.step_us.percentiles();
-            super::report::WireReport {
-                nodes: w.nodes,
-                inserted_m: w.inserted_m,
-                inserted_max_m: w.max_inserted_m,
-                tip_segment,
-                tip_m: [w.tip.x, w.tip.y, w.tip.z],
-                contacts_max: w.contacts_max,
-                contacts_p50: w.contacts.quantile(0.5),
-                max_penetration_m: w.max_penetration_m,
-                axial_force_max_n: w.axial_force_max_n,
-                step_us: steps,
-                steps: w.steps,
-                iterations_max: w.iterations_max,
-                evaluations_max: w.evaluations_max,
-                budget_spent_steps: w.budget_spent,
-                time_limited_steps: w.time_spent,
-                resets: w.resets,
-                stalls: lr.wire_stalls,
-                wall_updates: w.wall_updates,
-                rt_policy_granted: w.grant.fifo,
-                cpu: w.grant.cpu,
-                allocations_after_start: w.allocations,
-                loads_ring_full: w.loads_ring_full,
-                load_wall: w.load_wall,
-                wall_compliance_p50_m_per_n: w.compliance_p50,
-                wall_compliance_max_m_per_n: w.compliance_max,
-                wall_deflection_max_m: w.deflection_max,
-                wall_dent_max_m: 0.0,
-            }
-        });
         let (dr, mut dev) = join(self.dev_handle.take(), "device")?;
         dev.stop();
         // A lost helper thread does not lose the report: the loop ran on
@@ -202,9 +161,6 @@ impl<const R: usize> RunningService for Running<R> {
             None => false,
         };
         let (stream_frames, stream_errors, stream_error) = (pr.frames, pr.errors, pr.first_error);
-        if let Some(w) = wire.as_mut() {
-            w.wall_dent_max_m = pr.wire_dent_max_m;
-        }
         let mut refusals = std::mem::take(&mut self.refusals);
         let (rings, memory_locked) = (self.rings, self.memory_locked);
         if let Some(e) = &stream_error {
@@ -261,7 +217,7 @@ impl<const R: usize> RunningService for Running<R> {
             },
             None => BackgroundReport::default(),
         };
-        Ok(Report {
+        let mut report = Report {
             ticks: lr.counters.ticks,
             seconds: lr.seconds,
             deadline_misses: lr.misses,
@@ -271,9 +227,7 @@ impl<const R: usize> RunningService for Running<R> {
             tick_phases: lr.phases.report(),
             pose_to_force_latency_us: dr.latency.percentiles(),
             baseline_jitter_us: lr.baseline.percentiles(),
-            allocations_after_start: lr.allocations
-                + dr.allocations
-                + wire.as_ref().map(|w| w.allocations_after_start).unwrap_or(0),
+            allocations_after_start: lr.allocations + dr.allocations,
             loop_page_faults_after_start: lr.page_faults.0 + lr.page_faults.1,
             allocator_installed: lr.allocator_installed,
             max_force_n: lr.max_force,
@@ -322,9 +276,17 @@ impl<const R: usize> RunningService for Running<R> {
             model_timeout_ms: self.model_timeout_ms,
             threads_lost,
             device_loop_silent_periods: dr.loop_silent,
-            wire,
+            wire: None,
             task: pr.task,
-        })
+            instruments: Vec::new(),
+        };
+        // Each instrument joins its thread and adds its section (and the
+        // guidewire its `wire.*` keys and its thread's allocations).
+        for inst in self.instruments.iter_mut() {
+            let section = inst.finish(&mut report)?;
+            report.instruments.push(section);
+        }
+        Ok(report)
     }
 }
 
@@ -576,44 +538,29 @@ pub(super) fn start_with<const R: usize>(p: Prepared) -> Result<Running<R>, Serv
         None
     };
 
-    // The guidewire: its own RT thread, half a period after the loop.
-    let wire_parts = match (&cfg.wire, &cfg.guidewire) {
-        (Some(wp), Some(g)) => {
-            let frame = cfg
-                .device
-                .frame
-                .as_ref()
-                .map(crate::haptics::frame::DeviceFrame::new)
-                .unwrap_or_else(crate::haptics::frame::DeviceFrame::identity);
-            Some(super::wire::build(
-                wp,
-                g,
-                &mesh,
-                &first,
-                frame,
-                stop.clone(),
-                faults.clone(),
-                loop_start + super::wire::WIRE_PHASE,
-                state_every,
-            )?)
-        }
-        _ => None,
-    };
-    let (wire_link, wire_plan, wire_pub) = match wire_parts {
-        Some(w) => (Some(w.link), Some(w.plan), Some(w.publisher)),
-        None => (None, None, None),
-    };
-    let wire_wall = wire_plan.as_ref().map(|p| p.wall.clone());
-    let wire_handle = match wire_plan {
-        Some(plan) => Some(
-            std::thread::Builder::new()
-                .name("nvtmm-wire".into())
-                .stack_size(1 << 20)
-                .spawn(move || super::wire::wire_thread(plan))
-                .map_err(|e| ServiceError::Thread("wire", e.to_string()))?,
-        ),
-        None => None,
-    };
+    // The instruments, in registry order; those with a thread of their own
+    // (the guidewire's, half a period after the loop) start it here.
+    let built = super::instrument::build_all::<R>(&super::instrument::BuildContext {
+        cfg: &cfg,
+        mesh: &mesh,
+        vessel: &first,
+        stop: stop.clone(),
+        faults: faults.clone(),
+        loop_start,
+        state_every,
+    })?;
+    let mut loop_sides = Vec::with_capacity(built.len());
+    let mut published = Vec::with_capacity(built.len());
+    let mut service_sides = Vec::with_capacity(built.len());
+    for b in built {
+        loop_sides.push(b.loop_side);
+        published.push(super::publisher::PublishedInstrument {
+            id: b.id,
+            kind: b.kind,
+            side: b.publisher_side,
+        });
+        service_sides.push(b.service_side);
+    }
 
     // The device's buttons, for the task metrics on the publisher's side.
     let buttons = Arc::new(std::sync::atomic::AtomicU32::new(0));
@@ -635,11 +582,11 @@ pub(super) fn start_with<const R: usize>(p: Prepared) -> Result<Running<R>, Serv
             stop: stop.clone(),
             live: live.clone(),
             faults: faults.clone(),
-            wire: wire_pub,
             task: match &cfg.task {
                 Some(t) => Some(super::task_feed::TaskFeed::new(&cfg, t, &mesh, buttons.clone())?),
                 None => None,
             },
+            instruments: published,
         };
         std::thread::Builder::new()
             .name("nvtmm-stream".into())
@@ -693,7 +640,7 @@ pub(super) fn start_with<const R: usize>(p: Prepared) -> Result<Running<R>, Serv
         stop: stop.clone(),
         live: live.clone(),
         faults: faults.clone(),
-        wire: wire_link,
+        instruments: loop_sides,
     };
     let plan = LoopPlan {
         request: RtRequest {
@@ -751,7 +698,6 @@ pub(super) fn start_with<const R: usize>(p: Prepared) -> Result<Running<R>, Serv
             .then_some(cfg.interaction.press_depth_m),
         model_timeout_ms: cfg.watchdog.model_timeout_ms,
         faults,
-        wire_handle,
-        wire_wall,
+        instruments: service_sides,
     })
 }

@@ -180,7 +180,7 @@ pub fn make_device(
             if let (Some(wire), Some(g)) = (&cfg.wire, &cfg.guidewire) {
                 // The guidewire's scripted hand: stylus along the drive's
                 // axis, roll on its gimbal joint.
-                let (pts, gimbal) = super::wire::hand_script(g, wire);
+                let (pts, gimbal) = super::instrument::guidewire::hand_script(g, wire);
                 let mut dev = TouchXSim::new(params, &pts).map_err(|e| ServiceError::Device(e.to_string()))?;
                 dev.set_gimbal_script(&gimbal)
                     .map_err(|e| ServiceError::Device(e.to_string()))?;

@@ -10,7 +10,7 @@
 use crate::haptics::touchx::{GimbalWaypoint, Waypoint};
 use crate::math::Vec3;
 use crate::mesh::TetMesh;
-use crate::service::wire::GuidewireConfig;
+use crate::service::instrument::guidewire::GuidewireConfig;
 use crate::wire::WireParams;
 
 /// The top speed of the soak's hand (m/s). A modelling choice: quick,
@@ -206,7 +206,7 @@ pub const WIRE_JAB_SPEED_M_S: f64 = 0.15;
 pub const WIRE_OFF_AXIS_M: f64 = 0.006;
 
 /// The guidewire scene's script: `seconds` of random hub motions through
-/// the inverse of the drive's map (as [`crate::service::wire::hand_script`]
+/// the inverse of the drive's map (as [`crate::service::instrument::guidewire::hand_script`]
 /// maps the configured script). The inserted length stays between the
 /// start (`guidewire.inserted_m`) and the farthest the configured script
 /// goes plus 10 mm (or 0.1 m past the start without a script), within

@@ -3,7 +3,7 @@
 //! spring-like force. It is not physics; it exercises the stream, the viewer
 //! and the tools without the haptic service (`nvtmm stream-demo`, tests).
 
-use super::{flags, StateFrame, Topology};
+use super::{flags, InstrumentLine, StateFrame, Topology};
 use crate::math::Vec3;
 use crate::mesh::TetMesh;
 
@@ -48,7 +48,7 @@ impl Dent {
             .filter(|n| n.norm() > 0.5)
             .unwrap_or(Vec3::z());
         Dent {
-            wire: Vec::with_capacity(super::MAX_WIRE_POINTS),
+            wire: Vec::with_capacity(super::MAX_INSTRUMENT_POINTS),
             centre: rest.get(top).copied().unwrap_or_default(),
             positions: topology.rest_positions.clone(),
             rest,
@@ -66,8 +66,9 @@ impl Dent {
         self.depth_m * 0.5 * (1.0 - (std::f64::consts::TAU * t / self.period_s).cos())
     }
 
-    /// The frame at simulation time `t`.
-    pub fn frame(&mut self, t: f64) -> StateFrame<'_> {
+    /// The frame at simulation time `t`, handed to `use_frame`: two
+    /// instruments, the probe (its sphere's centre) and a guidewire.
+    pub fn with_frame<T>(&mut self, t: f64, use_frame: impl FnOnce(&StateFrame<'_>) -> T) -> T {
         let d = self.depth(t);
         for (p, x) in self.positions.iter_mut().zip(&self.rest) {
             let r2 = (x - self.centre).norm_squared() / (self.radius_m * self.radius_m);
@@ -90,17 +91,31 @@ impl Dent {
             let x = tool + self.normal * (k as f64 * 2e-3) + Vec3::new(a.cos(), a.sin(), 0.0) * 1e-3;
             self.wire.push([x.x as f32, x.y as f32, x.z as f32]);
         }
-        StateFrame {
+        let tool_position = [tool.x as f32, tool.y as f32, tool.z as f32];
+        let probe = [tool_position];
+        let lines = [
+            InstrumentLine {
+                id: 0,
+                kind: 1,
+                points: &probe,
+            },
+            InstrumentLine {
+                id: 1,
+                kind: 2,
+                points: &self.wire,
+            },
+        ];
+        use_frame(&StateFrame {
             time_s: t,
             positions: &self.positions,
-            tool_position: [tool.x as f32, tool.y as f32, tool.z as f32],
+            tool_position,
             tool_radius: self.tool_radius_m as f32,
             force: [f.x as f32, f.y as f32, f.z as f32],
             flags: fl,
             loop_rate_hz: 1000.0,
             tick_p99_us: 40.0 + 5.0 * (t * 0.7).sin() as f32,
-            wire: &self.wire,
-        }
+            instruments: &lines,
+        })
     }
 }
 
@@ -118,7 +133,7 @@ pub fn publish_frames(
     let mut p = super::Publisher::new(cfg, topology, record)?;
     for k in 0..frames {
         let t = k as f64 * p.period_s();
-        p.publish(&dent.frame(t))?;
+        dent.with_frame(t, |f| p.publish(f))?;
     }
     p.finish()
 }

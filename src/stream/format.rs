@@ -8,14 +8,18 @@
 //! (sequence number, kind, epoch, total length) and the chunk (index, count,
 //! byte offset).
 
-use super::{StateFrame, Topology, MAX_VERTICES, MAX_WIRE_POINTS};
+use super::{InstrumentLine, StateFrame, Topology, MAX_FRAME_INSTRUMENTS, MAX_INSTRUMENT_POINTS, MAX_VERTICES};
 use std::collections::VecDeque;
 
 /// First four bytes of every datagram.
 pub const MAGIC: [u8; 4] = *b"NVTS";
-/// Format version; a receiver rejects any other.
-/// 2: state frames end with the guidewire polyline (a count and points).
-pub const VERSION: u16 = 2;
+/// Format version a sender writes. 3: state frames end with one polyline
+/// per instrument (id, kind, points); 2: with the guidewire's polyline
+/// alone. The decoder reads both; a receiver rejects any other.
+pub const VERSION: u16 = 3;
+/// The previous version, still read by [`Decoder`] (its polyline becomes
+/// one guidewire instrument with id 0).
+pub const VERSION_2: u16 = 2;
 /// Datagram header length (bytes).
 pub const HEADER_LEN: usize = 28;
 /// Largest datagram a sender emits and a receiver accepts (bytes): fits the
@@ -61,9 +65,31 @@ pub fn topology_len(v: usize, t: usize) -> usize {
     TOPOLOGY_FIXED_LEN + 16 * v + 12 * t
 }
 
-/// Length of a state payload with `v` vertices and `w` wire points.
-pub fn state_len(v: usize, w: usize) -> usize {
-    STATE_FIXED_LEN + 12 * v + 4 + 12 * w
+/// Length of a state payload with `v` vertices and one polyline per
+/// instrument of `points[k]` points.
+pub fn state_len(v: usize, points: &[usize]) -> usize {
+    STATE_FIXED_LEN + 12 * v + 4 + points.iter().map(|w| 4 + 12 * w).sum::<usize>()
+}
+
+/// The longest state payload with `v` vertices (every instrument slot
+/// full).
+pub fn state_len_max(v: usize) -> usize {
+    state_len(v, &[MAX_INSTRUMENT_POINTS; MAX_FRAME_INSTRUMENTS])
+}
+
+/// Why a frame's instrument polylines do not fit the format (None: they
+/// do).
+pub fn instruments_invalid(lines: &[InstrumentLine<'_>]) -> Option<String> {
+    if lines.len() > MAX_FRAME_INSTRUMENTS {
+        return Some(format!("{} instruments, at most {MAX_FRAME_INSTRUMENTS}", lines.len()));
+    }
+    lines.iter().find(|l| l.points.len() > MAX_INSTRUMENT_POINTS).map(|l| {
+        format!(
+            "instrument {} has {} points, at most {MAX_INSTRUMENT_POINTS}",
+            l.id,
+            l.points.len()
+        )
+    })
 }
 
 /// Appends a topology payload to `out`.
@@ -80,9 +106,10 @@ pub fn encode_topology(t: &Topology, out: &mut Vec<u8>) {
     t.node_ids.iter().for_each(|&i| put_u32(out, i));
 }
 
-/// Appends a state payload to `out`.
+/// Appends a state payload to `out` (the caller checks the instruments'
+/// counts, [`instruments_invalid`]; the counts are written as given).
 pub fn encode_state(f: &StateFrame, out: &mut Vec<u8>) {
-    out.reserve(state_len(f.positions.len(), f.wire.len()));
+    out.reserve(STATE_FIXED_LEN + 12 * f.positions.len() + 4);
     out.extend_from_slice(&f.time_s.to_le_bytes());
     put_u32(out, f.flags);
     put_u32(out, f.positions.len() as u32);
@@ -94,15 +121,22 @@ pub fn encode_state(f: &StateFrame, out: &mut Vec<u8>) {
     for p in f.positions {
         p.iter().for_each(|&x| put_f32(out, x));
     }
-    put_u32(out, f.wire.len() as u32);
-    for p in f.wire {
-        p.iter().for_each(|&x| put_f32(out, x));
+    put_u32(out, f.instruments.len() as u32);
+    for line in f.instruments {
+        out.push(line.id);
+        out.push(line.kind);
+        put_u16(out, line.points.len().min(u16::MAX as usize) as u16);
+        for p in line.points {
+            p.iter().for_each(|&x| put_f32(out, x));
+        }
     }
 }
 
 /// The header fields of one datagram.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct Header {
+    /// Format version ([`VERSION`] or [`VERSION_2`]).
+    pub version: u16,
     /// Message kind ([`KIND_TOPOLOGY`] or [`KIND_STATE`]).
     pub kind: u8,
     /// Message sequence number (one counter for all messages of a sender).
@@ -164,7 +198,7 @@ pub enum RejectReason {
     Oversized,
     /// Does not start with [`MAGIC`].
     BadMagic,
-    /// A version other than [`VERSION`].
+    /// A version other than [`VERSION`] and [`VERSION_2`].
     BadVersion,
     /// An unknown message kind.
     BadKind,
@@ -275,13 +309,51 @@ pub struct OwnedState {
     pub loop_rate_hz: f32,
     /// Tick compute p99 (µs).
     pub tick_p99_us: f32,
-    /// The guidewire polyline, hub to tip (m; empty without a wire).
-    pub wire: Vec<[f32; 3]>,
+    /// One polyline per instrument (id, kind, points hub to tip in m).
+    pub instruments: Vec<OwnedInstrumentLine>,
+}
+
+/// A decoded instrument polyline (owned).
+#[derive(Debug, Clone, PartialEq)]
+pub struct OwnedInstrumentLine {
+    /// The instrument's id in the sender's run.
+    pub id: u8,
+    /// Its kind code ([`super::instrument_kind`]).
+    pub kind: u8,
+    /// Its points (m).
+    pub points: Vec<[f32; 3]>,
+}
+
+impl OwnedInstrumentLine {
+    /// Borrows it for a [`StateFrame`].
+    pub fn as_line(&self) -> InstrumentLine<'_> {
+        InstrumentLine {
+            id: self.id,
+            kind: self.kind,
+            points: &self.points,
+        }
+    }
 }
 
 impl OwnedState {
-    /// Borrows it as a [`StateFrame`] (e.g. to re-encode it).
-    pub fn as_frame(&self) -> StateFrame<'_> {
+    /// The instruments' polylines borrowed, for [`OwnedState::as_frame`].
+    pub fn lines(&self) -> Vec<InstrumentLine<'_>> {
+        self.instruments.iter().map(OwnedInstrumentLine::as_line).collect()
+    }
+
+    /// The first polyline of instrument kind `kind` (2: the guidewire), or
+    /// an empty slice.
+    pub fn polyline_of_kind(&self, kind: u8) -> &[[f32; 3]] {
+        self.instruments
+            .iter()
+            .find(|l| l.kind == kind)
+            .map(|l| l.points.as_slice())
+            .unwrap_or(&[])
+    }
+
+    /// Borrows it as a [`StateFrame`] (e.g. to re-encode it) over `lines`
+    /// ([`OwnedState::lines`]).
+    pub fn as_frame<'a>(&'a self, lines: &'a [InstrumentLine<'a>]) -> StateFrame<'a> {
         StateFrame {
             time_s: self.time_s,
             positions: &self.positions,
@@ -291,7 +363,7 @@ impl OwnedState {
             flags: self.flags,
             loop_rate_hz: self.loop_rate_hz,
             tick_p99_us: self.tick_p99_us,
-            wire: &self.wire,
+            instruments: lines,
         }
     }
 }
@@ -358,13 +430,15 @@ pub fn parse_header(d: &[u8]) -> Result<Header, RejectReason> {
     if d.len() < 6 {
         return Err(RejectReason::Short);
     }
-    if u16_at(d, 4) != VERSION {
+    let version = u16_at(d, 4);
+    if version != VERSION && version != VERSION_2 {
         return Err(RejectReason::BadVersion);
     }
     if d.len() <= HEADER_LEN {
         return Err(RejectReason::Short);
     }
     let h = Header {
+        version,
         kind: d[6],
         seq: u32_at(d, 8),
         epoch: u32_at(d, 12),
@@ -421,20 +495,56 @@ pub fn decode_topology(epoch: u32, p: &[u8]) -> Result<Topology, RejectReason> {
     })
 }
 
-/// Decodes a state payload (`seq` and `epoch` from the header).
-pub fn decode_state(seq: u32, epoch: u32, p: &[u8]) -> Result<OwnedState, RejectReason> {
+/// The instrument polylines after the positions, from byte `o` of `p`:
+/// version 3's list, or version 2's single guidewire polyline.
+fn decode_instruments(version: u16, p: &[u8], o: usize) -> Result<Vec<OwnedInstrumentLine>, RejectReason> {
+    let n = u32_at(p, o) as usize;
+    let mut at = o + 4;
+    if version == VERSION_2 {
+        if n > MAX_INSTRUMENT_POINTS || at + 12 * n != p.len() {
+            return Err(RejectReason::BadPayload);
+        }
+        if n == 0 {
+            return Ok(Vec::new());
+        }
+        let points = (0..n).map(|i| vec3_at(p, at + 12 * i)).collect();
+        return Ok(vec![OwnedInstrumentLine { id: 0, kind: 2, points }]);
+    }
+    if n > MAX_FRAME_INSTRUMENTS {
+        return Err(RejectReason::BadPayload);
+    }
+    let mut out = Vec::with_capacity(n);
+    for _ in 0..n {
+        if at + 4 > p.len() {
+            return Err(RejectReason::BadPayload);
+        }
+        let (id, kind, w) = (p[at], p[at + 1], u16_at(p, at + 2) as usize);
+        at += 4;
+        if w > MAX_INSTRUMENT_POINTS || at + 12 * w > p.len() {
+            return Err(RejectReason::BadPayload);
+        }
+        let points = (0..w).map(|i| vec3_at(p, at + 12 * i)).collect();
+        at += 12 * w;
+        out.push(OwnedInstrumentLine { id, kind, points });
+    }
+    if at != p.len() {
+        return Err(RejectReason::BadPayload);
+    }
+    Ok(out)
+}
+
+/// Decodes a state payload (`seq` and `epoch` from the header) of format
+/// `version` ([`VERSION`] or [`VERSION_2`]).
+pub fn decode_state(version: u16, seq: u32, epoch: u32, p: &[u8]) -> Result<OwnedState, RejectReason> {
     if p.len() < STATE_FIXED_LEN {
         return Err(RejectReason::BadPayload);
     }
     let v = u32_at(p, 12) as usize;
-    if v > MAX_VERTICES || p.len() < state_len(v, 0) {
+    if v > MAX_VERTICES || p.len() < state_len(v, &[]) {
         return Err(RejectReason::BadPayload);
     }
     let wo = STATE_FIXED_LEN + 12 * v;
-    let w = u32_at(p, wo) as usize;
-    if w > MAX_WIRE_POINTS || state_len(v, w) != p.len() {
-        return Err(RejectReason::BadPayload);
-    }
+    let instruments = decode_instruments(version, p, wo)?;
     let mut t = [0u8; 8];
     t.copy_from_slice(&p[0..8]);
     let s = OwnedState {
@@ -448,7 +558,7 @@ pub fn decode_state(seq: u32, epoch: u32, p: &[u8]) -> Result<OwnedState, Reject
         loop_rate_hz: f32_at(p, 44),
         tick_p99_us: f32_at(p, 48),
         positions: (0..v).map(|i| vec3_at(p, STATE_FIXED_LEN + 12 * i)).collect(),
-        wire: (0..w).map(|i| vec3_at(p, wo + 4 + 12 * i)).collect(),
+        instruments,
     };
     let ok = s.time_s.is_finite()
         && finite3(&s.tool_position)
@@ -457,7 +567,7 @@ pub fn decode_state(seq: u32, epoch: u32, p: &[u8]) -> Result<OwnedState, Reject
         && s.loop_rate_hz.is_finite()
         && s.tick_p99_us.is_finite()
         && s.positions.iter().all(finite3)
-        && s.wire.iter().all(finite3);
+        && s.instruments.iter().flat_map(|l| &l.points).all(finite3);
     if ok {
         Ok(s)
     } else {
@@ -504,6 +614,7 @@ impl Decoder {
             Some(i) => {
                 let ph = &self.partial[i].header;
                 if ph.kind != h.kind
+                    || ph.version != h.version
                     || ph.epoch != h.epoch
                     || ph.message_len != h.message_len
                     || ph.chunk_count != h.chunk_count
@@ -607,7 +718,7 @@ impl Decoder {
                 Ok(Some(Decoded::Topology(t)))
             }
             _ => {
-                let s = match decode_state(h.seq, h.epoch, data) {
+                let s = match decode_state(h.version, h.seq, h.epoch, data) {
                     Ok(s) => s,
                     Err(r) => return self.reject(r),
                 };
@@ -664,7 +775,7 @@ mod tests {
             flags: super::super::flags::IN_CONTACT,
             loop_rate_hz: 1000.0,
             tick_p99_us: 42.0,
-            wire: &[],
+            instruments: &[],
         }
     }
 

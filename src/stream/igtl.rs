@@ -30,13 +30,15 @@
 //!   full polydata goes every frame: Slicer replaces a model's whole
 //!   polydata with each message, so a points-only message would drop its
 //!   faces; the connectivity bytes are encoded once per topology and copied.
-//! - `TRANSFORM` "ToolTip" (and "WireTip" once the wire streams): 12
-//!   float32, the rotation column-major then the translation in RAS mm.
+//! - `TRANSFORM` "ToolTip": 12 float32, the rotation column-major then the
+//!   translation in RAS mm.
 //! - `STRING` "Status": `t=… s force=fx,fy,fz N |F|=… N flags=0x… loop=… Hz`,
 //!   the force on the hand in RAS
 //!   (u16 encoding 3 = US-ASCII, u16 length, bytes).
-//! - `POLYDATA` "Wire" (when a wire polyline is given): points in mm and one
-//!   LINES cell.
+//! - One `POLYDATA` per instrument of the frame, named for its kind
+//!   ([`instrument_device_name`]: "Probe", "Wire" for the guidewire,
+//!   "Catheter", else `Instrument<id>`): its polyline's points in mm and
+//!   one LINES cell; and a `TRANSFORM` `<name>Tip` at its last point.
 //!
 //! The server ([`IgtlServer`]) never blocks its caller: sockets are
 //! non-blocking, each client has a bounded queue (whole frames dropped and
@@ -496,8 +498,19 @@ pub struct IgtlFrame<'a> {
     pub flags: u32,
     /// Haptic loop rate (Hz).
     pub loop_rate_hz: f32,
-    /// The wire's polyline (m), if a wire is simulated.
-    pub wire: Option<&'a [[f32; 3]]>,
+    /// One polyline per instrument (m).
+    pub instruments: &'a [super::InstrumentLine<'a>],
+}
+
+/// The OpenIGTLink device name of an instrument's polyline (its tip's
+/// transform adds "Tip"): by kind, as a Slicer scene names its models.
+pub fn instrument_device_name(line: &super::InstrumentLine<'_>) -> String {
+    match super::instrument_kind(line.kind) {
+        Some("probe") => "Probe".into(),
+        Some("guidewire") => "Wire".into(),
+        Some("catheter") => "Catheter".into(),
+        _ => format!("Instrument{}", line.id),
+    }
 }
 
 impl IgtlServer {
@@ -606,13 +619,14 @@ impl IgtlServer {
         encode_message(&mut buf, "TRANSFORM", "ToolTip", f.time_s, |o| {
             transform_content(o, mm(&f.tool_position))
         });
-        if let Some(w) = f.wire {
-            let wpts: Vec<[f32; 3]> = w.iter().map(mm).collect();
-            encode_message(&mut buf, "POLYDATA", "Wire", f.time_s, |o| {
+        for line in f.instruments.iter().filter(|l| !l.points.is_empty()) {
+            let name = instrument_device_name(line);
+            let wpts: Vec<[f32; 3]> = line.points.iter().map(mm).collect();
+            encode_message(&mut buf, "POLYDATA", &name, f.time_s, |o| {
                 polydata_content(o, &wpts, &[], 0, true)
             });
-            if let Some(tip) = w.last() {
-                encode_message(&mut buf, "TRANSFORM", "WireTip", f.time_s, |o| {
+            if let Some(tip) = line.points.last() {
+                encode_message(&mut buf, "TRANSFORM", &format!("{name}Tip"), f.time_s, |o| {
                     transform_content(o, mm(tip))
                 });
             }

@@ -144,9 +144,33 @@ pub struct StateFrame<'a> {
     pub loop_rate_hz: f32,
     /// 99th percentile of the loop's tick compute time (µs).
     pub tick_p99_us: f32,
-    /// The guidewire's centreline, hub to tip (m; empty without a wire;
-    /// at most [`MAX_WIRE_POINTS`]).
-    pub wire: &'a [[f32; 3]],
+    /// One polyline per instrument, in the sender's order (at most
+    /// [`MAX_FRAME_INSTRUMENTS`], each at most [`MAX_INSTRUMENT_POINTS`]).
+    pub instruments: &'a [InstrumentLine<'a>],
+}
+
+/// An instrument's polyline in a state frame: its id and kind, and its
+/// centreline hub to tip (m; a probe's is its sphere's centre).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct InstrumentLine<'a> {
+    /// The instrument's id in the sender's run (its index in the list).
+    pub id: u8,
+    /// Its kind ([`instrument_kind`]: 1 probe, 2 guidewire, 3 catheter).
+    pub kind: u8,
+    /// The points (m).
+    pub points: &'a [[f32; 3]],
+}
+
+/// The name of an instrument kind code on the stream (docs/STREAM.md);
+/// None for a code this build does not know (receivers keep such
+/// polylines and show them unnamed).
+pub fn instrument_kind(code: u8) -> Option<&'static str> {
+    match code {
+        1 => Some("probe"),
+        2 => Some("guidewire"),
+        3 => Some("catheter"),
+        _ => None,
+    }
 }
 
 /// Errors of the stream: configuration, sockets, files, bad frames.
@@ -254,8 +278,11 @@ impl Default for StreamConfig {
 /// Upper bound on stream vertices (keeps a state message under 4 MiB).
 pub const MAX_VERTICES: usize = 300_000;
 
-/// Most points of the guidewire polyline in a state frame.
-pub const MAX_WIRE_POINTS: usize = 256;
+/// Most points of one instrument's polyline in a state frame.
+pub const MAX_INSTRUMENT_POINTS: usize = 256;
+
+/// Most instrument polylines in a state frame.
+pub const MAX_FRAME_INSTRUMENTS: usize = 8;
 
 impl StreamConfig {
     /// Checks ranges; keys are reported as `<prefix>.<field>` (prefix e.g.

@@ -128,7 +128,7 @@ impl Publisher {
             cfg,
             target,
             socket,
-            msg: Vec::with_capacity(format::state_len(topology.num_vertices(), super::MAX_WIRE_POINTS)),
+            msg: Vec::with_capacity(format::state_len_max(topology.num_vertices())),
             dgram: Vec::with_capacity(format::MAX_DATAGRAM),
             topology,
             topology_msg,
@@ -208,15 +208,20 @@ impl Publisher {
                 msg: format!("{} positions for a topology of {n} vertices", frame.positions.len()),
             });
         }
-        if frame.wire.len() > super::MAX_WIRE_POINTS {
+        if let Some(msg) = format::instruments_invalid(frame.instruments) {
             self.stats.rejected_frames += 1;
             return Err(StreamError::Invalid {
                 what: "state frame",
-                msg: format!("{} wire points, at most {}", frame.wire.len(), super::MAX_WIRE_POINTS),
+                msg,
             });
         }
         let finite = frame.time_s.is_finite()
-            && frame.wire.iter().flatten().all(|v| v.is_finite())
+            && frame
+                .instruments
+                .iter()
+                .flat_map(|i| i.points)
+                .flatten()
+                .all(|v| v.is_finite())
             && frame.positions.iter().flatten().all(|v| v.is_finite())
             && frame.tool_position.iter().chain(&frame.force).all(|v| v.is_finite())
             && [frame.tool_radius, frame.loop_rate_hz, frame.tick_p99_us]
@@ -238,7 +243,7 @@ impl Publisher {
                 force: frame.force,
                 flags: frame.flags,
                 loop_rate_hz: frame.loop_rate_hz,
-                wire: None,
+                instruments: frame.instruments,
             });
         }
         let now = clock::now_ns();
@@ -354,7 +359,7 @@ mod tests {
             flags: 0,
             loop_rate_hz: 1000.0,
             tick_p99_us: 30.0,
-            wire: &[],
+            instruments: &[],
         };
         p.publish(&f).unwrap();
         f.time_s = 0.6;

@@ -274,7 +274,7 @@ pub fn replay_igtl(path: &Path, addr: SocketAddr, speed: f64, wait_s: f64) -> Re
             force: st.force,
             flags: st.flags,
             loop_rate_hz: st.loop_rate_hz,
-            wire: None,
+            instruments: &st.lines(),
         });
         s.frames_written += 1;
     }

@@ -303,10 +303,15 @@ fn receive(udp: UdpSocket, sh: &Shared) {
             }
             Ok(Some(Decoded::State(s))) => {
                 if let Some(d) = &sh.drive {
-                    d.note_stream_inserted(polyline_length(&s.wire));
+                    // The drive follows the first guidewire on the stream.
+                    let wire = s
+                        .instruments
+                        .iter()
+                        .find(|l| super::instrument_kind(l.kind) == Some("guidewire"));
+                    d.note_stream_inserted(wire.map_or(0.0, |l| polyline_length(&l.points)));
                 }
                 l.state = Some(ws_message(KIND_STATE, s.epoch, s.seq, |m| {
-                    format::encode_state(&s.as_frame(), m)
+                    format::encode_state(&s.as_frame(&s.lines()), m)
                 }));
                 l.state_version += 1;
             }
@@ -627,7 +632,7 @@ mod tests {
                 flags: 0,
                 loop_rate_hz: 1000.0,
                 tick_p99_us: 10.0,
-                wire: &[],
+                instruments: &[],
             };
             p.publish(&f).unwrap();
             match ws.read().unwrap() {

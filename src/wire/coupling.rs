@@ -4,7 +4,7 @@
 //! spread back onto the wall's nodes as point loads (barycentric on the
 //! touched triangle).
 //!
-//! Plain data and functions; the service's wire thread (`service::wire`)
+//! Plain data and functions; the service's wire thread (`service::instrument::guidewire`)
 //! strings them together. [`wall_loads`] allocates nothing.
 
 use super::lumen::{LumenError, TriangleLumen};

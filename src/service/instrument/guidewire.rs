@@ -1,7 +1,8 @@
-//! The guidewire in the service: its own fixed-rate RT thread (SCHED_FIFO,
-//! pinned, prefaulted, fixed allocation, no locks), the link in the haptic
-//! loop that drives it from the stylus and feeds its resistance to the hand,
-//! and what goes between them and the other threads.
+//! The guidewire as an instrument of the service (docs/INSTRUMENTS.md): its
+//! own fixed-rate RT thread (SCHED_FIFO, pinned, prefaulted, fixed
+//! allocation, no locks), its loop side that drives it from the stylus and
+//! feeds its resistance to the hand, its publisher side, and what goes
+//! between them and the other threads.
 //!
 //! ```text
 //!  haptic loop (1 kHz)                         wire thread (1/dt_s, +500 µs)
@@ -23,24 +24,33 @@
 //! to zero and the wire return to its last good state (counted in
 //! `wire.resets`).
 
-use super::faults::FaultSwitches;
+use super::{BuildContext, Built, Hand, InstrumentReport, Kind, LoopSide, PublisherSide, ServiceSide, VesselView};
 use crate::config::{Checker, ConfigError};
 use crate::haptics::device::DeviceSample;
 use crate::haptics::frame::DeviceFrame;
-use crate::haptics::tick::HapticTick;
+use crate::haptics::tick::Contribution;
 use crate::haptics::touchx::{GimbalWaypoint, Waypoint};
 use crate::math::Vec3;
 use crate::rt::clock::{self, Nanos};
 use crate::rt::stats::Histogram;
 use crate::rt::thread::{setup_current, RtGrant, RtRequest};
+use crate::service::faults::FaultSwitches;
+use crate::service::report::{Report, WireReport};
+use crate::service::ServiceError;
 use crate::wire::coupling::{wall_loads, InnerWall, WallLoad, MAX_WALL_LOADS};
 use crate::wire::{HubDrive, TriangleLumen, Wire, WireParams};
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::Arc;
 
+/// The guidewire's kind.
+pub const KIND: Kind = Kind {
+    name: "guidewire",
+    code: 2,
+};
+
 /// Most points of the wire's polyline on the stream (a longer wire is
 /// sampled every k-th node, tip always kept).
-pub const MAX_POLYLINE: usize = 256;
+pub const MAX_POLYLINE: usize = crate::stream::MAX_INSTRUMENT_POINTS;
 
 /// The wire thread runs this long after the loop's tick (ns): its step ends
 /// before the next tick reads the axial force.
@@ -204,6 +214,12 @@ pub struct WireShared {
     steps: AtomicU64,
     resets: AtomicU64,
     reset_request: AtomicBool,
+    /// Stalls the loop saw, and hub commands its ring had no room for.
+    stalls: AtomicU64,
+    hub_ring_full: AtomicU64,
+    /// Largest displacement of an inner-wall vertex under the wire's loads
+    /// on the stream (m, bits; the publisher's).
+    dent_max_bits: AtomicU64,
 }
 
 impl WireShared {
@@ -265,22 +281,15 @@ pub(super) struct WireLink {
     resets_seen: u64,
     stalled: bool,
     load_wall: bool,
-    /// Stalls the loop saw.
-    pub stalls: u64,
-    /// Hub commands the ring had no room for.
-    pub hub_ring_full: u64,
 }
 
 impl WireLink {
-    /// Before the tick: drive the hub from `sample` (device frame), read the
-    /// wire's latest axial force and loads, set the hand force and the
-    /// point loads on `tick`; a stalled or reset wire raises a fault.
-    pub(super) fn before_tick<const R: usize>(
-        &mut self,
-        sample: Option<&DeviceSample>,
-        now_s: f64,
-        tick: &mut HapticTick<R>,
-    ) {
+    /// The wire's contribution to this tick: drive the hub from `sample`
+    /// (device frame), read the wire's latest axial force and wall loads,
+    /// and give the hand force (scene frame), the point loads (the reduced
+    /// model only) and a fault when the wire thread stalled or reset.
+    pub(super) fn contribute(&mut self, sample: Option<&DeviceSample>, now_s: f64) -> Contribution<'_> {
+        let mut fault = false;
         let steps = self.shared.steps();
         if steps != self.last_steps || !self.last_progress_s.is_finite() {
             self.last_steps = steps;
@@ -288,7 +297,7 @@ impl WireLink {
             self.stalled = false;
         } else if now_s - self.last_progress_s > self.stall_s && !self.stalled {
             self.stalled = true;
-            self.stalls += 1;
+            self.shared.stalls.fetch_add(1, Ordering::Relaxed);
             self.shared.reset_request.store(true, Ordering::Release);
         }
         let resets = self.shared.resets();
@@ -298,11 +307,9 @@ impl WireLink {
                 WireShared::get(&self.shared.inserted_bits),
                 WireShared::get(&self.shared.roll_bits),
             );
-            tick.servo_mut().raise_fault();
+            fault = true;
         }
-        if self.stalled {
-            tick.servo_mut().raise_fault();
-        }
+        fault |= self.stalled;
         let mut latest = None;
         while let Ok(m) = self.loads_in.pop() {
             latest = Some(m);
@@ -314,30 +321,35 @@ impl WireLink {
                     let _ = self.current.push((l.node, l.force));
                 }
             }
-            tick.servo_mut().set_point_loads(&self.current);
         }
-        let Some(s) = sample else {
-            tick.set_external_force(Vec3::zeros());
-            return;
+        let force = match sample {
+            Some(s) => {
+                let cmd = self.drive.command(s, now_s);
+                if self
+                    .hub
+                    .push(HubMsg {
+                        inserted_m: cmd.inserted_m,
+                        roll_rad: cmd.roll_rad,
+                    })
+                    .is_err()
+                {
+                    self.shared.hub_ring_full.fetch_add(1, Ordering::Relaxed);
+                }
+                let axial = if self.stalled {
+                    0.0
+                } else {
+                    WireShared::get(&self.shared.axial_bits)
+                };
+                self.frame.force_to_scene(self.drive.hand_force(s, axial))
+            }
+            None => Vec3::zeros(),
         };
-        let cmd = self.drive.command(s, now_s);
-        if self
-            .hub
-            .push(HubMsg {
-                inserted_m: cmd.inserted_m,
-                roll_rad: cmd.roll_rad,
-            })
-            .is_err()
-        {
-            self.hub_ring_full += 1;
+        Contribution {
+            force,
+            point_loads: &self.current,
+            fault,
+            ..Contribution::default()
         }
-        let axial = if self.stalled {
-            0.0
-        } else {
-            WireShared::get(&self.shared.axial_bits)
-        };
-        let f = self.drive.hand_force(s, axial);
-        tick.set_external_force(self.frame.force_to_scene(f));
     }
 }
 
@@ -425,6 +437,9 @@ pub(super) struct PublisherWire {
     /// Largest wire–wall contact force (N) over the polylines taken by the
     /// last [`PublisherWire::update`].
     pub contact_force_n: f64,
+    pub shared: Arc<WireShared>,
+    /// See [`WireShared`]'s `dent_max_bits`.
+    pub dent_max_m: f64,
 }
 
 impl PublisherWire {
@@ -494,29 +509,28 @@ pub(super) fn build<const R: usize>(
     faults: Arc<FaultSwitches>,
     start: Nanos,
     stream_every: u64,
-) -> Result<WireParts, super::ServiceError> {
-    let wall =
-        InnerWall::from_mesh(mesh, &g.wall_set).map_err(|e| super::ServiceError::Solver(format!("guidewire: {e}")))?;
+) -> Result<WireParts, ServiceError> {
+    let wall = InnerWall::from_mesh(mesh, &g.wall_set).map_err(|e| ServiceError::Solver(format!("guidewire: {e}")))?;
     let mut lumen = wall
         .lumen()
-        .map_err(|e| super::ServiceError::Solver(format!("guidewire: {e}")))?;
+        .map_err(|e| ServiceError::Solver(format!("guidewire: {e}")))?;
     if g.load_wall {
         // The wall gives under the wire: its compliance in series with the
         // contact, the lumen without the wire's own dent (docs/WIRE.md).
         let c = wall
             .normal_compliance(&vessel.dynamics, vessel.compliance.as_deref())
-            .ok_or_else(|| super::ServiceError::Solver("guidewire: the reduced stiffness is singular".into()))?;
+            .ok_or_else(|| ServiceError::Solver("guidewire: the reduced stiffness is singular".into()))?;
         lumen
             .set_compliance(&c)
-            .map_err(|e| super::ServiceError::Solver(format!("guidewire: {e}")))?;
+            .map_err(|e| ServiceError::Solver(format!("guidewire: {e}")))?;
     }
     let wire = Wire::new(params, Vec3::from(g.access_point_m), Vec3::from(g.axis), g.inserted_m)
-        .map_err(|e| super::ServiceError::Solver(format!("guidewire: {e}")))?;
+        .map_err(|e| ServiceError::Solver(format!("guidewire: {e}")))?;
     let drive = HubDrive::new(params, wire.inserted(), wire.roll())?;
     let shared = Arc::new(WireShared::default());
     WireShared::set(&shared.inserted_bits, wire.inserted());
     WireShared::set(&shared.roll_bits, wire.roll());
-    let (hub_tx, hub_rx) = rtrb::RingBuffer::<HubMsg>::new(64);
+    let (hub_tx, hub_rx) = rtrb::RingBuffer::<HubMsg>::new(HUB_RING);
     let (loads_tx, loads_rx) = rtrb::RingBuffer::<LoadMsg>::new(4);
     let (walls_tx, walls_rx) = rtrb::RingBuffer::<Box<TriangleLumen>>::new(3);
     let (free_tx, free_rx_fill) = rtrb::RingBuffer::<Box<TriangleLumen>>::new(3);
@@ -543,6 +557,8 @@ pub(super) fn build<const R: usize>(
         residual: if g.load_wall { vessel.compliance.clone() } else { None },
         loads: Vec::with_capacity(MAX_WALL_LOADS),
         contact_force_n: 0.0,
+        shared: shared.clone(),
+        dent_max_m: 0.0,
     };
     let link = WireLink {
         drive,
@@ -557,8 +573,6 @@ pub(super) fn build<const R: usize>(
         resets_seen: 0,
         stalled: false,
         load_wall: g.load_wall,
-        stalls: 0,
-        hub_ring_full: 0,
     };
     let plan = WirePlan {
         wire,
@@ -585,6 +599,160 @@ pub(super) fn build<const R: usize>(
     };
     Ok(WireParts { link, plan, publisher })
 }
+
+impl LoopSide for WireLink {
+    fn contribute(&mut self, hand: &Hand<'_>) -> Contribution<'_> {
+        WireLink::contribute(self, hand.sample, hand.now_s)
+    }
+}
+
+impl PublisherSide for PublisherWire {
+    fn update(&mut self, view: &VesselView<'_>) {
+        PublisherWire::update(self, view.without_point_loads);
+        if view.point_loads_active {
+            for &i in &self.nodes {
+                self.dent_max_m = self.dent_max_m.max((view.point_load_dent)(i).norm());
+            }
+            WireShared::set(&self.shared.dent_max_bits, self.dent_max_m);
+        }
+    }
+
+    fn add_dent(&self, dent: &mut [Vec3], touched: &mut Vec<u32>) {
+        self.add_residual_dent(dent, touched);
+    }
+
+    fn polyline(&self) -> &[[f32; 3]] {
+        &self.points
+    }
+
+    fn wall_force_n(&self) -> f64 {
+        self.contact_force_n
+    }
+}
+
+/// The guidewire's instrument when the configuration has `[wire]` and
+/// `[guidewire]`: the rings, the loop and publisher sides, and the wire
+/// thread, started half a period after the loop.
+pub fn build_instrument<const R: usize>(ctx: &BuildContext<'_, R>) -> Result<Option<Built>, ServiceError> {
+    let (Some(wp), Some(g)) = (&ctx.cfg.wire, &ctx.cfg.guidewire) else {
+        return Ok(None);
+    };
+    let frame = ctx
+        .cfg
+        .device
+        .frame
+        .as_ref()
+        .map(DeviceFrame::new)
+        .unwrap_or_else(DeviceFrame::identity);
+    let parts = build(
+        wp,
+        g,
+        ctx.mesh,
+        ctx.vessel,
+        frame,
+        ctx.stop.clone(),
+        ctx.faults.clone(),
+        ctx.loop_start + WIRE_PHASE,
+        ctx.state_every,
+    )?;
+    let wall = parts.plan.wall.clone();
+    let shared = parts.plan.shared.clone();
+    let plan = parts.plan;
+    let handle = std::thread::Builder::new()
+        .name("nvtmm-wire".into())
+        .stack_size(1 << 20)
+        .spawn(move || wire_thread(plan))
+        .map_err(|e| ServiceError::Thread("wire", e.to_string()))?;
+    Ok(Some(Built {
+        id: "guidewire",
+        kind: KIND,
+        loop_side: Box::new(parts.link),
+        publisher_side: Box::new(parts.publisher),
+        service_side: Box::new(GuidewireService {
+            handle: Some(handle),
+            wall,
+            shared,
+        }),
+    }))
+}
+
+/// The guidewire's part the running service keeps: the wire thread.
+struct GuidewireService {
+    handle: Option<std::thread::JoinHandle<WireResult>>,
+    wall: Arc<InnerWall>,
+    shared: Arc<WireShared>,
+}
+
+impl ServiceSide for GuidewireService {
+    fn finish(&mut self, report: &mut Report) -> Result<InstrumentReport, ServiceError> {
+        let h = self
+            .handle
+            .take()
+            .ok_or_else(|| ServiceError::Thread("wire", "already stopped".into()))?;
+        let w = h.join().map_err(|_| ServiceError::Thread("wire", "panicked".into()))?;
+        let tip_segment = self
+            .wall
+            .segment_at(&w.wall, w.tip)
+            .map(str::to_string)
+            .unwrap_or_else(|| "unlabelled".into());
+        let wr = WireReport {
+            nodes: w.nodes,
+            inserted_m: w.inserted_m,
+            inserted_max_m: w.max_inserted_m,
+            tip_segment,
+            tip_m: [w.tip.x, w.tip.y, w.tip.z],
+            contacts_max: w.contacts_max,
+            contacts_p50: w.contacts.quantile(0.5),
+            max_penetration_m: w.max_penetration_m,
+            axial_force_max_n: w.axial_force_max_n,
+            step_us: w.step_us.percentiles(),
+            steps: w.steps,
+            iterations_max: w.iterations_max,
+            evaluations_max: w.evaluations_max,
+            budget_spent_steps: w.budget_spent,
+            time_limited_steps: w.time_spent,
+            resets: w.resets,
+            stalls: self.shared.stalls.load(Ordering::Acquire),
+            wall_updates: w.wall_updates,
+            rt_policy_granted: w.grant.fifo,
+            cpu: w.grant.cpu,
+            allocations_after_start: w.allocations,
+            loads_ring_full: w.loads_ring_full,
+            load_wall: w.load_wall,
+            wall_compliance_p50_m_per_n: w.compliance_p50,
+            wall_compliance_max_m_per_n: w.compliance_max,
+            wall_deflection_max_m: w.deflection_max,
+            wall_dent_max_m: WireShared::get(&self.shared.dent_max_bits),
+        };
+        report.allocations_after_start += wr.allocations_after_start;
+        let mut keys = serde_json::to_value(&wr).unwrap_or_default();
+        if let Some(k) = keys.as_object_mut() {
+            // Hub commands the loop could not send (ring of `HUB_RING`).
+            k.insert(
+                "hub_ring_full".into(),
+                self.shared.hub_ring_full.load(Ordering::Acquire).into(),
+            );
+        }
+        let out = InstrumentReport {
+            id: "guidewire".into(),
+            kind: KIND.name.into(),
+            faults: wr.resets + wr.stalls,
+            keys,
+            summary: format!(
+                "{:.1} mm inserted, tip in {}, {} resets, {} stalls (the wire.* keys)",
+                wr.inserted_m * 1e3,
+                wr.tip_segment,
+                wr.resets,
+                wr.stalls
+            ),
+        };
+        report.wire = Some(wr);
+        Ok(out)
+    }
+}
+
+/// Capacity of the hub ring (loop → wire thread).
+const HUB_RING: usize = 64;
 
 /// The wire thread's body: one wire step per period until `stop`.
 pub(super) fn wire_thread(mut p: WirePlan) -> WireResult {
