@@ -39,6 +39,7 @@ fn kept_triangles_give_the_contact_a_fresh_search_gives() {
     );
     let (mut scratch_k, mut scratch_f) = (Candidates::new(), Candidates::new());
     let ticks = 600;
+    let no_offset = vec![nvtmm::math::Vec3::zeros(); mesh.num_nodes()];
     let (mut searches, mut touching) = (0, 0);
     for t in 0..ticks {
         let phase = t as f64 / ticks as f64;
@@ -57,7 +58,13 @@ fn kept_triangles_give_the_contact_a_fresh_search_gives() {
             mesh.rest()[a] + normals[a] * (rho - 1.2e-3) + tangent * (4e-3 * phase),
             mesh.rest()[b] + normals[b] * (rho - 1e-3 * (std::f64::consts::PI * 2.0 * phase).sin()),
         ];
-        let motion = Motion { q: &q, row_bound };
+        // The positions are rest + Φ q: ū = 0, which lets a search pass
+        // over the candidates Φ q cannot bring within reach.
+        let motion = Motion {
+            q: &q,
+            row_bound,
+            offset: Some(&no_offset),
+        };
         evaluate_spheres(
             &s.index,
             &s.cp,

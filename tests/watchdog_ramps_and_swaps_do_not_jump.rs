@@ -297,10 +297,37 @@ fn swap_mid_contact(new_basis: bool) {
     let mut prev = f_before;
     let mut worst: f64 = 0.0;
     let mut retired = None;
-    for _ in 0..60 {
+    let index = SurfaceIndex::new(&p.mesh, &s.params().contact);
+    let mut fresh = nvtmm::haptics::contact::ContactOutput::<R>::for_index(&index);
+    let mut scratch = nvtmm::haptics::contact::Candidates::new();
+    for k in 0..60 {
         seq += 1;
         t += DT;
+        // The contact a fresh search finds on the model's positions now,
+        // which the tick's contact (on the triangles the swap found, then
+        // kept) must equal to round-off.
+        let m = s.model();
+        nvtmm::haptics::contact::evaluate_spheres(
+            &index,
+            &s.params().contact,
+            &[pos],
+            |i| index.rest(i) + m.offset[i as usize] + m.dynamics.displacement_at(i).unwrap_or_else(Vec3::zeros),
+            |i| m.dynamics.rows_at(i),
+            m.compliance.as_deref(),
+            None,
+            &mut scratch,
+            &mut fresh,
+        );
         let f = tick(&mut s, Some(&sample(pos, seq, t)), t).0;
+        let c = s.contact();
+        let diff = (c.tool_force - fresh.tool_force).norm();
+        assert!(
+            diff <= 1e-9 * fresh.tool_force.norm().max(1e-9),
+            "tick {k}: kept {:?} vs searched {:?}",
+            c.tool_force,
+            fresh.tool_force
+        );
+        assert!((c.reduced_stiffness - fresh.reduced_stiffness).norm() <= 1e-9 * fresh.reduced_stiffness.norm());
         worst = worst.max((f - prev).norm());
         prev = f;
         if let Some(r) = s.take_retired() {

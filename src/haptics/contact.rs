@@ -92,6 +92,12 @@ pub struct Motion<'a, const R: usize> {
     pub q: &'a SVector<f64, R>,
     /// max ‖Φᵢ‖ (m per unit of q).
     pub row_bound: f64,
+    /// ūᵢ per mesh node when the positions are `rest + ū + Φ q` (None: not
+    /// known). A search then passes over every candidate whose `rest + ū`
+    /// is farther from the sphere than its reach plus `row_bound` ‖q‖
+    /// without reconstructing it: Φᵢ q cannot bring it within reach, so the
+    /// triangles found are the same, for fewer deformed positions.
+    pub offset: Option<&'a [Vec3]>,
 }
 
 /// Which nodes' pair blocks a sphere keeps, and from which table.
@@ -1000,10 +1006,20 @@ fn search_triangles<const R: usize>(
         out.stamps.iter_mut().for_each(|s| *s = 0);
         out.stamp = 1;
     }
+    // How far Φ q can move a node from rest + ū (NaN: none is skipped by it).
+    let base = motion.and_then(|m| m.offset.map(|o| (o, m.row_bound * m.q.norm())));
     for &i in scratch.iter() {
         let far = reach + index.margin + index.reach_of[i as usize];
         if !at_most((index.rest[i as usize] - center).norm_squared(), far * far) {
             continue;
+        }
+        if let Some((offset, moved)) = base {
+            if let Some(u) = offset.get(i as usize) {
+                let within = reach + index.reach_of[i as usize] + moved;
+                if (index.rest[i as usize] + u - center).norm_squared() > within * within {
+                    continue;
+                }
+            }
         }
         let x = out.position_of(i, position);
         let near = reach + index.reach_of[i as usize];

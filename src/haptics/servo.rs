@@ -273,6 +273,7 @@ fn eval_contact<const R: usize>(
         Some(contact::Motion {
             q: dynamics.q(),
             row_bound: dynamics.row_bound(),
+            offset: Some(offset.as_slice()),
         }),
         scratch,
         out,
@@ -447,6 +448,7 @@ impl<const R: usize> Servo<R> {
     fn swap_in(&mut self, mut new: Box<LoopModel<R>>) -> Box<LoopModel<R>> {
         let q = new.transfer * self.model.dynamics.q() + new.shift;
         let qd = new.transfer * self.model.dynamics.qd();
+        let mut evaluated_new = false;
         if q.iter().chain(qd.iter()).all(|v| v.is_finite()) {
             let dq = self.contact_match(&new, &q);
             let mut q = q + dq;
@@ -464,6 +466,7 @@ impl<const R: usize> Servo<R> {
                     &mut self.fade_scratch,
                     &mut self.fade_contact,
                 );
+                evaluated_new = true;
                 let c = &self.fade_contact;
                 let k = new.dynamics.stiffness() + c.reduced_stiffness;
                 let r = c.reduced_force - new.f_bar - new.dynamics.stiffness() * q
@@ -482,10 +485,19 @@ impl<const R: usize> Servo<R> {
             self.counters.nonfinite += 1;
         }
         self.counters.model_swaps += 1;
-        // Both contact outputs now follow other models than the triangles
-        // they kept were found for.
-        self.contact.forget();
-        self.fade_contact.forget();
+        // Each contact output keeps the triangles it found on one model's
+        // positions (`contact::Motion`), so each follows its model: the one
+        // just evaluated on the new model becomes the tick's, and the
+        // tick's, kept on the old model, runs on with it in the cross-fade.
+        // Only an output without triangles found on its model's positions
+        // searches again (a full search costs several times a tick).
+        std::mem::swap(&mut self.contact, &mut self.fade_contact);
+        if !evaluated_new {
+            self.contact.forget();
+        }
+        if self.params.swap_blend_s <= 0.0 {
+            self.fade_contact.forget();
+        }
         std::mem::replace(&mut self.model, new)
     }
 

@@ -40,6 +40,12 @@ use std::time::Duration;
 /// is tested with (diseased, calcified wall).
 pub const STIFF_YOUNGS_PA: f64 = 10e6;
 
+/// The shortest `--minutes` known to judge every check on the default
+/// configuration (the CI gate's length): each leg then reads at least two
+/// resident-memory levels after its warm-up and every fault kind is
+/// injected. Shorter runs mark the checks they cannot measure "not judged".
+pub const RSS_JUDGED_MINUTES: f64 = 2.5;
+
 /// Resident memory may grow by at most this after warm-up (bytes).
 pub const RSS_BUDGET_BYTES: i64 = 1 << 20;
 
@@ -276,6 +282,9 @@ pub struct Check {
     /// Not applicable to this configuration (neither passed nor failed;
     /// `detail` says why).
     pub skipped: bool,
+    /// Applicable, but this run could not measure it (too short: neither
+    /// passed nor failed; `detail` says why and how long a run judges it).
+    pub not_judged: bool,
 }
 
 /// The soak's result (`--json`).
@@ -328,6 +337,10 @@ impl SoakReport {
             self.seed,
             if self.passed { "PASSED" } else { "FAILED" }
         );
+        let unjudged = self.checks.iter().filter(|c| c.not_judged).count();
+        if unjudged > 0 {
+            s += &format!("  {unjudged} check(s) NOT JUDGED: this run was too short to measure them (see below)\n");
+        }
         for l in &self.legs {
             s += &format!(
                 "  leg {} ({}): {} ticks in {:.1} s, {} misses, tick p99.9 {:.1} µs, {} forces checked; hand: {}\n",
@@ -413,6 +426,8 @@ impl SoakReport {
                 "  [{}] {}: {}\n",
                 if c.skipped {
                     "skip"
+                } else if c.not_judged {
+                    "not judged"
                 } else if c.passed {
                     "ok"
                 } else {
@@ -761,6 +776,7 @@ pub fn run_soak(opts: &SoakOptions) -> Result<SoakReport, SoakError> {
                     passed: false,
                     detail: format!("thread {t}: {m}"),
                     skipped: false,
+                    not_judged: false,
                 });
             }
             Err(e) => {
@@ -776,13 +792,23 @@ pub fn run_soak(opts: &SoakOptions) -> Result<SoakReport, SoakError> {
 
 /// The checks over the whole run.
 fn finish(r: &mut SoakReport, legs_ok: bool) {
-    let mut checks = std::mem::take(&mut r.checks);
-    let mut add = |name: &str, passed: bool, detail: String| {
-        checks.push(Check {
+    let checks = std::cell::RefCell::new(std::mem::take(&mut r.checks));
+    let add = |name: &str, passed: bool, detail: String| {
+        checks.borrow_mut().push(Check {
             name: name.into(),
             passed,
             detail,
             skipped: false,
+            not_judged: false,
+        })
+    };
+    let add_not_judged = |name: &str, detail: String| {
+        checks.borrow_mut().push(Check {
+            name: name.into(),
+            passed: false,
+            detail,
+            skipped: false,
+            not_judged: true,
         })
     };
     add(
@@ -816,28 +842,52 @@ fn finish(r: &mut SoakReport, legs_ok: bool) {
         r.system_allocations == 0,
         format!("{} calls", r.system_allocations),
     );
-    add(
-        "resident memory flat after warm-up",
-        r.rss_growth_bytes <= RSS_BUDGET_BYTES && r.rss_legs_measured > 0,
-        format!(
-            "grew {:.3} MB, budget {:.1} MB ({} of {} legs long enough to measure; levels read per leg: {})",
-            r.rss_growth_bytes as f64 / 1048576.0,
-            RSS_BUDGET_BYTES as f64 / 1048576.0,
-            r.rss_legs_measured,
-            r.legs.len(),
-            r.legs
-                .iter()
-                .map(|l| l.rss_levels.to_string())
-                .collect::<Vec<_>>()
-                .join(", ")
-        ),
-    );
+    let levels = r
+        .legs
+        .iter()
+        .map(|l| l.rss_levels.to_string())
+        .collect::<Vec<_>>()
+        .join(", ");
+    if r.rss_legs_measured == 0 {
+        // Nothing measured is neither a pass nor a failure.
+        add_not_judged(
+            "resident memory flat after warm-up",
+            format!(
+                "not judged: 0 of {} legs long enough to measure (a leg must read two levels after its warm-up: \
+                 a quarter of the leg, at least 10 s, and the first background basis install plus {RSS_SETTLE_S:.0} s; \
+                 levels read per leg: {levels}); run --minutes {RSS_JUDGED_MINUTES} or longer to judge it",
+                r.legs.len()
+            ),
+        );
+    } else {
+        add(
+            "resident memory flat after warm-up",
+            r.rss_growth_bytes <= RSS_BUDGET_BYTES,
+            format!(
+                "grew {:.3} MB, budget {:.1} MB ({} of {} legs long enough to measure; levels read per leg: {levels})",
+                r.rss_growth_bytes as f64 / 1048576.0,
+                RSS_BUDGET_BYTES as f64 / 1048576.0,
+                r.rss_legs_measured,
+                r.legs.len(),
+            ),
+        );
+    }
     add(
         "no thread lost",
         r.threads_lost == 0 && legs_ok,
         format!("{} lost", r.threads_lost),
     );
     for (k, f) in &r.faults {
+        if f.injected == 0 {
+            add_not_judged(
+                &format!("fault {k}: injected and recovered"),
+                format!(
+                    "not judged: never injected (the legs ended before the schedule reached it); \
+                     run --minutes {RSS_JUDGED_MINUTES} or longer to judge it"
+                ),
+            );
+            continue;
+        }
         add(
             &format!("fault {k}: injected and recovered"),
             f.injected > f.not_judged && f.recovered + f.not_judged == f.injected,
@@ -853,15 +903,19 @@ fn finish(r: &mut SoakReport, legs_ok: bool) {
             },
         );
     }
+    let mut checks = checks.into_inner();
     if !r.faults.contains_key("basis_failure") {
         checks.push(Check {
             name: "fault basis_failure: injected and recovered".into(),
             passed: false,
             detail: "not applicable: the configuration's basis refresh is off (background.basis_refresh_s = 0 or background.enabled = false)".into(),
             skipped: true,
+not_judged: false,
         });
     }
-    r.passed = checks.iter().all(|c| c.passed || c.skipped);
+    // A run of the length that judges every check must judge them all.
+    let short = r.minutes < RSS_JUDGED_MINUTES;
+    r.passed = checks.iter().all(|c| c.passed || c.skipped || (c.not_judged && short));
     r.checks = checks;
 }
 
@@ -1418,12 +1472,14 @@ fn run_leg(
         passed: garbage_rejected == garbage_sent,
         detail: format!("{garbage_sent} sent, {garbage_rejected} rejected"),
         skipped: false,
+        not_judged: false,
     });
     report.checks.push(Check {
         name: format!("leg {name}: the allocator was installed (allocations are counted)"),
         passed: svc.allocator_installed,
         detail: format!("{}", svc.allocator_installed),
         skipped: false,
+        not_judged: false,
     });
     report.legs.push(LegReport {
         name: name.into(),
@@ -1534,6 +1590,50 @@ mod tests {
         assert!(skip.skipped && !skip.passed, "{skip:?}");
         assert!(r.passed, "{:?}", r.checks);
         assert!(r.render().contains("[skip] fault basis_failure"));
+    }
+
+    /// A run too short to measure a check says so instead of failing it,
+    /// and names the length that judges it; at that length an unmeasured
+    /// check fails the run.
+    #[test]
+    fn a_check_too_short_to_measure_is_not_judged() {
+        let report = |minutes: f64| {
+            let mut r = SoakReport {
+                minutes,
+                rss_legs_measured: 0,
+                legs: vec![LegReport::default(), LegReport::default()],
+                ..SoakReport::default()
+            };
+            r.faults.insert(
+                "silence".into(),
+                FaultOutcome {
+                    injected: 2,
+                    recovered: 2,
+                    ..FaultOutcome::default()
+                },
+            );
+            r.faults.insert("model_ring_full".into(), FaultOutcome::default());
+            finish(&mut r, true);
+            r
+        };
+        let r = report(1.0);
+        let memory = r.checks.iter().find(|c| c.name.contains("resident memory")).unwrap();
+        assert!(memory.not_judged && !memory.passed, "{memory:?}");
+        assert!(memory.detail.contains("0 of 2 legs long enough"), "{}", memory.detail);
+        assert!(memory.detail.contains("--minutes 2.5 or longer"), "{}", memory.detail);
+        let ring = r.checks.iter().find(|c| c.name.contains("model_ring_full")).unwrap();
+        assert!(ring.not_judged && ring.detail.contains("never injected"), "{ring:?}");
+        let silence = r.checks.iter().find(|c| c.name.contains("silence")).unwrap();
+        assert!(silence.passed && !silence.not_judged);
+        assert!(r.passed, "nothing measured failed: {:?}", r.checks);
+        let text = r.render();
+        assert!(
+            text.contains("[not judged] resident memory flat after warm-up"),
+            "{text}"
+        );
+        assert!(text.contains("2 check(s) NOT JUDGED"), "{text}");
+        assert!(!text.contains("FAIL"), "{text}");
+        assert!(!report(2.5).passed, "the judging length must judge every check");
     }
 
     /// An injection the machine's pause of the device thread left
