@@ -212,7 +212,7 @@ fn viewer_draws_the_vessel_and_the_hud_updates() {
     for h in [&first, &second] {
         assert!(h.contains("live"), "HUD shows no live stream: {h}");
         assert!(
-            h.contains("sim time") && h.contains("force") && h.contains("watchdog") && h.contains("wire"),
+            h.contains("sim time") && h.contains("force") && h.contains("watchdog") && h.contains("instruments probe"),
             "{h}"
         );
     }

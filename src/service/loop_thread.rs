@@ -3,9 +3,9 @@
 //! contact forces to the background, models in and out, state snapshots to
 //! the publisher). Each tick reads top to bottom: device (the newest
 //! pose) → each instrument's contribution → vessel step → passivity →
-//! gain (the last three in [`HapticTick::run_with`]) → push. Timing goes into fixed histograms; live figures into
-//! [`LiveStats`] atomics; nothing here allocates, locks, logs or blocks after
-//! start.
+//! gain (the last three in [`HapticTick::run_with`]) → push. Timing goes
+//! into fixed histograms; live figures into [`LiveStats`] atomics; nothing
+//! here allocates, locks, logs or blocks after start.
 
 use super::background::{ContactMsg, CONTACT_MSG_NODES};
 use super::device_io::ForceCmd;

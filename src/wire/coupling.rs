@@ -4,8 +4,8 @@
 //! spread back onto the wall's nodes as point loads (barycentric on the
 //! touched triangle).
 //!
-//! Plain data and functions; the service's wire thread (`service::instrument::guidewire`)
-//! strings them together. [`wall_loads`] allocates nothing.
+//! Plain data and functions; the service's wire thread
+//! (`service::instrument::guidewire`) strings them together. [`wall_loads`] allocates nothing.
 
 use super::lumen::{LumenError, TriangleLumen};
 use super::rod::WireContact;
