@@ -460,6 +460,7 @@ fn press_loads(arch: &Arch) -> Loads {
             },
         ],
         gravity: Vec3::zeros(),
+        pressure: None,
     }
 }
 
