@@ -122,6 +122,7 @@ fn main() {
             },
         }],
         gravity: Vec3::zeros(),
+        pressure: None,
     };
     let params = ImplicitEulerParams {
         dt,

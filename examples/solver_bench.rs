@@ -231,6 +231,7 @@ fn main() {
             },
         }],
         gravity: Vec3::zeros(),
+        pressure: None,
     };
     println!("\nwhole steps (100 steps, h = 1 ms, Newton max 1 iteration, warm-started CG):");
     println!("| solver | mean CG iterations | mean step (ms) |");

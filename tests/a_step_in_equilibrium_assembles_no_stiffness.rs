@@ -30,6 +30,7 @@ fn a_step_in_equilibrium_assembles_no_stiffness_and_says_so() {
         let none = Loads {
             nodal: vec![],
             gravity: Vec3::zeros(),
+            pressure: None,
         };
         for _ in 0..3 {
             let rep = euler.step(&mut state, &mut model, &none, &fixed);
@@ -45,6 +46,7 @@ fn a_step_in_equilibrium_assembles_no_stiffness_and_says_so() {
                 profile: TimeProfile::Constant { from_t0: 0.0 },
             }],
             gravity: Vec3::zeros(),
+            pressure: None,
         };
         let rep = euler.step(&mut state, &mut model, &push, &fixed);
         assert!(rep.ok(), "{:?}", rep.failure);

@@ -121,6 +121,7 @@ fn a_step_with_cg_matches_a_step_with_cholesky() {
             profile: TimeProfile::Ramp { t0: 0.0, t1: 0.02 },
         }],
         gravity: Vec3::new(0.0, -9.81, 0.0),
+        pressure: None,
     };
     let run = |linear: LinearSolverKind| {
         let mut model = Springs::new(&mesh, 100.0, 1e6);

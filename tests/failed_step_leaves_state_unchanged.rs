@@ -29,6 +29,7 @@ fn setup() -> Setup {
             profile: TimeProfile::Constant { from_t0: 0.0 },
         }],
         gravity: Vec3::new(0.0, 0.0, -9.81),
+        pressure: None,
     };
     let mut state = TissueState::at_rest(mesh.num_nodes());
     for (i, u) in pseudo_random(mesh.num_nodes(), 3).into_iter().enumerate() {

@@ -21,6 +21,7 @@ fn final_residual_check_does_not_change_the_state() {
             profile: TimeProfile::Ramp { t0: 0.0, t1: 0.01 },
         }],
         gravity: Vec3::new(0.0, 0.0, -9.81),
+        pressure: None,
     };
     for max_iters in [1, 3] {
         for stiffness_every in [1, 4] {

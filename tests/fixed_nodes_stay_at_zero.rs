@@ -34,6 +34,7 @@ fn fixed_nodes_stay_exactly_at_zero() {
             },
         ],
         gravity: Vec3::new(0.0, 0.0, -9.81),
+        pressure: None,
     };
     for linear in [
         LinearSolverKind::Cholesky,

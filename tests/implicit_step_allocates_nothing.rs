@@ -45,6 +45,7 @@ fn implicit_step_allocates_nothing() {
             },
         }],
         gravity: Vec3::new(0.0, 0.0, -9.81),
+        pressure: None,
     };
     let mut kinds: Vec<LinearSolverKind> = [
         Preconditioner::None,

@@ -27,6 +27,7 @@ fn run(linear: LinearSolverKind, stiffness_every: usize) -> Vec<TissueState> {
             profile: TimeProfile::Ramp { t0: 0.0, t1: 0.01 },
         }],
         gravity: Vec3::new(0.0, 0.0, -9.81),
+        pressure: None,
     };
     let params = ImplicitEulerParams {
         dt: 1e-3,

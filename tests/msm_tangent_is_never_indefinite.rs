@@ -95,6 +95,7 @@ fn cholesky_step_at_the_visual_rate_survives_strong_compression() {
             profile: TimeProfile::Constant { from_t0: 0.0 },
         }],
         gravity: Vec3::zeros(),
+        pressure: None,
     };
     let params = ImplicitEulerParams {
         dt: 1.0 / 60.0,

@@ -20,6 +20,7 @@ fn run(linear: LinearSolverKind, beta: f64) -> Vec<f64> {
             profile: TimeProfile::Constant { from_t0: 0.0 },
         }],
         gravity: Vec3::zeros(),
+        pressure: None,
     };
     // |d| ~ 1 cm under this load: c|d|² ~ 1e2..1e3 against k = 100, so the
     // force is far from linear.

@@ -158,6 +158,7 @@ fn tip_histories(b: &Beam, basis: &ModalBasis, force: f64) -> (Vec<f64>, Vec<f64
             profile: TimeProfile::Ramp { t0: 0.0, t1: 0.05 },
         }],
         gravity: Vec3::zeros(),
+        pressure: None,
     };
     let full_params = ImplicitEulerParams {
         dt: params.dt,

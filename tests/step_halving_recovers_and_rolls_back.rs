@@ -93,6 +93,7 @@ fn setup() -> Setup {
             profile: TimeProfile::Ramp { t0: 0.0, t1: 0.02 },
         }],
         gravity: Vec3::zeros(),
+        pressure: None,
     };
     let mat = Material {
         youngs_pa: 1e5,

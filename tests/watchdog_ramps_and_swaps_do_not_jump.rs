@@ -223,6 +223,7 @@ fn swap_mid_contact(new_basis: bool) {
             })
             .collect(),
         gravity: Vec3::zeros(),
+        pressure: None,
     };
     let params = ImplicitEulerParams {
         dt: 0.05,
@@ -256,6 +257,7 @@ fn swap_mid_contact(new_basis: bool) {
         dt_max: 0.05,
         basis_policy: BasisPolicy::OFF,
         compliance: None,
+        pressure: None,
     };
     let m: Box<LoopModel<R>> = if new_basis {
         // What the basis thread does: the modes of K at the full state,

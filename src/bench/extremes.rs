@@ -195,6 +195,7 @@ pub fn run_extreme_with(case: &ExtremeCase, steps: usize, max_halvings: usize) -
             },
         }],
         gravity: Vec3::zeros(),
+        pressure: None,
     };
     let params = ImplicitEulerParams {
         dt: case.dt,

@@ -99,6 +99,7 @@ pub fn standard_load(arch: &Arch, force_n: f64) -> StandardLoad {
             profile: TimeProfile::Ramp { t0: 0.0, t1: 0.02 },
         }],
         gravity: Vec3::zeros(),
+        pressure: None,
     };
     StandardLoad { fixed, node, loads }
 }

@@ -145,6 +145,7 @@ fn full_reference(s: &Setup, params: &DynamicsParams, steps: usize) -> Result<Fu
             profile: TimeProfile::Ramp { t0: 0.0, t1: RAMP_S },
         }],
         gravity: Vec3::zeros(),
+        pressure: None,
     };
     let ip = ImplicitEulerParams {
         dt: params.dt,

@@ -132,6 +132,7 @@ fn simulate(kind: ModelKind, p: &Fig5Params, prony: &[PronyTerm]) -> Result<(Tra
             profile: TimeProfile::Constant { from_t0: p.t_load },
         }],
         gravity: Vec3::zeros(),
+        pressure: None,
     };
     let params = ImplicitEulerParams {
         dt: p.dt,

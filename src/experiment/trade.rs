@@ -404,6 +404,7 @@ fn press_loads(arch: &Arch) -> Loads {
             },
         ],
         gravity: Vec3::zeros(),
+        pressure: None,
     }
 }
 

@@ -329,7 +329,25 @@ pub fn generate_grid(params: &ArchParams, grid: ArchGrid) -> Result<Arch, ArchEr
         }
     }
 
-    // Kuhn subdivision: one tet per permutation of the three grid axes.
+    let tets = kuhn_wall_tets(&grid, &rest);
+    let sets = wall_node_sets(&grid, "outlet_descending", "inlet");
+
+    let mesh = TetMesh::new(rest, tets, sets)?;
+    Ok(Arch {
+        mesh,
+        grid,
+        centerline: cl.pts.iter().map(|p| p * mm).collect(),
+        ring_arclength: cl.s.iter().map(|s| s * mm).collect(),
+        top_ring,
+    })
+}
+
+/// The tets of a structured wall grid (rings × around × layers, periodic
+/// around) whose node positions are `rest` in [`ArchGrid`] numbering: each
+/// cell split into six by the Kuhn (Freudenthal) subdivision, which is
+/// conforming across cells and across the periodic seam because every cell
+/// is split the same way in index space; tets are oriented positively.
+pub(crate) fn kuhn_wall_tets(grid: &ArchGrid, rest: &[Vec3]) -> Vec<[u32; 4]> {
     const PERMS: [[usize; 3]; 6] = [[0, 1, 2], [0, 2, 1], [1, 0, 2], [1, 2, 0], [2, 0, 1], [2, 1, 0]];
     let mut tets = Vec::with_capacity(grid.tets());
     for a in 0..grid.axial - 1 {
@@ -338,10 +356,10 @@ pub fn generate_grid(params: &ArchParams, grid: ArchGrid) -> Result<Arch, ArchEr
                 for perm in PERMS {
                     let mut corner = [a, c, l];
                     let mut tet = [0u32; 4];
-                    tet[0] = node_index(&grid, corner[0], corner[1], corner[2]) as u32;
+                    tet[0] = node_index(grid, corner[0], corner[1], corner[2]) as u32;
                     for (k, &axis) in perm.iter().enumerate() {
                         corner[axis] += 1;
-                        tet[k + 1] = node_index(&grid, corner[0], corner[1], corner[2]) as u32;
+                        tet[k + 1] = node_index(grid, corner[0], corner[1], corner[2]) as u32;
                     }
                     let v = tet.map(|i| rest[i as usize]);
                     if signed_volume(&v[0], &v[1], &v[2], &v[3]) < 0.0 {
@@ -352,36 +370,34 @@ pub fn generate_grid(params: &ArchParams, grid: ArchGrid) -> Result<Arch, ArchEr
             }
         }
     }
+    tets
+}
 
+/// The node sets of a structured wall grid: the first and last rings (all
+/// layers) under the given names, `inner_wall` (layer 0) and `outer_wall`
+/// (the last layer), each sorted.
+pub(crate) fn wall_node_sets(grid: &ArchGrid, first_ring: &str, last_ring: &str) -> BTreeMap<String, Vec<u32>> {
     let mut sets = BTreeMap::new();
     let ring = |a: usize| -> Vec<u32> {
         (0..grid.circumferential)
             .flat_map(|c| (0..grid.layers).map(move |l| (c, l)))
-            .map(|(c, l)| node_index(&grid, a, c, l) as u32)
+            .map(|(c, l)| node_index(grid, a, c, l) as u32)
             .collect()
     };
     let layer = |l: usize| -> Vec<u32> {
         (0..grid.axial)
             .flat_map(|a| (0..grid.circumferential).map(move |c| (a, c)))
-            .map(|(a, c)| node_index(&grid, a, c, l) as u32)
+            .map(|(a, c)| node_index(grid, a, c, l) as u32)
             .collect()
     };
-    sets.insert("outlet_descending".to_string(), ring(0));
-    sets.insert("inlet".to_string(), ring(grid.axial - 1));
+    sets.insert(first_ring.to_string(), ring(0));
+    sets.insert(last_ring.to_string(), ring(grid.axial - 1));
     sets.insert("inner_wall".to_string(), layer(0));
     sets.insert("outer_wall".to_string(), layer(grid.layers - 1));
     for v in sets.values_mut() {
         v.sort_unstable();
     }
-
-    let mesh = TetMesh::new(rest, tets, sets)?;
-    Ok(Arch {
-        mesh,
-        grid,
-        centerline: cl.pts.iter().map(|p| p * mm).collect(),
-        ring_arclength: cl.s.iter().map(|s| s * mm).collect(),
-        top_ring,
-    })
+    sets
 }
 
 #[cfg(test)]

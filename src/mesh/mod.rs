@@ -19,6 +19,7 @@ pub mod quality;
 pub mod render;
 pub mod roi;
 pub mod surface;
+pub mod tube;
 pub mod vessel;
 
 use nalgebra::Matrix3;

@@ -80,6 +80,16 @@ impl Fnv1a {
         self.u64(s.len() as u64);
         self.bytes(s.as_bytes());
     }
+    /// Feeds a material's constants and its law's name.
+    pub fn material(&mut self, m: &Material, law: Law) {
+        self.f64(m.youngs_pa);
+        self.f64(m.poisson);
+        self.f64(m.density);
+        self.str(match law {
+            Law::Stvk => "stvk",
+            Law::NeoHookean => "neo_hookean",
+        });
+    }
     /// The hash.
     pub fn finish(&self) -> u64 {
         self.0
@@ -132,13 +142,7 @@ impl BasisRequest<'_> {
             }
         }
         h.str(self.model.name());
-        h.f64(self.material.youngs_pa);
-        h.f64(self.material.poisson);
-        h.f64(self.material.density);
-        h.str(match self.law {
-            Law::Stvk => "stvk",
-            Law::NeoHookean => "neo_hookean",
-        });
+        h.material(&self.material, self.law);
         h.u64(self.mass.len() as u64);
         for &m in self.mass {
             h.f64(m);

@@ -38,6 +38,7 @@
 use super::basis::{ModalBasis, ReducedError};
 use crate::material::PronyTerm;
 use crate::math::Vec3;
+use crate::solver::pressure::Waveform;
 use nalgebra::{Cholesky, Const, DMatrix, SMatrix, SVector};
 use std::sync::Arc;
 
@@ -197,6 +198,32 @@ pub struct ReducedDynamics<const R: usize> {
     prony_scale: f64,
     /// max over nodes of ‖Φᵢ‖_F ([`ReducedDynamics::row_bound`]).
     row_bound: f64,
+    /// The heartbeat's pulsatile load, if any.
+    pulse: Option<ModalPulse<R>>,
+}
+
+/// The pulsatile part of the blood pressure as a modal load: the model is
+/// linearized about the wall at the mean pressure, so the beat adds
+/// (p(t) − p_mean) times the reduced pressure load per pascal, Φᵀ ∂f_p/∂p
+/// at ū. Evaluated once per step: a waveform sample and an R-vector axpy.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ModalPulse<const R: usize> {
+    /// Φᵀ f_p(ū) / p: the reduced pressure load per pascal (N/Pa).
+    pub load_per_pa: SVector<f64, R>,
+    /// The heartbeat.
+    pub waveform: Waveform,
+    /// The pressure the model is linearized at (Pa).
+    pub mean_pa: f64,
+    /// Time in the beat (s) at the end of the last step.
+    pub t_s: f64,
+}
+
+impl<const R: usize> ModalPulse<R> {
+    /// The reduced pulsatile load at beat time `t` (s).
+    #[inline]
+    pub fn load_at(&self, t: f64) -> SVector<f64, R> {
+        self.load_per_pa * (self.waveform.pressure_at(t) - self.mean_pa)
+    }
 }
 
 impl<const R: usize> ReducedDynamics<R> {
@@ -281,7 +308,32 @@ impl<const R: usize> ReducedDynamics<R> {
             gamma: [SVector::zeros(); MAX_PRONY_TERMS],
             prony_scale: 1.0,
             row_bound,
+            pulse: None,
         })
+    }
+
+    /// Sets (or with None removes) the heartbeat's modal load; entries
+    /// beyond the active size are ignored.
+    pub fn set_pulse(&mut self, pulse: Option<ModalPulse<R>>) {
+        self.pulse = pulse.map(|mut p| {
+            for v in p.load_per_pa.iter_mut().skip(self.r) {
+                *v = 0.0;
+            }
+            p
+        });
+    }
+
+    /// The heartbeat's modal load, if any.
+    pub fn pulse(&self) -> Option<&ModalPulse<R>> {
+        self.pulse.as_ref()
+    }
+
+    /// Advances the beat by one step (before the step's right-hand side).
+    #[inline]
+    fn advance_pulse(&mut self) {
+        if let Some(p) = self.pulse.as_mut() {
+            p.t_s += self.dt;
+        }
     }
 
     /// Sets the Prony terms (at most [`MAX_PRONY_TERMS`]; each α_i in (0, 1),
@@ -367,9 +419,13 @@ impl<const R: usize> ReducedDynamics<R> {
         }
     }
 
-    /// The right-hand side q̇ₙ + h (f − s K_r qₙ + H), inactive entries zeroed.
+    /// The right-hand side q̇ₙ + h (f − s K_r qₙ + H), inactive entries
+    /// zeroed; f includes the heartbeat's load at the step's end.
     fn rhs(&self, f: &SVector<f64, R>) -> SVector<f64, R> {
-        self.rhs_of(&self.q, &self.qd, &self.gamma, f)
+        match &self.pulse {
+            Some(p) => self.rhs_of(&self.q, &self.qd, &self.gamma, &(f + p.load_at(p.t_s))),
+            None => self.rhs_of(&self.q, &self.qd, &self.gamma, f),
+        }
     }
 
     /// [`ReducedDynamics::rhs`] for the state (`q`, `qd`, `gamma`).
@@ -420,6 +476,7 @@ impl<const R: usize> ReducedDynamics<R> {
     /// from [`ReducedDynamics::project_nodal`]). Entries beyond the active
     /// size are ignored. Allocates nothing.
     pub fn step(&mut self, f: &SVector<f64, R>) {
+        self.advance_pulse();
         let mut rhs = self.rhs(f);
         self.system.solve_mut(&mut rhs);
         self.qd = rhs;
@@ -437,6 +494,7 @@ impl<const R: usize> ReducedDynamics<R> {
     /// this step and `false` is returned.
     pub fn step_with_contact(&mut self, f: &SVector<f64, R>, k_c: &SMatrix<f64, R, R>) -> bool {
         let h = self.dt;
+        self.advance_pulse();
         let mut rhs = self.rhs(f);
         let ok = self.solve_with_contact(k_c, &mut rhs, None);
         self.qd = rhs;
@@ -460,6 +518,7 @@ impl<const R: usize> ReducedDynamics<R> {
         f_part: &SVector<f64, R>,
     ) -> bool {
         let h = self.dt;
+        self.advance_pulse();
         let mut rhs = self.rhs(f);
         let mut rhs_part = self.rhs_of(&part.q, &part.qd, &part.gamma, f_part);
         let ok = self.solve_with_contact(k_c, &mut rhs, Some(&mut rhs_part));
@@ -658,6 +717,52 @@ mod tests {
         assert!((d.displacement_at(0).unwrap() - Vec3::new(q, 0.0, 0.0)).norm() <= 1e-12 * q.abs());
         assert!(d.q().iter().skip(1).all(|&v| v == 0.0));
         assert_eq!(d.static_solve(&f).unwrap()[0], 0.5);
+    }
+
+    /// The heartbeat's modal load is the explicit force g (p(t) − p_mean)
+    /// at each step's end time, in every kind of step.
+    #[test]
+    fn the_pulse_is_the_modal_load_times_the_pulsatile_pressure() {
+        use crate::solver::pressure::{WaveShape, Waveform};
+        let p = DynamicsParams {
+            dt: 0.01,
+            alpha: 0.3,
+            beta: 0.02,
+        };
+        let waveform = Waveform {
+            systolic_pa: 16e3,
+            diastolic_pa: 10e3,
+            heart_rate_bpm: 75.0,
+            shape: WaveShape::Aortic,
+        };
+        let mut g = SVector::<f64, 4>::zeros();
+        g[0] = 2e-4;
+        g[3] = 1.0; // inactive: ignored
+        let mut beating = ReducedDynamics::<4>::new(&one_mode(), &p).unwrap();
+        beating.set_pulse(Some(ModalPulse {
+            load_per_pa: g,
+            waveform,
+            mean_pa: 12e3,
+            t_s: 0.3,
+        }));
+        let mut plain = ReducedDynamics::<4>::new(&one_mode(), &p).unwrap();
+        let kc = SMatrix::<f64, 4, 4>::identity() * 3.0;
+        let mut t = 0.3;
+        for k in 0..150 {
+            t += p.dt;
+            let mut f = SVector::<f64, 4>::zeros();
+            f[0] = 2e-4 * (waveform.pressure_at(t) - 12e3);
+            if k % 2 == 0 {
+                beating.step(&SVector::zeros());
+                plain.step(&f);
+            } else {
+                beating.step_with_contact(&SVector::zeros(), &kc);
+                plain.step_with_contact(&f, &kc);
+            }
+        }
+        assert!(plain.q()[0].abs() > 0.0);
+        assert!((beating.q() - plain.q()).norm() <= 1e-12 * plain.q().norm());
+        assert!((beating.pulse().unwrap().t_s - t).abs() < 1e-12);
     }
 
     #[test]

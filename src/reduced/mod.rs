@@ -31,5 +31,5 @@ pub mod refresh;
 
 pub use basis::{static_split, BasisParams, BasisSpec, ModalBasis, ReducedError, Statics, Stiffness};
 pub use cubic::{CubicReducedDynamics, CubicStepError, CubicStvk};
-pub use dynamics::{basis_rows, BasisRows, DynamicsParams, NodeOutOfRange, ReducedDynamics, ReducedPart};
+pub use dynamics::{basis_rows, BasisRows, DynamicsParams, ModalPulse, NodeOutOfRange, ReducedDynamics, ReducedPart};
 pub use refresh::Refresher;

@@ -4,6 +4,7 @@
 
 use super::*;
 use crate::model::factory::build_model;
+use crate::solver::pressure::LuminalPressure;
 
 /// What [`Scene::build`] produces.
 pub struct Built {
@@ -22,6 +23,26 @@ pub struct Built {
     /// With a `[roi]`: the whole-mesh node of each node of `mesh` (which is
     /// then the region's sub-mesh; its cut nodes are in `fixed`).
     pub roi_to_full: Option<Vec<u32>>,
+    /// With `[pressure] unload_reference = true`: how the zero-pressure
+    /// reference (now `mesh`) was found.
+    pub unloaded: Option<UnloadBuild>,
+}
+
+/// The zero-pressure reference of `[pressure] unload_reference` and where it
+/// came from.
+#[derive(Debug, Clone)]
+pub struct UnloadBuild {
+    /// Whether it was read from the cache.
+    pub cache_hit: bool,
+    /// The cache file (`<cache_dir>/unload-<key>.vtu`).
+    pub path: std::path::PathBuf,
+    /// Fixed-point iterations (0 on a cache hit).
+    pub iters: usize,
+    /// Largest distance (m) between the inflated reference and the image
+    /// at the last iteration (0 on a cache hit).
+    pub max_error_m: f64,
+    /// Why a computed reference could not be cached (it is still used).
+    pub cache_error: Option<String>,
 }
 
 /// The wall of `[mesh] vessel` and where it came from.
@@ -314,7 +335,7 @@ impl Scene {
     /// node sets and boxes select the region's nodes; the cut nodes are
     /// fixed.
     pub fn build(&self) -> Result<Built, SceneError> {
-        let (mesh, roi_to_full) = self.build_roi_mesh()?;
+        let (mut mesh, roi_to_full) = self.build_roi_mesh()?;
         // Whole-mesh node indices given in the scene → region nodes.
         let map_nodes = |key: &str, ids: &[u32]| -> Result<Vec<u32>, SceneError> {
             match &roi_to_full {
@@ -330,7 +351,6 @@ impl Scene {
             }
         };
         let material = self.material();
-        let model = build_model(self.model, &mesh, &material, self.material.law, &self.prony);
         let n = mesh.num_nodes();
 
         let mut fixed: Vec<u32> = Vec::new();
@@ -353,11 +373,25 @@ impl Scene {
         fixed.sort_unstable();
         fixed.dedup();
 
+        let mut unloaded = None;
+        if let Some(p) = self.pressure.as_ref().filter(|p| p.unload_reference) {
+            let (reference, build) = self.zero_pressure_mesh(&mesh, &fixed, p)?;
+            mesh = reference;
+            unloaded = Some(build);
+        }
+        let model = build_model(self.model, &mesh, &material, self.material.law, &self.prony);
         let surface = mesh.surface_nodes();
         let mut loads = Loads {
             nodal: Vec::new(),
             gravity: Vec3::from(self.gravity),
+            pressure: None,
         };
+        if let Some(p) = &self.pressure {
+            loads.pressure = Some(
+                LuminalPressure::on_set(&mesh, &p.set, p.schedule(), p.tangent)
+                    .map_err(|e| self.err("pressure.set", e.to_string()))?,
+            );
+        }
         let mut probes: Vec<u32> = Vec::new();
         for (i, l) in self.loads.iter().enumerate() {
             let key = format!("load[{i}]");
@@ -409,6 +443,72 @@ impl Scene {
             loads,
             probes,
             roi_to_full,
+            unloaded,
         })
+    }
+
+    /// The zero-pressure reference of `image` for `[pressure]` (docs/PRESSURE.md):
+    /// read from `<cache_dir>/unload-<key>.vtu` if there, else computed by
+    /// the backward-displacement fixed point and written there through a
+    /// temporary file and a rename. With Prony terms it is computed for the
+    /// relaxed modulus (1 − Σα_i) E, where a steady pressure leaves the wall.
+    /// An error names `pressure.unload_reference` and says why it failed.
+    pub fn zero_pressure_mesh(
+        &self,
+        image: &TetMesh,
+        fixed: &[u32],
+        p: &PressureConfig,
+    ) -> Result<(TetMesh, UnloadBuild), SceneError> {
+        use crate::solver::unload::{UnloadParams, UnloadRequest};
+        let key_name = "pressure.unload_reference";
+        let mut material = self.material();
+        material.youngs_pa *= 1.0 - self.prony.iter().map(|t| t.alpha).sum::<f64>();
+        let req = UnloadRequest {
+            image,
+            kind: self.model,
+            material,
+            law: self.material.law,
+            set: &p.set,
+            pressure_pa: p.schedule().mean_pa,
+            fixed,
+            params: UnloadParams::default(),
+        };
+        let key = req.key();
+        let dir = self.cache_dir();
+        let path = dir.join(format!("unload-{key:016x}.vtu"));
+        if path.exists() {
+            if let Ok(mesh) = crate::mesh::io::read_mesh(&path) {
+                if mesh.num_nodes() == image.num_nodes() && mesh.tets() == image.tets() {
+                    return Ok((
+                        mesh,
+                        UnloadBuild {
+                            cache_hit: true,
+                            path,
+                            iters: 0,
+                            max_error_m: 0.0,
+                            cache_error: None,
+                        },
+                    ));
+                }
+            }
+        }
+        let out = req.solve().map_err(|e| self.err(key_name, e.to_string()))?;
+        let tmp = dir.join(format!("unload-{key:016x}.{}.tmp.vtu", std::process::id()));
+        let stored = std::fs::create_dir_all(&dir)
+            .map_err(|e| format!("cache directory {}: {e}", dir.display()))
+            .and_then(|_| crate::mesh::io::write_mesh(&out.mesh, &tmp).map_err(|e| e.to_string()))
+            .and_then(|_| std::fs::rename(&tmp, &path).map_err(|e| e.to_string()));
+        let cache_error = stored.err().map(|e| {
+            let _ = std::fs::remove_file(&tmp);
+            format!("caching the zero-pressure reference in {}: {e}", path.display())
+        });
+        let build = UnloadBuild {
+            cache_hit: false,
+            path,
+            iters: out.iters,
+            max_error_m: out.history.last().copied().unwrap_or(0.0),
+            cache_error,
+        };
+        Ok((out.mesh, build))
     }
 }

@@ -21,6 +21,7 @@ use crate::mesh::roi::{extract, Region, CUT_SET};
 use crate::mesh::TetMesh;
 use crate::model::{ForceModel, ModelKind};
 use crate::solver::loads::{nodes_in_box, Loads, NodalLoad, TimeProfile};
+use crate::solver::pressure::PressureConfig;
 use crate::solver::ImplicitEulerParams;
 use serde::Deserialize;
 use std::path::{Path, PathBuf};
@@ -28,7 +29,7 @@ use std::path::{Path, PathBuf};
 mod build;
 mod validate;
 
-pub use build::{ArchBuild, Built};
+pub use build::{ArchBuild, Built, UnloadBuild};
 
 /// A scene error: the same type as every configuration error (the file,
 /// the dotted key and what is allowed).
@@ -330,6 +331,9 @@ pub struct Scene {
     /// Region of interest: only tets inside are simulated, the cut surface
     /// is fixed (docs/REDUCED.md).
     pub roi: Option<RoiConfig>,
+    /// Blood pressure on the lumen (docs/PRESSURE.md); none by default.
+    #[serde(default)]
+    pub pressure: Option<PressureConfig>,
     /// Directory of the scene file (relative mesh paths resolve against it).
     #[serde(skip)]
     pub base_dir: PathBuf,

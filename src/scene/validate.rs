@@ -166,6 +166,10 @@ impl Scene {
             return Err(self.err("gravity", "must be finite (m/s^2)"));
         }
         self.validate_reduced()?;
+        if let Some(p) = &self.pressure {
+            p.validate()
+                .map_err(|(key, msg)| self.err(&format!("pressure.{key}"), msg))?;
+        }
         self.validate_roi()?;
         let dt = self.integrator.dt;
         self.checker().f64_in("integrator.dt", dt, 1e-6, 0.1, "s")?;

@@ -22,9 +22,12 @@ use crate::mesh::TetMesh;
 use crate::model::BlockTangent;
 use crate::model::ForceModel;
 use crate::reduced::compliance::{ComplianceParams, LocalCompliance};
-use crate::reduced::{basis_rows, BasisParams, BasisRows, DynamicsParams, ModalBasis, ReducedDynamics, Refresher};
+use crate::reduced::{
+    basis_rows, BasisParams, BasisRows, DynamicsParams, ModalBasis, ModalPulse, ReducedDynamics, Refresher,
+};
 use crate::rt::clock;
 use crate::solver::loads::{Loads, NodalLoad, TimeProfile};
+use crate::solver::pressure::{LuminalPressure, Waveform};
 use crate::solver::{ImplicitEuler, TissueState};
 use nalgebra::{DMatrix, SMatrix, SVector};
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -65,6 +68,58 @@ pub struct Background<const R: usize> {
     /// The residual compliance of the basis in use (contact anywhere), given
     /// to every model sent; None: the reduced model alone.
     pub compliance: Option<Arc<LocalCompliance>>,
+    /// Blood pressure (None: off).
+    pub pressure: Option<BackgroundPressure>,
+}
+
+/// Blood pressure in the service: the full solve carries the steady mean
+/// (ramped in), the loop's models the heartbeat as a modal load about it
+/// ([`ModalPulse`]), so the beat costs the loop an R-vector per tick and
+/// the full solve no extra Newton work.
+#[derive(Debug, Clone)]
+pub struct BackgroundPressure {
+    /// The steady load of the full solve (the scene's schedule without its
+    /// waveform).
+    pub load: LuminalPressure,
+    /// The heartbeat the loop adds, if any.
+    pub waveform: Option<Waveform>,
+    /// The full solve's simulated time (s), the beat's clock.
+    pub t_s: f64,
+    /// Work memory: the pressure force per pascal at ū.
+    unit: Vec<Vec3>,
+}
+
+impl BackgroundPressure {
+    /// Splits the scene's pressure into the steady load and the beat.
+    pub fn new(mut load: LuminalPressure) -> BackgroundPressure {
+        let waveform = load.schedule.waveform.take();
+        let n = load.num_nodes();
+        BackgroundPressure {
+            load,
+            waveform,
+            t_s: 0.0,
+            unit: vec![Vec3::zeros(); n],
+        }
+    }
+
+    /// The loop's modal pulse for a model linearized at `u`, once the ramp is
+    /// over (before it, the full solve is still inflating the wall).
+    fn pulse<const R: usize>(&mut self, refresher: &Refresher, u: &[Vec3]) -> Option<ModalPulse<R>> {
+        let waveform = self.waveform?;
+        let schedule = self.load.schedule;
+        if self.t_s < schedule.ramp_s {
+            return None;
+        }
+        self.unit.iter_mut().for_each(|f| *f = Vec3::zeros());
+        self.load.add_forces(1.0, u, &mut self.unit);
+        let r = refresher.len();
+        Some(ModalPulse {
+            load_per_pa: to_s::<R>(&refresher.project_force(&self.unit).as_slice()[..r]),
+            waveform,
+            mean_pa: schedule.mean_pa,
+            t_s: self.t_s,
+        })
+    }
 }
 
 /// When the background thread asks for a new basis: at most every
@@ -331,7 +386,10 @@ impl<const R: usize> Background<R> {
         sent_phi: Option<&DMatrix<f64>>,
     ) -> Option<(Box<LoopModel<R>>, SVector<f64, R>)> {
         let r = self.refresher.len();
-        let dynamics = ReducedDynamics::with_rows(self.rows.clone(), r, &kr, &self.dynamics).ok()?;
+        let mut dynamics = ReducedDynamics::with_rows(self.rows.clone(), r, &kr, &self.dynamics).ok()?;
+        if let Some(p) = self.pressure.as_mut() {
+            dynamics.set_pulse(p.pulse(&self.refresher, u));
+        }
         let qbar = to_s::<R>(&self.refresher.project_mass(u).as_slice()[..r]);
         let fb = to_s::<R>(&self.refresher.project_force(fbar).as_slice()[..r]);
         let offset = Arc::new(u.to_vec());
@@ -477,11 +535,22 @@ pub fn run<const R: usize>(mut bg: Background<R>, mut io: BackgroundIo<R>) -> Ba
                 profile: TimeProfile::Constant { from_t0: 0.0 },
             });
         }
+        // The pressure moves into the step's loads and back (no copy).
         let loads = Loads {
             nodal,
             gravity: Vec3::zeros(),
+            pressure: bg
+                .pressure
+                .as_mut()
+                .map(|p| std::mem::replace(&mut p.load, LuminalPressure::empty())),
         };
         let rep = bg.solver.step(&mut state, bg.model.as_mut(), &loads, &bg.fixed);
+        if let (Some(p), Some(load)) = (bg.pressure.as_mut(), loads.pressure) {
+            p.load = load;
+            if rep.ok() {
+                p.t_s = state.t;
+            }
+        }
         if fail_injected && !rep.ok() {
             FaultSwitches::served(&io.faults.step_failures_served);
         }

@@ -348,6 +348,7 @@ pub(super) fn start_with<const R: usize>(p: Prepared) -> Result<Running<R>, Serv
         contact,
         max_static,
         compliance,
+        pressure,
     } = p;
     let n = mesh.num_nodes();
     let rows = basis_rows::<R>(&basis)?;
@@ -455,6 +456,7 @@ pub(super) fn start_with<const R: usize>(p: Prepared) -> Result<Running<R>, Serv
             dt_max: cfg.background.dt_max,
             basis_policy,
             compliance: first.compliance.clone(),
+            pressure: pressure.map(background::BackgroundPressure::new),
         };
         let bg_cpu = cpu(cfg.background.cpu);
         // The basis thread, when the basis refresh is on.

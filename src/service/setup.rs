@@ -54,6 +54,8 @@ pub struct Prepared {
     /// Contact anywhere: the residual compliance of the basis and how it
     /// was built (None: off).
     pub compliance: Option<(Arc<LocalCompliance>, ComplianceParams, ComplianceStats)>,
+    /// The scene's luminal pressure (None: off), for the background solve.
+    pub pressure: Option<crate::solver::pressure::LuminalPressure>,
 }
 
 /// Loads the configuration and the scene, computes (or loads) the basis and
@@ -71,7 +73,8 @@ pub fn prepare(opts: &StartOptions) -> Result<Prepared, ServiceError> {
         scene: cfg.scene.clone(),
         source: e,
     })?;
-    let built = scene.build()?;
+    let mut built = scene.build()?;
+    let pressure = built.loads.pressure.take();
     let red = scene.reduced.clone().ok_or_else(|| {
         crate::config::Checker::new(&scene_path).err(
             "reduced",
@@ -161,6 +164,7 @@ pub fn prepare(opts: &StartOptions) -> Result<Prepared, ServiceError> {
         max_static,
         scene,
         cfg,
+        pressure,
     })
 }
 

@@ -693,6 +693,7 @@ impl ImplicitEuler {
             self.set_iterate(h);
             self.f.copy_from_slice(&self.fext);
             model.add_forces(&self.ut, &mut self.f);
+            loads.add_follower_forces(t1, &self.ut, &mut self.f);
             if !all_finite(&self.f) {
                 rep.failure = Some(StepFailure::NonFiniteForce { newton_iter: k });
                 return rep;
@@ -771,6 +772,7 @@ impl ImplicitEuler {
             self.k.clear();
             self.k_assembled = false;
             model.add_stiffness(&self.ut, &mut self.k);
+            loads.add_follower_stiffness(t1, &self.ut, &mut self.k);
             if !block_finite(&self.k) {
                 rep.failure = Some(StepFailure::NonFiniteStiffness { newton_iter: k });
                 return rep;

@@ -6,9 +6,13 @@
 //! - Nodal forces: a force vector (N, applied to *each* listed node) scaled
 //!   by a [`TimeProfile`].
 //! - Gravity: f_i = m_i g with the lumped mass of the integrator.
+//! - Luminal pressure ([`super::pressure`]): a follower load on the inner
+//!   wall, evaluated at every Newton iterate with its load stiffness.
 
+use super::pressure::LuminalPressure;
 use crate::math::Vec3;
 use crate::mesh::TetMesh;
+use crate::model::BlockTangent;
 
 /// How a nodal load's force vector is scaled in time: f(t) = s(t) · F.
 #[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
@@ -89,6 +93,11 @@ pub struct Loads {
     /// Gravitational acceleration (m/s²), applied as m_i g with the lumped
     /// mass; zero for none.
     pub gravity: Vec3,
+    /// Blood pressure on the lumen, if any: it depends on the displacement,
+    /// so the integrator evaluates it at every Newton iterate
+    /// ([`Loads::add_follower_forces`]) and adds its load stiffness
+    /// ([`Loads::add_follower_stiffness`]).
+    pub pressure: Option<LuminalPressure>,
 }
 
 /// What is wrong with a set of loads or fixed nodes.
@@ -106,6 +115,15 @@ pub enum LoadError {
         /// Index of the nodal load (or `usize::MAX` for gravity).
         load: usize,
     },
+    /// The pressure schedule gives a non-finite pressure.
+    NonFinitePressure,
+    /// The pressure load was built for a mesh of another size.
+    PressureMesh {
+        /// Nodes of the mesh the pressure was built for.
+        built_for: usize,
+        /// Nodes of the mesh being solved.
+        nodes: usize,
+    },
 }
 
 impl std::fmt::Display for LoadError {
@@ -114,7 +132,12 @@ impl std::fmt::Display for LoadError {
             LoadError::NodeOutOfRange { load: usize::MAX, node } => write!(f, "fixed node {node} is out of range"),
             LoadError::NodeOutOfRange { load, node } => write!(f, "nodal load {load}: node {node} is out of range"),
             LoadError::NonFinite { load: usize::MAX } => write!(f, "gravity is not finite"),
+            LoadError::NonFinitePressure => write!(f, "the pressure is not finite"),
             LoadError::NonFinite { load } => write!(f, "nodal load {load}: force or profile is not finite"),
+            LoadError::PressureMesh { built_for, nodes } => write!(
+                f,
+                "the pressure load was built for a mesh of {built_for} nodes, not {nodes}"
+            ),
         }
     }
 }
@@ -138,7 +161,36 @@ impl Loads {
                 return Err(LoadError::NodeOutOfRange { load: k, node });
             }
         }
+        if let Some(p) = &self.pressure {
+            if p.num_nodes() != num_nodes {
+                return Err(LoadError::PressureMesh {
+                    built_for: p.num_nodes(),
+                    nodes: num_nodes,
+                });
+            }
+            if !(0..8).all(|k| p.schedule.pressure_at(k as f64 * 0.1).is_finite()) {
+                return Err(LoadError::NonFinitePressure);
+            }
+        }
         Ok(())
+    }
+
+    /// Adds the displacement-dependent (follower) forces at time `t` and
+    /// displacement `u` into `out`: the luminal pressure on the deformed
+    /// wall.
+    pub fn add_follower_forces(&self, t: f64, u: &[Vec3], out: &mut [Vec3]) {
+        if let Some(p) = &self.pressure {
+            p.add_forces(p.schedule.pressure_at(t), u, out);
+        }
+    }
+
+    /// Adds the load stiffness −∂f/∂u of the follower forces at time `t` and
+    /// displacement `u` into `k` (its symmetric part, or nothing: see
+    /// [`super::pressure::PressureTangent`]).
+    pub fn add_follower_stiffness(&self, t: f64, u: &[Vec3], k: &mut BlockTangent) {
+        if let Some(p) = &self.pressure {
+            p.add_stiffness(p.schedule.pressure_at(t), u, k);
+        }
     }
 
     /// Adds the external force at time `t` into `out` (nodes must have been

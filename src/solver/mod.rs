@@ -27,6 +27,7 @@
 //!         profile: TimeProfile::Ramp { t0: 0.0, t1: 0.1 },
 //!     }],
 //!     gravity: Vec3::zeros(),
+//!     pressure: None,
 //! };
 //! let params = ImplicitEulerParams { dt: 1e-3, linear: LinearSolverKind::Cholesky, ..Default::default() };
 //! let euler = ImplicitEuler::new(mesh, mesh.lumped_mass(1100.0), params).unwrap();
@@ -41,6 +42,9 @@
 pub mod implicit_euler;
 pub mod linear;
 pub mod loads;
+pub mod pressure;
+pub mod statics;
+pub mod unload;
 
 pub use implicit_euler::{
     ImplicitEuler, ImplicitEulerParams, NewtonParams, SolverError, StepFailure, StepReport, MAX_HALVINGS,

@@ -1,0 +1,301 @@
+//! Measurements of the luminal pressure load (docs/PRESSURE.md and the
+//! "Blood pressure" section of docs/BENCHMARKS.md).
+//!
+//! `cargo run --release --example pressure_bench -- newton` — Newton
+//! iterations of a static inflation (a tube clamped at one end, free at the
+//! other, so the rim's unsymmetric load stiffness is not held away) with the
+//! exact unsymmetric tangent (dense LU), its symmetric part (Cholesky) and
+//! none; and of the implicit step on the 5832-node arch under a 13 kPa
+//! pressure, with the symmetric part and without.
+//!
+//! `cargo run --release --example pressure_bench -- unload [NODES]` — the
+//! zero-pressure reference of the built-in arch (default 5832 nodes), ends
+//! fixed, Neo-Hookean 1 MPa wall, 12 kPa mean pressure: time and iterations.
+//!
+//! `cargo run --release --example pressure_bench -- tick` — the loop's
+//! reduced step (R = 32, with contact) with and without the heartbeat's
+//! modal load.
+//!
+//! `cargo run --release --example pressure_bench -- step [NODES] [SECONDS]` —
+//! the service scene's full solve (NVTMM + Prony, 10 ms linearized steps,
+//! Cholesky-preconditioned CG) with and without a 12 kPa pressure: wall time
+//! per step against the step length (real-time factor of the full solve
+//! alone, fixed 10 ms steps).
+
+use nvtmm::material::{Law, Material, PronyTerm};
+use nvtmm::math::Vec3;
+use nvtmm::mesh::arch::{generate, ArchGrid, ArchParams};
+use nvtmm::mesh::tube::{self, TubeParams};
+use nvtmm::model::factory::build_model;
+use nvtmm::model::ModelKind;
+use nvtmm::solver::loads::Loads;
+use nvtmm::solver::pressure::{LuminalPressure, PressureSchedule, PressureTangent};
+use nvtmm::solver::statics::{mask_of_fixed, solve_pressurized, StaticParams, StaticTangent};
+use nvtmm::solver::unload::{UnloadParams, UnloadRequest};
+use nvtmm::solver::{ImplicitEuler, ImplicitEulerParams, LinearSolverKind, NewtonParams, TissueState};
+use std::time::Instant;
+
+fn aorta_wall() -> Material {
+    Material {
+        youngs_pa: 1e6,
+        poisson: 0.45,
+        density: 1050.0,
+    }
+}
+
+fn newton() {
+    let mesh = tube::generate(
+        &TubeParams {
+            inner_radius: 0.010,
+            outer_radius: 0.0115,
+            length: 0.03,
+        },
+        ArchGrid {
+            axial: 7,
+            circumferential: 24,
+            layers: 2,
+        },
+    )
+    .expect("tube");
+    let fixed = mesh.node_set("end_0").expect("end_0").to_vec();
+    let mask = mask_of_fixed(mesh.num_nodes(), &fixed);
+    let model = build_model(ModelKind::Nvtmm, &mesh, &aorta_wall(), Law::NeoHookean, &[]);
+    println!(
+        "static inflation to 13 kPa, tube {} nodes, one end clamped, Neo-Hookean 1 MPa, 4 load steps, rel_tol 1e-9",
+        mesh.num_nodes()
+    );
+    for (name, tangent, st) in [
+        ("exact (dense LU)", PressureTangent::Symmetric, StaticTangent::Exact),
+        ("symmetric part", PressureTangent::Symmetric, StaticTangent::AsLoad),
+        ("none", PressureTangent::None, StaticTangent::AsLoad),
+    ] {
+        let load = LuminalPressure::on_set(&mesh, "inner_wall", PressureSchedule::steady(13e3), tangent).expect("set");
+        let mut u = vec![Vec3::zeros(); mesh.num_nodes()];
+        let params = StaticParams {
+            tangent: st,
+            max_iters: 200,
+            ..StaticParams::default()
+        };
+        let t0 = Instant::now();
+        match solve_pressurized(&mesh, model.as_ref(), &load, 13e3, &mask, &params, &mut u) {
+            Ok(rep) => println!(
+                "  {name:18} Newton iterations per load step {:?} (total {}), {:.2} s",
+                rep.newton_iters,
+                rep.total_iters(),
+                t0.elapsed().as_secs_f64()
+            ),
+            Err(e) => println!("  {name:18} failed: {e}"),
+        }
+    }
+
+    let arch = generate(&ArchParams::default(), 5832).expect("arch");
+    let mesh = &arch.mesh;
+    let mut fixed = mesh.node_set("inlet").expect("inlet").to_vec();
+    fixed.extend_from_slice(mesh.node_set("outlet_descending").expect("outlet"));
+    let mat = aorta_wall();
+    println!(
+        "implicit Euler, arch {} nodes, NVTMM StVK 1 MPa, 13 kPa step-on, dt 1 ms, Newton to 1e-8, Cholesky, 20 steps",
+        mesh.num_nodes()
+    );
+    for (name, tangent) in [
+        ("symmetric part", PressureTangent::Symmetric),
+        ("none", PressureTangent::None),
+    ] {
+        let mut model = build_model(ModelKind::Nvtmm, mesh, &mat, Law::Stvk, &[]);
+        let params = ImplicitEulerParams {
+            dt: 1e-3,
+            linear: LinearSolverKind::Cholesky,
+            newton: NewtonParams {
+                max_iters: 32,
+                rel_tol: 1e-8,
+                ..NewtonParams::default()
+            },
+            ..ImplicitEulerParams::default()
+        };
+        let mut euler = ImplicitEuler::new(mesh, mesh.lumped_mass(mat.density), params).expect("solver");
+        let mut sched = PressureSchedule::steady(13e3);
+        sched.ramp_s = 0.0;
+        let loads = Loads {
+            pressure: Some(LuminalPressure::on_set(mesh, "inner_wall", sched, tangent).expect("set")),
+            ..Loads::none()
+        };
+        let mut state = TissueState::at_rest(mesh.num_nodes());
+        let mut iters = Vec::new();
+        let t0 = Instant::now();
+        for _ in 0..20 {
+            let rep = euler.step(&mut state, model.as_mut(), &loads, &fixed);
+            if !rep.ok() {
+                println!("  {name}: step failed: {:?}", rep.failure);
+                break;
+            }
+            iters.push(rep.newton_iters);
+        }
+        let total: usize = iters.iter().sum();
+        println!(
+            "  {name:18} Newton iterations per step {:?} (total {total}), {:.2} s",
+            iters,
+            t0.elapsed().as_secs_f64()
+        );
+    }
+}
+
+fn unload(nodes: usize) {
+    let arch = generate(&ArchParams::default(), nodes).expect("arch");
+    let mesh = &arch.mesh;
+    let mut fixed = mesh.node_set("inlet").expect("inlet").to_vec();
+    fixed.extend_from_slice(mesh.node_set("outlet_descending").expect("outlet"));
+    let req = UnloadRequest {
+        image: mesh,
+        kind: ModelKind::Fem,
+        material: aorta_wall(),
+        law: Law::NeoHookean,
+        set: "inner_wall",
+        pressure_pa: 12e3,
+        fixed: &fixed,
+        params: UnloadParams::default(),
+    };
+    let t0 = Instant::now();
+    match req.solve() {
+        Ok(out) => println!(
+            "zero-pressure reference, arch {} nodes: {:.1} s, {} fixed-point iterations, {} Newton iterations, errors (m) {:?}",
+            mesh.num_nodes(),
+            t0.elapsed().as_secs_f64(),
+            out.iters,
+            out.newton_iters,
+            out.history.iter().map(|e| format!("{e:.1e}")).collect::<Vec<_>>()
+        ),
+        Err(e) => println!("failed after {:.1} s: {e}", t0.elapsed().as_secs_f64()),
+    }
+}
+
+fn step(nodes: usize, seconds: f64) {
+    let arch = generate(&ArchParams::default(), nodes).expect("arch");
+    let mesh = &arch.mesh;
+    let mut fixed = mesh.node_set("inlet").expect("inlet").to_vec();
+    fixed.extend_from_slice(mesh.node_set("outlet_descending").expect("outlet"));
+    let mat = Material::aorta();
+    let prony = [PronyTerm { alpha: 0.5, tau: 0.58 }];
+    let params = ImplicitEulerParams {
+        dt: 1e-2,
+        rayleigh_beta: 1e-3,
+        newton: NewtonParams {
+            max_iters: 1,
+            check_final_residual: false,
+            ..NewtonParams::default()
+        },
+        linear: LinearSolverKind::CholeskyPcg {
+            tol: 1e-6,
+            max_iter: 15,
+            refactor_every: 3,
+            factor_f32: true,
+        },
+        max_halvings: 3,
+        ..ImplicitEulerParams::default()
+    };
+    println!(
+        "full solve of the service scene's model, arch {} nodes, NVTMM StVK 65 kPa + Prony, 10 ms linearized steps",
+        mesh.num_nodes()
+    );
+    for p in [0.0, 2e3, 12e3] {
+        let mut model = build_model(ModelKind::Nvtmm, mesh, &mat, Law::Stvk, &prony);
+        let mut euler = ImplicitEuler::new(mesh, mesh.lumped_mass(mat.density), params).expect("solver");
+        let mut sched = PressureSchedule::steady(p);
+        sched.ramp_s = 0.25;
+        let loads = Loads {
+            pressure: (p > 0.0)
+                .then(|| LuminalPressure::on_set(mesh, "inner_wall", sched, PressureTangent::Symmetric).expect("set")),
+            ..Loads::none()
+        };
+        let mut state = TissueState::at_rest(mesh.num_nodes());
+        let steps = (seconds / 1e-2).round() as usize;
+        let mut times = Vec::with_capacity(steps);
+        let mut failed = 0;
+        for _ in 0..steps {
+            let t0 = Instant::now();
+            let rep = euler.step(&mut state, model.as_mut(), &loads, &fixed);
+            times.push(t0.elapsed().as_secs_f64());
+            failed += usize::from(!rep.ok());
+        }
+        let total: f64 = times.iter().sum();
+        times.sort_by(f64::total_cmp);
+        let max_u = state.u.iter().map(|u| u.norm()).fold(0.0, f64::max);
+        println!(
+            "  p = {:5.0} Pa: {steps} steps, step p50 {:.1} ms, p99 {:.1} ms, real-time factor {:.2}, failed {failed}, max displacement {:.1} mm",
+            p,
+            times[steps / 2] * 1e3,
+            times[(steps * 99) / 100] * 1e3,
+            steps as f64 * 1e-2 / total,
+            max_u * 1e3
+        );
+    }
+}
+
+/// The haptic loop's reduced step at R = 32 with the contact stiffness (the
+/// service's step) with and without the heartbeat's modal load, interleaved
+/// in blocks so both see the same machine load.
+fn tick() {
+    use nvtmm::reduced::{DynamicsParams, ModalPulse, ReducedDynamics};
+    use nvtmm::solver::pressure::{WaveShape, Waveform};
+    const R: usize = 32;
+    let n = 100;
+    let rows = std::sync::Arc::new(vec![
+        nalgebra::SMatrix::<f64, 3, R>::from_fn(
+            |i, j| 1e-3 * ((i + j) as f64).sin()
+        );
+        n
+    ]);
+    let k = nalgebra::DMatrix::<f64>::from_fn(R, R, |i, j| if i == j { 1e4 * (1.0 + i as f64) } else { 0.0 });
+    let params = DynamicsParams {
+        dt: 1e-3,
+        alpha: 5.0,
+        beta: 1e-3,
+    };
+    let mut plain = ReducedDynamics::<R>::with_rows(rows.clone(), R, &k, &params).expect("dynamics");
+    let mut beating = ReducedDynamics::<R>::with_rows(rows, R, &k, &params).expect("dynamics");
+    beating.set_pulse(Some(ModalPulse {
+        load_per_pa: nalgebra::SVector::<f64, R>::from_fn(|i, _| 1e-6 * (i as f64 + 1.0)),
+        waveform: Waveform {
+            systolic_pa: 16e3,
+            diastolic_pa: 10.67e3,
+            heart_rate_bpm: 70.0,
+            shape: WaveShape::Aortic,
+        },
+        mean_pa: 12.4e3,
+        t_s: 0.0,
+    }));
+    let f = nalgebra::SVector::<f64, R>::from_fn(|i, _| 1e-3 * i as f64);
+    let kc = nalgebra::SMatrix::<f64, R, R>::identity() * 10.0;
+    let (mut a, mut b) = (Vec::new(), Vec::new());
+    for _ in 0..200 {
+        for (dyn_, out) in [(&mut plain, &mut a), (&mut beating, &mut b)] {
+            for _ in 0..50 {
+                let t0 = Instant::now();
+                dyn_.step_with_contact(&f, &kc);
+                out.push(t0.elapsed().as_secs_f64() * 1e6);
+            }
+        }
+    }
+    let p = |v: &mut Vec<f64>, q: f64| {
+        v.sort_by(f64::total_cmp);
+        v[((v.len() - 1) as f64 * q) as usize]
+    };
+    println!(
+        "reduced step with contact, R = {R}, 10000 steps each: without pulse p50 {:.2} us p99 {:.2} us; with pulse p50 {:.2} us p99 {:.2} us",
+        p(&mut a, 0.5),
+        p(&mut a, 0.99),
+        p(&mut b, 0.5),
+        p(&mut b, 0.99)
+    );
+}
+
+fn main() {
+    let args: Vec<String> = std::env::args().skip(1).collect();
+    let num = |i: usize, d: f64| args.get(i).and_then(|s| s.parse().ok()).unwrap_or(d);
+    match args.first().map(String::as_str) {
+        Some("newton") => newton(),
+        Some("unload") => unload(num(1, 5832.0) as usize),
+        Some("step") => step(num(1, 5832.0) as usize, num(2, 5.0)),
+        Some("tick") => tick(),
+        _ => eprintln!("usage: pressure_bench newton | unload [NODES] | step [NODES] [SECONDS] | tick"),
+    }
+}
