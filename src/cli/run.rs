@@ -1,8 +1,35 @@
 //! `nvtmm run` (the haptic service) and `nvtmm check-rt` (the box audit).
 
 use nvtmm::rt::check::{audit, render, Level};
-use nvtmm::service::{default_config, run_service, ServiceConfig, StartOptions};
+use nvtmm::service::{default_config, run_service_until, ServiceConfig, StartOptions};
 use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicBool, Ordering};
+
+/// Set by SIGINT or SIGTERM: `nvtmm run` then stops the service in order.
+static INTERRUPTED: AtomicBool = AtomicBool::new(false);
+
+extern "C" fn on_interrupt(sig: libc::c_int) {
+    // Only async-signal-safe work here: an atomic store, and the default
+    // disposition back so that a second Ctrl-C ends the process at once.
+    INTERRUPTED.store(true, Ordering::Relaxed);
+    // SAFETY: signal() is async-signal-safe (POSIX) and SIG_DFL is valid.
+    unsafe {
+        libc::signal(sig, libc::SIG_DFL);
+    }
+}
+
+/// Routes SIGINT and SIGTERM to [`INTERRUPTED`] instead of ending the
+/// process with the device's last force still commanded.
+fn catch_interrupts() {
+    let handler: extern "C" fn(libc::c_int) = on_interrupt;
+    for sig in [libc::SIGINT, libc::SIGTERM] {
+        // SAFETY: installs a handler that only stores an atomic and resets
+        // its own disposition (both async-signal-safe).
+        unsafe {
+            libc::signal(sig, handler as libc::sighandler_t);
+        }
+    }
+}
 
 type Result<T> = std::result::Result<T, Box<dyn std::error::Error>>;
 
@@ -20,7 +47,11 @@ pub fn run(
         record,
         ..StartOptions::file(config)
     };
-    let report = run_service(&opts)?;
+    catch_interrupts();
+    let report = run_service_until(&opts, &INTERRUPTED)?;
+    if INTERRUPTED.load(Ordering::Relaxed) {
+        eprintln!("interrupted: the service stopped in order (the device at zero force, threads joined)");
+    }
     print!("{}", report.render());
     if let Some(p) = report_json {
         if let Some(dir) = p.parent().filter(|d| !d.as_os_str().is_empty()) {

@@ -260,11 +260,23 @@ impl Drop for Handle {
 /// (its progress, in seconds, to `opts.observer` as task `"run"`), stop,
 /// return the report.
 pub fn run_service(opts: &StartOptions) -> Result<Report, ServiceError> {
+    run_service_until(opts, &std::sync::atomic::AtomicBool::new(false))
+}
+
+/// [`run_service`] that also stops early, with the same orderly stop
+/// (force to zero, threads joined, the report), once `interrupt` is set:
+/// the command line sets it on SIGINT or SIGTERM, so Ctrl-C or `systemctl
+/// stop` never leaves a force playing. A flag set before the service has
+/// started stops it right after its start.
+pub fn run_service_until(
+    opts: &StartOptions,
+    interrupt: &std::sync::atomic::AtomicBool,
+) -> Result<Report, ServiceError> {
     let handle = Service::start(opts.clone())?;
     let total = handle.planned_seconds();
     let t0 = std::time::Instant::now();
     let obs = &opts.observer;
-    while t0.elapsed().as_secs_f64() < total + 0.05 {
+    while t0.elapsed().as_secs_f64() < total + 0.05 && !interrupt.load(std::sync::atomic::Ordering::Relaxed) {
         std::thread::sleep(std::time::Duration::from_millis(100));
         if obs.is_active() {
             let detail = format!("{} ticks", handle.snapshot().ticks);
