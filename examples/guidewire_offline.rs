@@ -44,7 +44,13 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             );
         }
     }
-    let mut w = Wire::new(wp, Vec3::from(g.access_point_m), Vec3::from(g.axis), g.inserted_m)?;
+    let (access_point, axis) = g.hub_pose(&built.mesh, &wall, &lumen)?;
+    println!(
+        "hub at {:.1?} mm, axis {:.3?}",
+        (access_point * 1e3).as_slice(),
+        axis.as_slice()
+    );
+    let mut w = Wire::new(wp, access_point, axis, g.inserted_m)?;
     let dt = wp.dt_s;
     let end = g.script.last().map(|r| r[0]).unwrap_or(1.0) + 1.0;
     let steps = (end / dt).round() as usize;

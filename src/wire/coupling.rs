@@ -30,6 +30,9 @@ pub enum CouplingError {
     /// No boundary triangle has all three nodes in the set.
     #[error("no boundary triangle lies on node set {0:?}")]
     NoTriangles(String),
+    /// No opening of the inner wall has its ring in the node set.
+    #[error("node set {0:?} holds no opening of the inner wall (it has {1} openings: name the node set of one, e.g. \"outlet_descending\" or \"opening_1\")")]
+    NoOpening(String, usize),
     /// The triangles do not make a lumen.
     #[error(transparent)]
     Lumen(#[from] LumenError),
@@ -162,6 +165,42 @@ impl InnerWall {
     /// The wall at rest as a lumen for the wire.
     pub fn lumen(&self) -> Result<TriangleLumen, LumenError> {
         TriangleLumen::new(&self.rest, &self.triangles)
+    }
+
+    /// Access through an opening, by the name of a mesh node set holding
+    /// its ring (`outlet_descending` on the built-in arches, `opening_<k>`
+    /// on a generated mesh): the hub `depth_m` beyond the opening's plane
+    /// on its axis, in the opening's continuation ([`TriangleLumen`]
+    /// continues every opening by a straight rigid tube), and the insertion
+    /// axis into the vessel. `lumen` is this wall's ([`InnerWall::lumen`]).
+    /// The opening chosen is the one with the most ring vertices in the set.
+    pub fn access_through(
+        &self,
+        mesh: &TetMesh,
+        lumen: &TriangleLumen,
+        set: &str,
+        depth_m: f64,
+    ) -> Result<(Vec3, Vec3), CouplingError> {
+        let ids = mesh
+            .node_set(set)
+            .ok_or_else(|| CouplingError::NoSet(set.to_string()))?;
+        let in_set: std::collections::HashSet<u32> = ids.iter().copied().collect();
+        let best = lumen
+            .openings()
+            .iter()
+            .map(|o| {
+                let k = o
+                    .ring()
+                    .iter()
+                    .filter(|&&v| in_set.contains(&self.nodes[v as usize]))
+                    .count();
+                (k, o)
+            })
+            .max_by_key(|(k, _)| *k);
+        match best {
+            Some((k, o)) if k > 0 => Ok((o.centre + o.axis * depth_m, -o.axis)),
+            _ => Err(CouplingError::NoOpening(set.to_string(), lumen.openings().len())),
+        }
     }
 
     /// The segment (`aorta`, `left_subclavian`, …) of the wall vertex

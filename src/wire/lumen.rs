@@ -32,6 +32,10 @@ pub struct WallHit {
 /// [`WallHit::triangle`] of a wall that is not made of triangles.
 pub const NO_TRIANGLE: u32 = u32::MAX;
 
+/// [`WallHit::triangle`] of the continuation of a [`TriangleLumen`]'s
+/// opening k is `OPENING_TAG − k` (no triangle of the surface).
+pub const OPENING_TAG: u32 = u32::MAX - 1;
+
 /// A vessel lumen as seen by the wire's contact.
 pub trait Lumen {
     /// The nearest wall point to `p` if it is closer than `range` (m) — or
@@ -540,9 +544,12 @@ pub struct TriangleLumen {
 /// An opening of a [`TriangleLumen`]: a boundary loop of its surface that
 /// ends a tube (a vessel's inlet or outlet, a branch stub's end). Beyond
 /// its plane a surface with a hole has no inside: the lumen continues the
-/// vessel there by a straight rigid tube along the opening's axis, of the
-/// loop's largest radius, so a wire may leave the mesh through it and is
-/// held as the continuing vessel would hold it (docs/WIRE.md "Open ends").
+/// vessel there by a straight rigid tube along the opening's axis whose
+/// cross-section is the loop itself (the loop's polygon in the plane,
+/// extruded), so a wire may leave the mesh through it, or enter through
+/// it, and is held as the continuing vessel would hold it; at the plane
+/// the continuation's wall is the rim's, with no ledge (docs/WIRE.md "Open
+/// ends").
 #[derive(Debug, Clone, PartialEq)]
 pub struct Opening {
     /// The loop's vertices, in order.
@@ -552,8 +559,13 @@ pub struct Opening {
     /// Unit normal of the loop's plane pointing out of the mesh.
     pub axis: Vec3,
     /// Largest distance of a loop vertex from the axis (m): the
-    /// continuation's radius.
+    /// continuation applies within twice it of the axis.
     pub radius: f64,
+    /// A basis of the plane (u, v, axis right-handed).
+    u: Vec3,
+    v: Vec3,
+    /// The loop's vertices in the plane's basis, about the centre (m).
+    flat: Vec<[f64; 2]>,
 }
 
 impl Opening {
@@ -591,7 +603,80 @@ impl Opening {
         self.centre = c;
         self.axis = axis;
         self.radius = radius;
+        self.u = perpendicular(axis);
+        self.v = axis.cross(&self.u);
+        for (f, &i) in self.flat.iter_mut().zip(&self.ring) {
+            let r = verts[i as usize] - c;
+            *f = [r.dot(&self.u), r.dot(&self.v)];
+        }
         radius > 0.0
+    }
+
+    /// The pieces of the continuation's wall that the sphere of `radius`
+    /// about `p` overlaps (the faces of the extruded polygon, less the
+    /// corners two of them share: smooth in the polygon's valleys, as
+    /// [`TriangleLumen::overlaps`] for the surface), for a point inside
+    /// it; else the nearest alone. Allocates nothing.
+    #[allow(clippy::needless_range_loop)] // faces and corners by index, cyclically
+    fn overlaps(&self, p: Vec3, radius: f64, nearest: &WallHit, out: &mut WallOverlaps) {
+        out.clear();
+        let alone = |out: &mut WallOverlaps| {
+            out.clear();
+            let _ = out.push(WallOverlap::from_hit(nearest));
+        };
+        let q = p - self.centre;
+        let r = q - self.axis * q.dot(&self.axis);
+        let (x, y) = (r.dot(&self.u), r.dot(&self.v));
+        if nearest.distance <= 0.0 {
+            return alone(out);
+        }
+        let n = self.flat.len();
+        let piece = |px: f64, py: f64, weight: f64| {
+            let (dx, dy) = (x - px, y - py);
+            let d = (dx * dx + dy * dy).sqrt();
+            (d < radius && d > 1e-12).then(|| WallOverlap {
+                weight,
+                distance: d,
+                normal: (self.u * dx + self.v * dy) / d,
+                compliance: 0.0,
+            })
+        };
+        // Which faces overlap: bit k for face k (from vertex k to k + 1);
+        // rings longer than 128 fall back to the nearest alone.
+        if n > 128 {
+            return alone(out);
+        }
+        let mut hit = [false; 128];
+        for k in 0..n {
+            let [ax, ay] = self.flat[k];
+            let [cx, cy] = self.flat[(k + 1) % n];
+            let (ex, ey) = (cx - ax, cy - ay);
+            let l2 = ex * ex + ey * ey;
+            let t = if l2 > 0.0 {
+                (((x - ax) * ex + (y - ay) * ey) / l2).clamp(0.0, 1.0)
+            } else {
+                0.0
+            };
+            if let Some(o) = piece(ax + t * ex, ay + t * ey, 1.0) {
+                hit[k] = true;
+                if out.push(o).is_err() {
+                    return alone(out);
+                }
+            }
+        }
+        for k in 0..n {
+            if hit[k] && hit[(k + n - 1) % n] {
+                let [vx, vy] = self.flat[k];
+                if let Some(o) = piece(vx, vy, -1.0) {
+                    if out.push(o).is_err() {
+                        return alone(out);
+                    }
+                }
+            }
+        }
+        if out.is_empty() {
+            alone(out);
+        }
     }
 
     /// The continuation's wall seen from `p` if `p` lies beyond the
@@ -608,7 +693,45 @@ impl Opening {
         if r.norm_squared() >= 4.0 * self.radius * self.radius {
             return None;
         }
-        let hit = tube_hit(p, self.centre + self.axis * h, self.radius, perpendicular(self.axis));
+        // The nearest point of the loop's polygon to p's projection, and
+        // whether the projection lies inside it (crossings of a ray).
+        let (x, y) = (r.dot(&self.u), r.dot(&self.v));
+        let n = self.flat.len();
+        let (mut best, mut bx, mut by, mut inside) = (f64::INFINITY, 0.0, 0.0, false);
+        for k in 0..n {
+            let [ax, ay] = self.flat[k];
+            let [cx, cy] = self.flat[(k + 1) % n];
+            let (ex, ey) = (cx - ax, cy - ay);
+            let l2 = ex * ex + ey * ey;
+            let t = if l2 > 0.0 {
+                (((x - ax) * ex + (y - ay) * ey) / l2).clamp(0.0, 1.0)
+            } else {
+                0.0
+            };
+            let (px, py) = (ax + t * ex, ay + t * ey);
+            let d2 = (x - px) * (x - px) + (y - py) * (y - py);
+            if d2 < best {
+                (best, bx, by) = (d2, px, py);
+            }
+            if (ay > y) != (cy > y) && x < ax + (y - ay) / (cy - ay) * ex {
+                inside = !inside;
+            }
+        }
+        let d = best.sqrt();
+        let (nx, ny) = if d > 1e-15 {
+            let s = if inside { 1.0 } else { -1.0 };
+            (s * (x - bx) / d, s * (y - by) / d)
+        } else {
+            let l = (bx * bx + by * by).sqrt().max(1e-300);
+            (-bx / l, -by / l)
+        };
+        let hit = WallHit {
+            distance: if inside { d } else { -d },
+            normal: self.u * nx + self.v * ny,
+            point: self.centre + self.axis * h + self.u * bx + self.v * by,
+            compliance: 0.0,
+            triangle: NO_TRIANGLE,
+        };
         Some((hit.distance <= range).then_some(hit))
     }
 }
@@ -660,11 +783,15 @@ fn find_openings(verts: &[Vec3], tris: &[[u32; 3]]) -> Vec<Opening> {
         if !closed || ring.len() < 3 {
             continue;
         }
+        let flat = vec![[0.0; 2]; ring.len()];
         let mut o = Opening {
             ring,
             centre: Vec3::zeros(),
             axis: Vec3::z(),
             radius: 0.0,
+            u: Vec3::x(),
+            v: Vec3::y(),
+            flat,
         };
         if !o.measure(verts, Vec3::zeros()) {
             continue;
@@ -687,7 +814,8 @@ fn find_openings(verts: &[Vec3], tris: &[[u32; 3]]) -> Vec<Opening> {
             continue;
         }
         if side > 0.0 {
-            o.axis = -o.axis;
+            let out = -o.axis;
+            o.measure(verts, out);
         }
         out.push(o);
     }
@@ -890,8 +1018,12 @@ impl TriangleLumen {
     /// than it (the surface's "beyond the wall" means nothing there: it
     /// has a hole); elsewhere the surface's `mesh` hit.
     fn continued(&self, p: Vec3, range: f64, mesh: Option<WallHit>) -> Option<WallHit> {
-        for o in &self.openings {
+        for (k, o) in self.openings.iter().enumerate() {
             if let Some(cont) = o.probe(p, range) {
+                let cont = cont.map(|h| WallHit {
+                    triangle: OPENING_TAG - k as u32,
+                    ..h
+                });
                 return match (mesh, cont) {
                     (Some(m), Some(c)) if m.distance > 0.0 && m.distance < c.distance => Some(m),
                     (Some(m), None) if m.distance > 0.0 => Some(m),
@@ -1184,7 +1316,7 @@ impl TriangleLumen {
         // opening's continuation (no triangle) is one smooth wall.
         let off = (p - cache.centre).norm() + (self.moved - cache.moved);
         if nearest.distance <= 0.0
-            || nearest.triangle == NO_TRIANGLE
+            || nearest.triangle as usize >= self.tris.len()
             || !cache.usable
             || cache.stamp != self.stamp
             || off + radius > cache.reach
@@ -1336,7 +1468,11 @@ impl Lumen for TriangleLumen {
     }
 
     fn overlaps_cached(&self, p: Vec3, radius: f64, nearest: &WallHit, cache: &mut ProbeCache, out: &mut WallOverlaps) {
-        self.overlaps(p, radius, nearest, cache, out);
+        let k = OPENING_TAG.wrapping_sub(nearest.triangle) as usize;
+        match self.openings.get(k).filter(|_| nearest.triangle != NO_TRIANGLE) {
+            Some(o) => o.overlaps(p, radius, nearest, out),
+            None => self.overlaps(p, radius, nearest, cache, out),
+        }
     }
 }
 
@@ -1676,10 +1812,12 @@ mod tests {
         assert!((o[1].axis - Vec3::x()).norm() < 1e-12);
         assert!((o[1].radius - 4e-3).abs() < 1e-12);
         assert_eq!(o[1].ring().len(), 16);
-        // Beyond the far end, 1 mm from the continued wall: inside, and
-        // 2 mm beyond it radially: beyond the wall, pushed back in.
-        let h = l.probe(Vec3::new(0.08, 3e-3, 0.0), 1.0).unwrap();
-        assert!((h.distance - 1e-3).abs() < 1e-12, "{h:?}");
+        // Beyond the far end, on the axis: the ring's apothem from the
+        // continued wall, and 2 mm beyond a ring vertex radially: beyond
+        // the wall, pushed back in.
+        let h = l.probe(Vec3::new(0.08, 0.0, 0.0), 1.0).unwrap();
+        let apothem = 4e-3 * (std::f64::consts::PI / 16.0).cos();
+        assert!((h.distance - apothem).abs() < 1e-12, "{h:?}");
         let h = l.probe(Vec3::new(0.08, 0.0, 6e-3), 1.0).unwrap();
         assert!((h.distance + 2e-3).abs() < 1e-12 && h.normal.z < -0.99, "{h:?}");
         // On the axis beyond the end, nothing within 1 mm.

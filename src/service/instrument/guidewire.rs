@@ -65,6 +65,19 @@ pub struct GuidewireConfig {
     pub access_point_m: [f64; 3],
     /// Insertion direction in the scene (into the vessel; normalised).
     pub axis: [f64; 3],
+    /// Access by name: a mesh node set holding an opening's ring
+    /// (`outlet_descending` on the built-in arches, `opening_<k>` on a
+    /// generated mesh). The wire then enters through that opening's
+    /// continuation, a straight rigid tube that guides it in from
+    /// `access_depth_m` beyond the opening, along its axis, inward;
+    /// `access_point_m` and `axis` are not used. Empty (the default): the
+    /// wire is clamped at `access_point_m` along `axis`.
+    pub access: String,
+    /// With `access`: how far beyond the opening's plane the hub sits,
+    /// along the opening's continuation (m): the guided path below the
+    /// mesh (the lower descending and abdominal aorta for the descending
+    /// outlet). Default 0.1 m, range 0–1 m.
+    pub access_depth_m: f64,
     /// Inserted length at start (m).
     pub inserted_m: f64,
     /// The mesh's node set of the inner wall (the lumen the wire touches).
@@ -110,11 +123,31 @@ impl GuidewireConfig {
     }
 }
 
+impl GuidewireConfig {
+    /// The hub's access point and insertion axis: through the opening
+    /// `access` names (see [`InnerWall::access_through`]), else
+    /// `access_point_m` along `axis`.
+    pub fn hub_pose(
+        &self,
+        mesh: &crate::mesh::TetMesh,
+        wall: &InnerWall,
+        lumen: &TriangleLumen,
+    ) -> Result<(Vec3, Vec3), crate::wire::coupling::CouplingError> {
+        if self.access.is_empty() {
+            Ok((Vec3::from(self.access_point_m), Vec3::from(self.axis)))
+        } else {
+            wall.access_through(mesh, lumen, &self.access, self.access_depth_m)
+        }
+    }
+}
+
 impl Default for GuidewireConfig {
     fn default() -> Self {
         GuidewireConfig {
             access_point_m: [0.0; 3],
             axis: [0.0, 0.0, 1.0],
+            access: String::new(),
+            access_depth_m: 0.1,
             inserted_m: 0.02,
             wall_set: "inner_wall".into(),
             load_wall: true,
@@ -139,6 +172,7 @@ impl GuidewireConfig {
         if Vec3::from(self.axis).norm() < 1e-9 {
             return Err(c.err("guidewire.axis", "must not be zero"));
         }
+        c.f64_in("guidewire.access_depth_m", self.access_depth_m, 0.0, 1.0, "m")?;
         c.f64_in(
             "guidewire.inserted_m",
             self.inserted_m,
@@ -524,7 +558,10 @@ pub(super) fn build<const R: usize>(
             .set_compliance(&c)
             .map_err(|e| ServiceError::Solver(format!("guidewire: {e}")))?;
     }
-    let wire = Wire::new(params, Vec3::from(g.access_point_m), Vec3::from(g.axis), g.inserted_m)
+    let (access_point, axis) = g
+        .hub_pose(mesh, &wall, &lumen)
+        .map_err(|e| ServiceError::Solver(format!("guidewire.access: {e}")))?;
+    let wire = Wire::new(params, access_point, axis, g.inserted_m)
         .map_err(|e| ServiceError::Solver(format!("guidewire: {e}")))?;
     let drive = HubDrive::new(params, wire.inserted(), wire.roll())?;
     let shared = Arc::new(WireShared::default());
