@@ -18,9 +18,9 @@
 //!
 //! `cargo run --release --example pressure_bench -- step [NODES] [SECONDS]` —
 //! the service scene's full solve (NVTMM + Prony, 10 ms linearized steps,
-//! Cholesky-preconditioned CG) with and without a 12 kPa pressure: wall time
-//! per step against the step length (real-time factor of the full solve
-//! alone, fixed 10 ms steps).
+//! Cholesky-preconditioned CG) on a 1 MPa wall with and without a 12 kPa
+//! pressure: wall time per step against the step length (real-time factor
+//! of the full solve alone, fixed 10 ms steps).
 
 use nvtmm::material::{Law, Material, PronyTerm};
 use nvtmm::math::Vec3;
@@ -173,7 +173,9 @@ fn step(nodes: usize, seconds: f64) {
     let mesh = &arch.mesh;
     let mut fixed = mesh.node_set("inlet").expect("inlet").to_vec();
     fixed.extend_from_slice(mesh.node_set("outlet_descending").expect("outlet"));
-    let mat = Material::aorta();
+    // The service scene's solver and Prony term on a wall that can hold
+    // arterial pressure (the paper's 65 kPa cannot: docs/PRESSURE.md).
+    let mat = aorta_wall();
     let prony = [PronyTerm { alpha: 0.5, tau: 0.58 }];
     let params = ImplicitEulerParams {
         dt: 1e-2,
@@ -193,10 +195,10 @@ fn step(nodes: usize, seconds: f64) {
         ..ImplicitEulerParams::default()
     };
     println!(
-        "full solve of the service scene's model, arch {} nodes, NVTMM StVK 65 kPa + Prony, 10 ms linearized steps",
+        "full solve with the service scene's solver, arch {} nodes, NVTMM StVK 1 MPa + Prony, 10 ms linearized steps",
         mesh.num_nodes()
     );
-    for p in [0.0, 2e3, 12e3] {
+    for p in [0.0, 12e3] {
         let mut model = build_model(ModelKind::Nvtmm, mesh, &mat, Law::Stvk, &prony);
         let mut euler = ImplicitEuler::new(mesh, mesh.lumped_mass(mat.density), params).expect("solver");
         let mut sched = PressureSchedule::steady(p);

@@ -12,14 +12,14 @@
 //! (p/3 of the area-weighted normal, pointing into the wall). The positions
 //! x = X + u are the current ones, so the force turns and stretches with the
 //! wall: a follower load, whose load stiffness K_p = −∂f/∂u enters Newton.
-//! With d_a = x_c − x_b, d_b = x_a − x_c, d_c = x_b − x_a (∂N/∂x_j = [d_j]ₓ):
+//! With d_a = x_c − x_b, d_b = x_a − x_c, d_c = x_b − x_a (∂N/∂x_j = \[d_j\]ₓ):
 //!
 //! ```text
 //! K_p(i, j) = (p/6) [d_j]ₓ            for every i, j of the triangle
 //! ```
 //!
 //! K_p is not symmetric. Its symmetric part has no diagonal blocks (they are
-//! skew) and, on the pair (a, b), the block (p/12) [x_a + x_b − 2 x_c]ₓ.
+//! skew) and, on the pair (a, b), the block (p/12) \[x_a + x_b − 2 x_c\]ₓ.
 //! The antisymmetric part cancels between the two triangles of an interior
 //! edge and around an interior vertex, so on a closed surface K_p is
 //! symmetric (the load is conservative: f = −∂(p V)/∂x with V the enclosed
@@ -496,7 +496,7 @@ impl LuminalPressure {
     }
 }
 
-/// [w]ₓ: the matrix with [w]ₓ v = w × v.
+/// \[w\]ₓ: the matrix with \[w\]ₓ v = w × v.
 pub fn skew(w: &Vec3) -> Mat3 {
     Mat3::new(0.0, -w.z, w.y, w.z, 0.0, -w.x, -w.y, w.x, 0.0)
 }

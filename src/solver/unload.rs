@@ -12,7 +12,9 @@
 //!
 //! where x(X, p) is the static equilibrium ([`super::statics`]) of the wall
 //! meshed at X under pressure p, with the same tets, fixed nodes (held where
-//! the image has them) and loaded surface. It stops when the inflated
+//! the image has them) and loaded surface. A step whose candidate cannot be
+//! inflated or inverts a tet is shortened (X_{k+1} = X_k − ω e_k, ω halved
+//! down to 1/64 and grown back by 1.5 after each good iteration). It stops when the inflated
 //! geometry is within `tol_m` of the image at every node, and refuses when
 //! it does not get there: a pressure the material cannot hold (the static
 //! solve fails), an iteration that inverts a tet, or no convergence within
@@ -186,44 +188,73 @@ impl UnloadRequest<'_> {
         let mut history = Vec::new();
         let mut newton_iters = 0;
         let mut statics = self.params.statics;
-        for iter in 0..self.params.max_iters {
-            let rep = match self.inflate(&reference, &statics, &mut u) {
-                Ok(r) => r,
-                Err(UnloadError::Static { source, .. }) => return Err(UnloadError::Static { iter, source }),
+        // The step X ← X − ω e starts at ω = 1 (Bols et al.'s plain fixed
+        // point); a candidate whose inflation fails or whose mesh inverts is
+        // replaced by a shorter step from the last good reference (ω halved,
+        // down to 1/64), and ω grows back after every good iteration.
+        let mut omega: f64 = 1.0;
+        let mut last: Option<(TetMesh, Vec<Vec3>, Vec<Vec3>)> = None;
+        let step = |good: &TetMesh, e: &[Vec3], omega: f64| -> Result<TetMesh, UnloadError> {
+            let next = good.rest().iter().zip(e).map(|(x, d)| x - d * omega).collect();
+            Ok(TetMesh::new(next, image.tets().to_vec(), image.node_sets().clone())?)
+        };
+        let mut iter = 0;
+        while iter < self.params.max_iters {
+            iter += 1;
+            let failure = match self.inflate(&reference, &statics, &mut u) {
+                Err(UnloadError::Static { source, .. }) => UnloadError::Static { iter, source },
                 Err(e) => return Err(e),
+                Ok(rep) => {
+                    newton_iters += rep.total_iters();
+                    // Later solves start from the last displacement: one step.
+                    statics.load_steps = 1;
+                    let e: Vec<Vec3> = reference
+                        .rest()
+                        .iter()
+                        .zip(&u)
+                        .zip(x_img)
+                        .map(|((x_ref, d), img)| x_ref + d - img)
+                        .collect();
+                    let worst = e.iter().map(|v| v.norm()).fold(0.0, f64::max);
+                    history.push(worst);
+                    if worst <= self.params.tol_m {
+                        return Ok(Unloaded {
+                            mesh: reference,
+                            iters: iter,
+                            history,
+                            newton_iters,
+                        });
+                    }
+                    omega = (1.5 * omega).min(1.0);
+                    let candidate = step(&reference, &e, omega)?;
+                    last = Some((reference, e, u.clone()));
+                    if candidate.report().inverted == 0 {
+                        reference = candidate;
+                        continue;
+                    }
+                    UnloadError::Inverted {
+                        iter,
+                        tets: candidate.report().inverted,
+                    }
+                }
             };
-            newton_iters += rep.total_iters();
-            // Later solves start from the last displacement: one step.
-            statics.load_steps = 1;
-            let mut worst: f64 = 0.0;
-            let next: Vec<Vec3> = reference
-                .rest()
-                .iter()
-                .zip(&u)
-                .zip(x_img)
-                .map(|((x_ref, d), img)| {
-                    let e = x_ref + d - img;
-                    worst = worst.max(e.norm());
-                    x_ref - e
-                })
-                .collect();
-            history.push(worst);
-            if worst <= self.params.tol_m {
-                return Ok(Unloaded {
-                    mesh: reference,
-                    iters: iter + 1,
-                    history,
-                    newton_iters,
-                });
+            // Back off: a shorter step from the last good reference.
+            let Some((good, e, u_good)) = last.as_ref() else {
+                return Err(failure);
+            };
+            loop {
+                omega *= 0.5;
+                if omega < 1.0 / 64.0 {
+                    return Err(failure);
+                }
+                let candidate = step(good, e, omega)?;
+                if candidate.report().inverted == 0 {
+                    reference = candidate;
+                    u.copy_from_slice(u_good);
+                    statics.load_steps = self.params.statics.load_steps;
+                    break;
+                }
             }
-            let candidate = TetMesh::new(next, image.tets().to_vec(), image.node_sets().clone())?;
-            if candidate.report().inverted > 0 {
-                return Err(UnloadError::Inverted {
-                    iter,
-                    tets: candidate.report().inverted,
-                });
-            }
-            reference = candidate;
         }
         Err(UnloadError::NotConverged {
             iters: self.params.max_iters,
