@@ -27,7 +27,9 @@ pub const BUTTON_CONTRAST: u32 = 1 << 1;
 pub const BUTTON_FLUORO: u32 = 1 << 2;
 
 /// A pull-back: the inserted length fell this far (m) below its largest
-/// value since the previous pull-back.
+/// value since the wire last advanced; it ends when the wire advances this
+/// far above its smallest value since (a hysteresis: one retraction, however
+/// long, is one pull-back).
 pub const PULLBACK_M: f64 = 5e-3;
 /// Wall contact force thresholds (N) whose time above is counted: 0.5 N
 /// (light contact) and 1.5 N (proposed as a perforation risk).
@@ -212,7 +214,7 @@ pub struct TaskSummary {
     /// How far (m) the wire is inside the target now (capped at `inside_m`).
     pub depth_m: f64,
     /// Pull-backs: the inserted length fell 5 mm below its largest value
-    /// since the previous pull-back.
+    /// since the wire last advanced (by 5 mm: one retraction is one).
     pub pullbacks: u64,
     /// Inserted length now (m): the polyline's arc length.
     pub inserted_m: f64,
@@ -268,6 +270,8 @@ pub struct Metrics {
     last_t: f64,
     last_tip: Option<Vec3>,
     peak_inserted: f64,
+    /// While retracting: the smallest inserted length since it began.
+    trough_inserted: Option<f64>,
     last_buttons: u32,
     series: Vec<SeriesRow>,
 }
@@ -304,6 +308,7 @@ impl Metrics {
             last_t: 0.0,
             last_tip: None,
             peak_inserted: 0.0,
+            trough_inserted: None,
             last_buttons: 0,
             series: Vec::new(),
         })
@@ -356,11 +361,22 @@ impl Metrics {
             self.last_tip = Some(tip);
             let inserted = arc_length(x.polyline);
             self.s.inserted_m = inserted;
-            if inserted > self.peak_inserted {
-                self.peak_inserted = inserted;
-            } else if inserted <= self.peak_inserted - PULLBACK_M {
-                self.s.pullbacks += 1;
-                self.peak_inserted = inserted;
+            match self.trough_inserted {
+                None => {
+                    self.peak_inserted = self.peak_inserted.max(inserted);
+                    if inserted <= self.peak_inserted - PULLBACK_M {
+                        self.s.pullbacks += 1;
+                        self.trough_inserted = Some(inserted);
+                    }
+                }
+                Some(trough) => {
+                    let trough = trough.min(inserted);
+                    self.trough_inserted = Some(trough);
+                    if inserted >= trough + PULLBACK_M {
+                        self.trough_inserted = None;
+                        self.peak_inserted = inserted;
+                    }
+                }
             }
             self.s.tip_segment = self.map.segment_at(tip).unwrap_or("").to_string();
             if let Some(target) = self.target {
@@ -561,7 +577,9 @@ mod tests {
     #[test]
     fn a_pull_back_is_counted_once_per_retraction() {
         let mut m = Metrics::new(&cfg(), map()).unwrap();
-        for (k, len) in [30, 40, 37, 34, 33, 40, 34].iter().enumerate() {
+        // 40 → 33: one; back up to 40, down to 34: two; a long retraction
+        // 34 → 10 in steps: still two... then up to 20 and down to 10: three.
+        for (k, len) in [30, 40, 37, 34, 33, 40, 34, 28, 22, 16, 10, 20, 10].iter().enumerate() {
             let line: Vec<[f32; 3]> = (0..=*len)
                 .map(|i| [(-0.05 + i as f64 * 1e-3) as f32, 0.0, 0.0])
                 .collect();
@@ -573,7 +591,7 @@ mod tests {
                 buttons: 0,
             });
         }
-        assert_eq!(m.summary().pullbacks, 2);
+        assert_eq!(m.summary().pullbacks, 3);
     }
 
     #[test]

@@ -2,9 +2,11 @@
 //! (`tools/task_metrics.py`, over `tools/stream_client.py`'s decoder)
 //! computes from the run's stream recording: on the guidewire tests'
 //! branched arch the shipped script inserts the wire into the left
-//! subclavian, then pulls it back 30 mm; `[task]` targets the left
-//! subclavian. Time to target, tip path, inserted length, pull-backs and the
-//! hub force's peak must agree; the session file must hold the same summary
+//! subclavian and on to 180 mm, then pulls it back; `[task]` targets the left
+//! subclavian, 10 mm in (the scripted hand's spring grip leaves the tip
+//! short of 20 mm in some runs; the threshold is not what is tested here).
+//! Time to target, tip path, inserted length, pull-backs and the hub
+//! force's peak must agree; the session file must hold the same summary
 //! and a series whose threshold times add up to it. Runs RT threads: run it
 //! alone (`cargo test --release --test task_metrics_match_the_recording -- --nocapture`).
 
@@ -23,14 +25,15 @@ fn metrics_of_a_scripted_run_match_the_recording() {
     let shipped = std::fs::read_to_string(root.join("rt-config/guidewire.toml")).unwrap();
     let script = &shipped[shipped.find("script = [").unwrap() + "script = ".len()..];
     let script = &script[..=script.find("\n]").unwrap() + 1];
-    // The shipped script, then a pull-back of 30 mm.
-    let script = script.replacen("\n]", ",\n  [11.0, 0.175, 0.0],\n  [12.0, 0.145, 0.0],\n]", 1);
+    // The shipped script, on to 180 mm, then a pull-back of 50 mm (the
+    // simulated hand's grip is a spring: the wire gives less).
+    let script = script.replacen("\n]", "\n  [11.0, 0.18, 0.0],\n  [12.5, 0.13, 0.0],\n]", 1);
     let dir = tempfile::tempdir().unwrap();
-    let cfg = common::guidewire::write(dir.path(), 12.5, &script, true);
+    let cfg = common::guidewire::write(dir.path(), 13.5, &script, true);
     let sessions = dir.path().join("sessions");
     let text = std::fs::read_to_string(&cfg).unwrap()
         + &format!(
-            "[task]\ntarget_segment = \"left_subclavian\"\nsession_dir = \"{}\"\n",
+            "[task]\ntarget_segment = \"left_subclavian\"\ninside_m = 0.01\nsession_dir = \"{}\"\n",
             sessions.display()
         );
     std::fs::write(&cfg, text).unwrap();
@@ -40,8 +43,33 @@ fn metrics_of_a_scripted_run_match_the_recording() {
     let report = nvtmm::service::run_service(&opts).expect("the guidewire service runs");
     println!("{}", report.render());
     let t = report.task.as_ref().expect("report.task");
+    let file = std::fs::read_dir(&sessions)
+        .unwrap()
+        .next()
+        .expect("a session file")
+        .unwrap()
+        .path();
+    let s = nvtmm::task::Session::load(&file).unwrap();
+    for w in s.series.windows(2) {
+        if w[1].inserted_m < w[0].inserted_m - 1e-3 {
+            println!(
+                "t {:.3} s: inserted {:.2} -> {:.2} mm",
+                w[1].t,
+                w[0].inserted_m * 1e3,
+                w[1].inserted_m * 1e3
+            );
+        }
+    }
+    for r in s.series.iter().step_by(60) {
+        println!(
+            "series t {:.2} s inserted {:.1} mm hub {:.2} N",
+            r.t,
+            r.inserted_m * 1e3,
+            r.hub_n
+        );
+    }
     assert!(t.success, "the scripted run reaches the left subclavian: {t:?}");
-    assert_eq!(t.pullbacks, 1, "one pull-back of 30 mm");
+    assert_eq!(t.pullbacks, 1, "one pull-back");
 
     // The labelled inner wall, for the script.
     let mesh = nvtmm::mesh::io::read_mesh(&dir.path().join("arch.vtu")).unwrap();
@@ -68,7 +96,7 @@ fn metrics_of_a_scripted_run_match_the_recording() {
     let out = Command::new("python3")
         .arg(root.join("tools/task_metrics.py"))
         .args(["--file", rec.to_str().unwrap(), "--wall", wall.to_str().unwrap()])
-        .args(["--target", "left_subclavian"])
+        .args(["--target", "left_subclavian", "--inside", "0.01"])
         .output()
         .unwrap();
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));

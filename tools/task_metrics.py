@@ -62,7 +62,7 @@ def main():
     t0 = None
     out = {"samples": 0, "tip_path_m": 0.0, "pullbacks": 0, "hub_force_peak_n": 0.0,
            "success": False, "time_to_target_s": None, "elapsed_s": 0.0, "inserted_m": 0.0}
-    last_tip, peak = None, 0.0
+    last_tip, peak, trough = None, 0.0, None
     for _, d in stream_client.recording(a.file):
         m = r.push(d)
         if not m or m["kind"] != "state":
@@ -73,7 +73,8 @@ def main():
         out["samples"] += 1
         out["elapsed_s"] = t - t0
         out["hub_force_peak_n"] = max(out["hub_force_peak_n"], math.sqrt(sum(v * v for v in m["force"])))
-        line = m["wire"]
+        # The first guidewire on the stream (kind 2).
+        line = next((i["points"] for i in m["instruments"] if i["kind"] == 2), [])
         if not line:
             continue
         tip = line[-1]
@@ -82,11 +83,18 @@ def main():
         last_tip = tip
         ins = sum(math.dist(line[k], line[k + 1]) for k in range(len(line) - 1))
         out["inserted_m"] = ins
-        if ins > peak:
-            peak = ins
-        elif ins <= peak - PULLBACK_M:
-            out["pullbacks"] += 1
-            peak = ins
+        # A pull-back: 5 mm below the peak since the wire last advanced; it
+        # ends when the wire advances 5 mm above its low point since.
+        if trough is None:
+            peak = max(peak, ins)
+            if ins <= peak - PULLBACK_M:
+                out["pullbacks"] += 1
+                trough = ins
+        else:
+            trough = min(trough, ins)
+            if ins >= trough + PULLBACK_M:
+                trough = None
+                peak = ins
         if not out["success"] and depth(line) >= a.inside:
             out["success"] = True
             out["time_to_target_s"] = t - t0

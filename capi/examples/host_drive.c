@@ -38,6 +38,10 @@ int main(int argc, char **argv) {
         fprintf(stderr, "nvtmm_start_host: %s\n", nvtmm_last_error());
         return 1;
     }
+    /* The device thread reads once the loop runs (after its jitter
+     * baseline): wait for the first ticks. */
+    NvtmmSnapshot snap;
+    for (int k = 0; k < 400 && nvtmm_snapshot(s, &snap) == 0 && snap.ticks == 0; k++) sleep_until(now_s() + 0.05);
     /* The stylus: along the hub drive's axis (device -z inserts 3 mm of wire
      * per mm, rt-config/host.toml [wire.drive]) from where the wire starts
      * (20 mm in: z = +33.3 mm), pushed 10 mm in over the run, rolled a
@@ -56,7 +60,6 @@ int main(int argc, char **argv) {
         next += 1e-3;
         sleep_until(next);
     }
-    NvtmmSnapshot snap;
     nvtmm_snapshot(s, &snap);
     int64_t nt = nvtmm_frame_triangles(s, NULL, 0);
     /* The guidewire is the instrument of kind 2. */
