@@ -8,50 +8,18 @@ use std::io::Read;
 use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
+mod common;
+
+/// The recovery tests' small service (1458-node arch) as files in `dir`,
+/// planned for far longer than the test waits, without the background basis
+/// recomputation (a nice-19 thread a loaded machine can starve, which would
+/// hold the stop for minutes).
 fn write_config(dir: &std::path::Path) -> std::path::PathBuf {
-    let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
-    std::fs::write(
-        dir.join("scene.toml"),
-        format!(
-            r#"model = "nvtmm"
-duration = 1.0
-[mesh]
-arch_nodes = 1458
-[material]
-youngs_pa = 65e3
-poisson = 0.45
-[fixed]
-sets = ["inlet", "outlet_descending"]
-[integrator]
-dt = 1e-2
-newton = {{ max_iters = 1 }}
-linear = {{ kind = "cholesky_pcg", tol = 1e-6, refactor_every = 3, factor_f32 = true }}
-[reduced]
-r = 16
-cache_dir = "{}"
-"#,
-            dir.join("cache").display()
-        ),
-    )
-    .unwrap();
+    let config = common::service::write_scene_and_config(dir)
+        .replace("seconds = 60.0", "seconds = 120.0")
+        .replace("basis_refresh_s = 0.3", "basis_refresh_s = 0.0");
     let path = dir.join("service.toml");
-    std::fs::write(
-        &path,
-        format!(
-            r#"scene = "scene.toml"
-seconds = 120.0
-[loop]
-baseline_s = 0.1
-[device]
-touchx = "{}"
-origin_m = [0.0065, -0.031, 0.177]
-[stream]
-enabled = false
-"#,
-            root.join("rt-config/touchx.toml").display()
-        ),
-    )
-    .unwrap();
+    std::fs::write(&path, config).unwrap();
     path
 }
 

@@ -11,6 +11,13 @@ pub fn start(dir: &std::path::Path) -> Handle {
 
 /// The options [`start`] starts with (the scene file written into `dir`).
 pub fn options(dir: &std::path::Path) -> StartOptions {
+    let config = write_scene_and_config(dir);
+    StartOptions::text(config, dir.join("in-memory.toml"))
+}
+
+/// Writes the small service's scene (`dir/scene.toml`) and returns its
+/// service configuration's text (relative paths anchored in `dir`).
+pub fn write_scene_and_config(dir: &std::path::Path) -> String {
     let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
     std::fs::write(
         dir.join("scene.toml"),
@@ -38,7 +45,7 @@ cache_dir = "{}"
         ),
     )
     .unwrap();
-    let config = format!(
+    format!(
         r#"scene = "scene.toml"
 seconds = 60.0
 [loop]
@@ -56,8 +63,7 @@ basis_refresh_m = 0.0
 enabled = false
 "#,
         root.join("rt-config/touchx.toml").display()
-    );
-    StartOptions::text(config, dir.join("in-memory.toml"))
+    )
 }
 
 /// Polls `cond` on snapshots every 10 ms for up to `secs` (a loaded
