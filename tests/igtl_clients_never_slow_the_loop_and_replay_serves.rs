@@ -205,9 +205,13 @@ fn replay_serves_a_recording_over_openigtlink() {
                 surfaces += 1;
             }
             igtl::Message::Transform { values, .. } => {
+                // The recorded tool (1, 2, 3) mm in the scene's LPS arrives in
+                // Slicer's RAS: x and y negated (docs/reference/coordinates.md).
                 assert!(
-                    (values[9] - 1.0).abs() < 1e-6 && (values[11] - 3.0).abs() < 1e-6,
-                    "mm: {values:?}"
+                    (values[9] + 1.0).abs() < 1e-6
+                        && (values[10] + 2.0).abs() < 1e-6
+                        && (values[11] - 3.0).abs() < 1e-6,
+                    "RAS mm: {values:?}"
                 );
                 tips += 1;
             }

@@ -24,9 +24,10 @@ pub enum Phase {
     /// match, the new model's contact and its static Newton step (only on
     /// ticks that swap).
     Swap,
-    /// The guidewire's share of the tick in the loop (`WireLink::before_tick`:
-    /// the hub drive, its wall loads and contact spheres; only with a wire).
-    Wire,
+    /// The instruments' contributions in the loop (each instrument's
+    /// `LoopSide::contribute`: the probe's sphere, the guidewire's hub
+    /// drive, wall loads and hand force; docs/INSTRUMENTS.md).
+    Instruments,
     /// Contact of the tool spheres with the deformed surface: the triangle
     /// search or the kept triangles, the pressure quadrature and the
     /// residual-compliance series solve.
@@ -62,7 +63,7 @@ impl Phase {
     pub const ALL: [Phase; PHASES] = [
         Phase::Drain,
         Phase::Swap,
-        Phase::Wire,
+        Phase::Instruments,
         Phase::Contact,
         Phase::Series,
         Phase::Step,
@@ -77,7 +78,7 @@ impl Phase {
         match self {
             Phase::Drain => "drain",
             Phase::Swap => "swap",
-            Phase::Wire => "wire",
+            Phase::Instruments => "instruments",
             Phase::Contact => "contact",
             Phase::Series => "series",
             Phase::Step => "step",

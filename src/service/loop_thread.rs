@@ -181,7 +181,7 @@ pub(super) fn loop_thread<const R: usize>(mut tick: HapticTick<R>, mut io: LoopI
         for inst in io.instruments.iter_mut() {
             let _ = parts.push(inst.contribute(&hand));
         }
-        split.lap(Phase::Wire);
+        split.lap(Phase::Instruments);
         let out = tick.run_with(
             TickInput {
                 sample: scene_sample.as_ref(),

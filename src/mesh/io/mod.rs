@@ -220,7 +220,7 @@ pub fn read_mesh_bytes(format: Format, path: &Path, bytes: &[u8], scale: f64) ->
         Format::Ply | Format::Obj | Format::Stl => {
             return Err(MeshError::Unsupported {
                 path: path.to_path_buf(),
-                what: "a surface file, not a volume (tet) mesh: if it is a vessel's lumen, \
+                what: "a surface-only file, not a volume (tet) mesh: if it is a vessel's lumen, \
                        `nvtmm mesh vessel FILE --out wall.vtu` builds the wall mesh from it (or give it as \
                        `[mesh] vessel = { surface = \"FILE\" }` in a scene); `nvtmm mesh info` describes it"
                     .into(),
