@@ -462,7 +462,8 @@ impl Session {
     }
 
     /// A PNG of the hub and wall forces over time, with the 0.5 N and 1.5 N
-    /// lines.
+    /// lines (with the default feature `tools`, which brings the plotting).
+    #[cfg(feature = "tools")]
     pub fn plot(&self, path: &Path) -> Result<(), String> {
         use crate::experiment::plot::{line_plot, Series};
         use plotters::style::RGBColor;
