@@ -3,6 +3,7 @@
 //! models the solver tests use (simple enough to trust by inspection).
 #![allow(dead_code)]
 
+pub mod chromium;
 pub mod counting;
 pub mod guidewire;
 pub mod service;
