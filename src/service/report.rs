@@ -276,6 +276,9 @@ pub struct Report {
     /// Every instrument of the run, in the loop's order: its id, kind,
     /// faults raised and its kind's own keys (docs/INSTRUMENTS.md).
     pub instruments: Vec<crate::service::instrument::InstrumentReport>,
+    /// Presses of the switch button that changed the active hub-driven
+    /// instrument (docs/INSTRUMENTS.md, "Two instruments, one hand").
+    pub instrument_switches: u64,
 }
 
 /// Contact anywhere in the run (the `contact` keys of the report).

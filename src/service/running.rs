@@ -279,6 +279,7 @@ impl<const R: usize> RunningService for Running<R> {
             wire: None,
             task: pr.task,
             instruments: Vec::new(),
+            instrument_switches: lr.instrument_switches,
         };
         // Each instrument joins its thread and adds its section (and the
         // guidewire its `wire.*` keys and its thread's allocations).
