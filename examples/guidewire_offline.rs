@@ -4,6 +4,7 @@
 //! For tuning the script; the service runs the same wire in its thread.
 //!
 //! `cargo run --release --example guidewire_offline [rt-config/guidewire.toml]`
+//! (`GUIDEWIRE_NO_BUCKLING=1`: without the buckling check).
 
 use nvtmm::math::Vec3;
 use nvtmm::service::ServiceConfig;
@@ -51,6 +52,10 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         axis.as_slice()
     );
     let mut w = Wire::new(wp, access_point, axis, g.inserted_m)?;
+    // `GUIDEWIRE_NO_BUCKLING=1`: without the buckling check, to compare.
+    if std::env::var_os("GUIDEWIRE_NO_BUCKLING").is_some() {
+        w.set_buckling_check(false);
+    }
     let dt = wp.dt_s;
     let end = g.script.last().map(|r| r[0]).unwrap_or(1.0) + 1.0;
     let steps = (end / dt).round() as usize;
