@@ -246,6 +246,7 @@ impl<const R: usize> RunningService for Running<R> {
                 unobserved_j: qp.unobserved_j,
                 uncredited_j: qp.uncredited_j,
                 shortcuts: qp.interior,
+                exact_solves: qp.exact,
             },
             energy_in_j: energy_in,
             energy_out_j: energy_out,
