@@ -61,6 +61,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let steps = (end / dt).round() as usize;
     let mut last_seg = String::new();
     let mut worst: f64 = 0.0;
+    let mut buckled = 0usize;
     // The largest |axial hub force| and Newton residual over each 0.1 s.
     let (mut axial_max, mut residual_max, mut fed_max) = (0.0f64, 0.0f64, 0.0f64);
     // `GUIDEWIRE_TRACE=t0,t1` prints every step between t0 and t1 (s).
@@ -79,6 +80,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         let rep = w.step(&lumen).map_err(|e| format!("t = {t:.3} s: {e}"))?;
         step_us.push(ts.elapsed().as_secs_f64() * 1e6);
         worst = worst.max(rep.max_penetration_m);
+        buckled += rep.buckled as usize;
         if let Some((a, b)) = trace {
             if t >= a && t <= b {
                 println!(
@@ -121,7 +123,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         }
     }
     println!(
-        "end: tip in {}, {} nodes, deepest {:.3} mm, {:.1} µs a step",
+        "end: tip in {}, {} nodes, deepest {:.3} mm, {:.1} µs a step, {buckled} steps moved off a saddle",
         wall.segment_at(wall.rest(), w.tip()).unwrap_or("?"),
         w.num_nodes(),
         worst * 1e3,

@@ -347,6 +347,16 @@ pub const CONTACT_ONSET_M: f64 = 1e-5;
 /// wire once it has settled").
 pub const SLIDE_MIN_FEED_SMOOTHINGS: f64 = 10.0;
 
+/// The buckling check adds a compressed edge's geometric stiffness only
+/// where the bends at its ends are within this of their rest curvature
+/// (the material curvature, about the turning angle a segment): the
+/// Gauss–Newton bend Hessian leaves out terms of that size, and where the
+/// wire is bent far from its rest shape (around the arch, the J tip held
+/// straight) the approximate static Hessian showed negative curvature the
+/// wire did not have; following it jammed a J-tip wire in the ascending
+/// aorta at the grip's limit (docs/WIRE.md "Buckling").
+pub const BUCKLING_BEND_OFF: f64 = 0.02;
+
 /// The default `residual_tolerance_n` (docs/WIRE.md "Fast pulls", change 4).
 pub const RESIDUAL_TOLERANCE_N: f64 = 0.2;
 
@@ -1228,6 +1238,20 @@ impl Wire {
         }
         let f_grip = self.p.max_hub_force_n;
         let mut compressed = false;
+        // How far node i's bend is from its rest (material curvature,
+        // about the turning angle per segment): the Gauss–Newton bend
+        // Hessian leaves out terms of that size, so only where it is small
+        // is the static Hessian accurate enough to tell a saddle.
+        let bend_off = |w: &Wire, i: usize| -> f64 {
+            if i == 0 || i + 1 >= n {
+                return 0.0;
+            }
+            let (te, tf) = (w.tan[i - 1], w.tan[i]);
+            let kb = te.cross(&tf) * (2.0 / (1.0 + te.dot(&tf)).max(1e-12));
+            let k1 = 0.5 * kb.dot(&(w.m2[i - 1] + w.m2[i]));
+            let k2 = -0.5 * kb.dot(&(w.m1[i - 1] + w.m1[i]));
+            ((k1 - w.coef[i].kb_rest).powi(2) + k2 * k2).sqrt()
+        };
         for j in 1..n - 1 {
             let k = self.coef[j].stretch;
             let st = self.len[j] - self.s.rest[j];
@@ -1236,7 +1260,7 @@ impl Wire {
             } else {
                 k * st
             };
-            if force >= 0.0 {
+            if force >= 0.0 || bend_off(self, j).max(bend_off(self, j + 1)) > BUCKLING_BEND_OFF {
                 continue;
             }
             compressed = true;
