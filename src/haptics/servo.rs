@@ -556,9 +556,8 @@ impl<const R: usize> Servo<R> {
             let old =
                 self.model.offset.get(i).copied().unwrap_or_else(Vec3::zeros) + rows_old * self.model.dynamics.q();
             let now = new.offset.get(i).copied().unwrap_or_else(Vec3::zeros) + rows_new * q;
-            // w Φᵀ Φ as three rank-one updates on contiguous columns: the
-            // 3 × r `tr_mul` takes a 3-long dot per entry and cost the swap
-            // tick microseconds per touched node.
+            // w Φᵀ Φ as three rank-one updates on contiguous columns, which
+            // vectorize; the 3 × r `tr_mul` takes a 3-long dot per entry.
             for k in 0..3 {
                 let v: SVector<f64, R> = rows_new.row(k).transpose();
                 contact::add_outer(&mut g, w, &v, &v);
