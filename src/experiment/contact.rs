@@ -10,7 +10,7 @@
 //! 1 kHz ([`crate::haptics::servo::Servo`]). The rendered force is compared
 //! with the full linear model's at the same state (rest, or the wall
 //! inflated to a luminal pressure) under the same sphere contact
-//! ([`reference`]: the surface nodes near the probe move by the exact
+//! ([`reference()`]: the surface nodes near the probe move by the exact
 //! columns of K⁻¹, the probe is pushed in from where it touches, and the
 //! active set is iterated to convergence), so the ratio isolates the
 //! reduced model's error. Every point drawn but not compared is reported
@@ -493,7 +493,7 @@ impl Setup {
     }
 
     /// The full model's reaction on each sphere with the same contact
-    /// ([`reference`]: the active set iterated to convergence), starting
+    /// ([`reference()`]: the active set iterated to convergence), starting
     /// from the nodes the loop `touched`.
     pub fn full_reactions(&self, spheres: &[Vec3], touched: &[Touched]) -> Result<Vec<Vec3>, String> {
         let mut exact = ExactCompliance::new(&self.k, &self.fixed)?;
@@ -679,7 +679,7 @@ pub fn pressed_at_rest(
 }
 
 /// The full linear model's answer to the tool: the reaction on each sphere
-/// and how it was found ([`reference`]).
+/// and how it was found ([`reference()`]).
 #[derive(Debug, Clone, PartialEq)]
 pub struct Reference {
     /// Reaction on each sphere (N).
@@ -694,10 +694,10 @@ pub struct Reference {
     pub node_forces: Vec<(u32, Vec3, Vec3)>,
 }
 
-/// Rounds of [`reference`]'s active-set iteration before it gives up.
+/// Rounds of [`reference()`]'s active-set iteration before it gives up.
 pub const REFERENCE_ROUNDS: usize = 8;
 
-/// Longest move of a sphere between two solves of [`reference`] (m).
+/// Longest move of a sphere between two solves of [`reference()`] (m).
 pub const REFERENCE_STEP_M: f64 = 0.2e-3;
 
 /// The full linear model's reactions on the tool `spheres` with the same
