@@ -33,6 +33,15 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 use std::thread::JoinHandle;
 
+/// The RT allocator's pool (bytes), shared by every RT thread of the
+/// service (the loop, the device, the instruments' threads). The process
+/// has one pool, sized by the first thread that enters it, so every thread
+/// asks for this size: a smaller first request (the guidewire's thread
+/// asked for 1 MiB) left the pool nearly full after the wire thread's
+/// set-up, and the device thread's next allocation fell back to the
+/// system allocator.
+pub(crate) const RT_POOL_BYTES: usize = 8 << 20;
+
 /// A running service at reduced capacity R (type-erased by [`Service`]).
 pub(super) struct Running<const R: usize> {
     stop: Arc<AtomicBool>,
@@ -434,7 +443,7 @@ pub(super) fn start_with<const R: usize>(p: Prepared) -> Result<Running<R>, Serv
     // background start with the loop.
     let start = clock::now_ns() + 50_000_000;
     let loop_start = start + (cfg.servo.baseline_s * 1e9) as Nanos + LOOP_PHASE;
-    let pool_bytes = 8 << 20;
+    let pool_bytes = RT_POOL_BYTES;
 
     // Background.
     let mut basis_handle: Option<std::thread::JoinHandle<BasisStats>> = None;

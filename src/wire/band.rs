@@ -193,7 +193,7 @@ impl BandMatrix {
     /// own loops, whose lengths the compiler knows.
     pub fn factor(&mut self) -> Result<(), BandError> {
         if self.p == FAST_BAND {
-            return self.factor_fast();
+            return self.factor_fast::<false>().map(|_| ());
         }
         let (n, p) = (self.n, self.p);
         let w = p + 1;
@@ -226,17 +226,26 @@ impl BandMatrix {
         Ok(())
     }
 
-    /// [`BandMatrix::factor`] for p = [`FAST_BAND`]: the same operations in
-    /// the same order, on fixed-size windows.
+    /// [`BandMatrix::factor`] (`INDEFINITE` false) or
+    /// [`BandMatrix::factor_indefinite`] (true) for p = [`FAST_BAND`]: the
+    /// same operations in the same order, on fixed-size windows.
     #[allow(clippy::needless_range_loop)] // the band's index arithmetic
-    fn factor_fast(&mut self) -> Result<(), BandError> {
+    fn factor_fast<const INDEFINITE: bool>(&mut self) -> Result<Option<(usize, f64)>, BandError> {
         const P: usize = FAST_BAND;
         const W: usize = P + 1;
         let n = self.n;
         let mut c = [0.0; P];
+        let mut worst: Option<(usize, f64)> = None;
         for k in 0..n {
             let d = self.a[k * W + P];
-            if !(d > 0.0 && d.is_finite()) {
+            if INDEFINITE {
+                if d == 0.0 || !d.is_finite() {
+                    return Err(BandError::NotPositive { row: k, pivot: d });
+                }
+                if d < 0.0 && worst.is_none_or(|(_, v)| d < v) {
+                    worst = Some((k, d));
+                }
+            } else if !(d > 0.0 && d.is_finite()) {
                 return Err(BandError::NotPositive { row: k, pivot: d });
             }
             let inv = 1.0 / d;
@@ -273,7 +282,7 @@ impl BandMatrix {
                 }
             }
         }
-        Ok(())
+        Ok(worst)
     }
 
     /// Solves (L D Lᵀ) x = b in place after [`BandMatrix::factor`]; `b`
@@ -357,6 +366,9 @@ impl BandMatrix {
     /// Optimization*, 1981, §4.4.2). The wire's buckling check uses it
     /// on the static Hessian.
     pub fn factor_indefinite(&mut self) -> Result<Option<(usize, f64)>, BandError> {
+        if self.p == FAST_BAND {
+            return self.factor_fast::<true>();
+        }
         let (n, p) = (self.n, self.p);
         let w = p + 1;
         let c = &mut self.col[..w];
@@ -441,7 +453,17 @@ mod tests {
                 }
             }
             let a = m.clone();
+            // The general loop (a wider band) finds the same pivot as the
+            // fixed-window one the wire's bandwidth takes.
+            let mut wide = BandMatrix::new(n, FAST_BAND + 1);
+            wide.reset(n);
+            for i in 0..n {
+                for j in i.saturating_sub(1)..i + 1 {
+                    wide.add(i, j, m.get(i, j));
+                }
+            }
             let worst = m.factor_indefinite().expect("no zero pivot");
+            assert_eq!(wide.factor_indefinite().expect("no zero pivot"), worst);
             assert_eq!(worst.is_some(), negative, "c = {c}");
             if let Some((k, d)) = worst {
                 let mut v = vec![0.0; n];

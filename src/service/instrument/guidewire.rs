@@ -635,7 +635,7 @@ pub(super) fn build<const R: usize>(
         },
         start,
         period,
-        pool_bytes: 1 << 20,
+        pool_bytes: crate::service::running::RT_POOL_BYTES,
         good_every: g.good_state_every,
         polyline_every: stream_every.max(1),
     };
