@@ -195,13 +195,28 @@ impl BandMatrix {
         if self.p == FAST_BAND {
             return self.factor_fast::<false>().map(|_| ());
         }
+        self.factor_general::<false>().map(|_| ())
+    }
+
+    /// [`BandMatrix::factor`] (`INDEFINITE` false: every pivot must be
+    /// positive) or [`BandMatrix::factor_indefinite`] (true: any nonzero
+    /// pivot, the most negative one returned) for any bandwidth.
+    fn factor_general<const INDEFINITE: bool>(&mut self) -> Result<Option<(usize, f64)>, BandError> {
         let (n, p) = (self.n, self.p);
         let w = p + 1;
         // Column k's entries below the diagonal, unscaled.
         let c = &mut self.col[..w];
+        let mut worst: Option<(usize, f64)> = None;
         for k in 0..n {
             let d = self.a[k * w + p];
-            if !(d > 0.0 && d.is_finite()) {
+            if INDEFINITE {
+                if d == 0.0 || !d.is_finite() {
+                    return Err(BandError::NotPositive { row: k, pivot: d });
+                }
+                if d < 0.0 && worst.is_none_or(|(_, v)| d < v) {
+                    worst = Some((k, d));
+                }
+            } else if !(d > 0.0 && d.is_finite()) {
                 return Err(BandError::NotPositive { row: k, pivot: d });
             }
             let inv = 1.0 / d;
@@ -223,7 +238,7 @@ impl BandMatrix {
                 }
             }
         }
-        Ok(())
+        Ok(worst)
     }
 
     /// [`BandMatrix::factor`] (`INDEFINITE` false) or
@@ -369,33 +384,7 @@ impl BandMatrix {
         if self.p == FAST_BAND {
             return self.factor_fast::<true>();
         }
-        let (n, p) = (self.n, self.p);
-        let w = p + 1;
-        let c = &mut self.col[..w];
-        let mut worst: Option<(usize, f64)> = None;
-        for k in 0..n {
-            let d = self.a[k * w + p];
-            if d == 0.0 || !d.is_finite() {
-                return Err(BandError::NotPositive { row: k, pivot: d });
-            }
-            if d < 0.0 && worst.is_none_or(|(_, v)| d < v) {
-                worst = Some((k, d));
-            }
-            let inv = 1.0 / d;
-            self.dinv[k] = inv;
-            let m = p.min(n - 1 - k);
-            for r in 1..m + 1 {
-                let idx = (k + r) * w + p - r;
-                let cr = self.a[idx];
-                c[r] = cr;
-                let lr = cr * inv;
-                self.a[idx] = lr;
-                for (dst, cs) in self.a[idx + 1..idx + r + 1].iter_mut().zip(&c[1..r + 1]) {
-                    *dst -= lr * cs;
-                }
-            }
-        }
-        Ok(worst)
+        self.factor_general::<true>()
     }
 
     /// After a factorisation: v with Lᵀ v = e_k (zero beyond k), into
