@@ -648,16 +648,8 @@ impl Opening {
         }
         let mut hit = [false; 128];
         for k in 0..n {
-            let [ax, ay] = self.flat[k];
-            let [cx, cy] = self.flat[(k + 1) % n];
-            let (ex, ey) = (cx - ax, cy - ay);
-            let l2 = ex * ex + ey * ey;
-            let t = if l2 > 0.0 {
-                (((x - ax) * ex + (y - ay) * ey) / l2).clamp(0.0, 1.0)
-            } else {
-                0.0
-            };
-            if let Some(o) = piece(ax + t * ex, ay + t * ey, 1.0) {
+            let (px, py) = self.nearest_on_edge(k, x, y);
+            if let Some(o) = piece(px, py, 1.0) {
                 hit[k] = true;
                 if out.push(o).is_err() {
                     return alone(out);
@@ -677,6 +669,22 @@ impl Opening {
         if out.is_empty() {
             alone(out);
         }
+    }
+
+    /// The point of the loop's flattened edge k (vertex k to k + 1) nearest
+    /// to (x, y), in the opening's plane.
+    fn nearest_on_edge(&self, k: usize, x: f64, y: f64) -> (f64, f64) {
+        let n = self.flat.len();
+        let [ax, ay] = self.flat[k];
+        let [cx, cy] = self.flat[(k + 1) % n];
+        let (ex, ey) = (cx - ax, cy - ay);
+        let l2 = ex * ex + ey * ey;
+        let t = if l2 > 0.0 {
+            (((x - ax) * ex + (y - ay) * ey) / l2).clamp(0.0, 1.0)
+        } else {
+            0.0
+        };
+        (ax + t * ex, ay + t * ey)
     }
 
     /// The continuation's wall seen from `p` if `p` lies beyond the
@@ -699,16 +707,9 @@ impl Opening {
         let n = self.flat.len();
         let (mut best, mut bx, mut by, mut inside) = (f64::INFINITY, 0.0, 0.0, false);
         for k in 0..n {
-            let [ax, ay] = self.flat[k];
-            let [cx, cy] = self.flat[(k + 1) % n];
-            let (ex, ey) = (cx - ax, cy - ay);
-            let l2 = ex * ex + ey * ey;
-            let t = if l2 > 0.0 {
-                (((x - ax) * ex + (y - ay) * ey) / l2).clamp(0.0, 1.0)
-            } else {
-                0.0
-            };
-            let (px, py) = (ax + t * ex, ay + t * ey);
+            let (px, py) = self.nearest_on_edge(k, x, y);
+            let ([ax, ay], [cx, cy]) = (self.flat[k], self.flat[(k + 1) % n]);
+            let ex = cx - ax;
             let d2 = (x - px) * (x - px) + (y - py) * (y - py);
             if d2 < best {
                 (best, bx, by) = (d2, px, py);
