@@ -142,6 +142,18 @@ pub struct ViewOptions {
     pub lumen: Option<Lumen>,
 }
 
+/// Starts a named viewer thread; a refusal names the thread.
+fn spawn_named(name: &str, f: impl FnOnce() + Send + 'static) -> Result<(), StreamError> {
+    std::thread::Builder::new()
+        .name(name.into())
+        .spawn(f)
+        .map(|_| ())
+        .map_err(|source| StreamError::Io {
+            path: format!("(thread {name})").into(),
+            source,
+        })
+}
+
 /// [`start`] with a drive server and a task receiver.
 pub fn start_with(opts: ViewOptions) -> Result<Viewer, StreamError> {
     let ViewOptions {
@@ -203,49 +215,31 @@ pub fn start_with(opts: ViewOptions) -> Result<Viewer, StreamError> {
     });
     if let Some(sock) = task_sock {
         let sh = shared.clone();
-        std::thread::Builder::new()
-            .name("view-task".into())
-            .spawn(move || receive_task(sock, &sh))
-            .map_err(|source| StreamError::Io {
-                path: "(thread view-task)".into(),
-                source,
-            })?;
+        spawn_named("view-task", move || receive_task(sock, &sh))?;
     }
     let sh = shared.clone();
-    std::thread::Builder::new()
-        .name("view-udp".into())
-        .spawn(move || receive(udp, &sh))
-        .map_err(|source| StreamError::Io {
-            path: "(thread view-udp)".into(),
-            source,
-        })?;
+    spawn_named("view-udp", move || receive(udp, &sh))?;
     let sh = shared.clone();
-    std::thread::Builder::new()
-        .name("view-http".into())
-        .spawn(move || {
-            for conn in http.incoming().flatten() {
-                let sh = sh.clone();
-                if sh.connections.fetch_add(1, Ordering::SeqCst) >= MAX_CLIENTS {
-                    sh.connections.fetch_sub(1, Ordering::SeqCst);
-                    let _ = respond(conn, "503 Service Unavailable", "text/plain", b"too many connections\n");
-                    continue;
-                }
-                let spawned = std::thread::Builder::new().name("view-conn".into()).spawn({
-                    let sh = sh.clone();
-                    move || {
-                        serve(conn, &sh);
-                        sh.connections.fetch_sub(1, Ordering::SeqCst);
-                    }
-                });
-                if spawned.is_err() {
-                    sh.connections.fetch_sub(1, Ordering::SeqCst);
-                }
+    spawn_named("view-http", move || {
+        for conn in http.incoming().flatten() {
+            let sh = sh.clone();
+            if sh.connections.fetch_add(1, Ordering::SeqCst) >= MAX_CLIENTS {
+                sh.connections.fetch_sub(1, Ordering::SeqCst);
+                let _ = respond(conn, "503 Service Unavailable", "text/plain", b"too many connections\n");
+                continue;
             }
-        })
-        .map_err(|source| StreamError::Io {
-            path: "(thread view-http)".into(),
-            source,
-        })?;
+            let spawned = std::thread::Builder::new().name("view-conn".into()).spawn({
+                let sh = sh.clone();
+                move || {
+                    serve(conn, &sh);
+                    sh.connections.fetch_sub(1, Ordering::SeqCst);
+                }
+            });
+            if spawned.is_err() {
+                sh.connections.fetch_sub(1, Ordering::SeqCst);
+            }
+        }
+    })?;
     Ok(Viewer {
         http: http_addr,
         stream: udp_addr,
