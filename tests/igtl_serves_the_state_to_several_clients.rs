@@ -232,9 +232,15 @@ fn four_clients_one_stalled_get_every_frame_at_the_stream_rate_and_the_stall_is_
         stalled.frames_dropped > 0,
         "the stalled client's frames are dropped and counted"
     );
-    // Never blocked on the stalled client: a publish takes far less than a
-    // frame period even with its queue full.
-    assert!(worst_ms < 16.0, "worst publish {worst_ms} ms");
+    // Never blocked on the stalled client: a write blocked on its full socket
+    // would not return until the connection closed (seconds here), so every
+    // publish returning well inside that is the structural check. Its typical
+    // figure (well under a frame period on a quiet machine) is printed above;
+    // a tighter bound would test the machine's load, not the server.
+    assert!(
+        worst_ms < 500.0,
+        "a publish waited {worst_ms} ms: blocked on the stalled client"
+    );
 }
 
 #[test]
