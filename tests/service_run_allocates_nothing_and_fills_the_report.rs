@@ -157,6 +157,14 @@ basis_refresh_m = 1e-5
         sane(key, &ph.phases[key].us);
     }
     assert_eq!(ph.phases["swap"].ticks, report.model_swaps);
+    // Each model swapped in was taken and warmed on an earlier tick; one
+    // more may have been taken just before the stop.
+    let warmed = ph.phases["warm"].ticks;
+    assert!(
+        warmed >= report.model_swaps && warmed <= report.model_swaps + 1,
+        "warmed {warmed}, swapped {}",
+        report.model_swaps
+    );
     assert!(ph.phases["fade"].ticks > 0, "the cross-fade ran");
     assert_eq!(ph.phases["series"].ticks, report.watchdog.compliance_ticks);
     let shares: f64 = ph

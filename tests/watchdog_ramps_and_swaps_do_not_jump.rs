@@ -295,20 +295,28 @@ fn swap_mid_contact(new_basis: bool) {
     };
     let ubar_max = state.u.iter().map(|u| u.norm()).fold(0.0, f64::max);
     assert!(ubar_max > 2e-4, "the full solve moved: {ubar_max}");
-    // The background measured how far ū moved since the last model (at
-    // rest here) in the same basis; a new basis has no such bound.
-    if new_basis {
-        assert_eq!(m.offset_moved_m, None);
+    // The background measured how far the swap moves a node in the same
+    // basis (ū's change from the last model, at rest here, less the part
+    // the shift follows); a new basis has no such bound.
+    let rest = vec![Vec3::zeros(); n];
+    let moved = if new_basis {
+        assert_eq!(m.surface_moved_m, None);
+        f64::INFINITY
     } else {
-        assert_eq!(m.offset_moved_m, Some(ubar_max));
-    }
-    let carries = !new_basis && ubar_max < nvtmm::haptics::contact::COHERENCE_SLACK_M;
+        let moved = m.surface_moved_m.expect("same basis: the swap's motion is measured");
+        let expected = swap_motion(&m, &rest, &state.u);
+        assert!((moved - expected).abs() <= 1e-12, "{moved:e} vs {expected:e}");
+        moved
+    };
+    let carries = moved < nvtmm::haptics::contact::COHERENCE_SLACK_M;
     let old = s.swap(m).map(|o| o.epoch);
     // In the same basis, with ū moved less than the slack, the swap keeps
     // the contact's triangles (no search); the ticks below check that they
     // give what a fresh search gives.
     assert_eq!(s.counters().swaps_carried, carries as u64, "ū moved {ubar_max:e} m");
-    eprintln!("new basis {new_basis}: ū moved {ubar_max:.3e} m, contact triangles kept over the swap: {carries}");
+    eprintln!(
+        "new basis {new_basis}: ū moved {ubar_max:.3e} m, a node at the carried state {moved:.3e} m, contact triangles kept over the swap: {carries}"
+    );
     assert_eq!(old, None, "the old model fades out first");
     assert!(s.is_blending());
     assert_eq!(s.model().epoch, 1);
@@ -378,17 +386,43 @@ fn swap_mid_contact(new_basis: bool) {
     // gives what a fresh search gives.
     let u2: Vec<Vec3> = state.u.iter().map(|u| u * 1.05).collect();
     let (m2, _) = bg.build_model(&u2, &fbar, 2, None).unwrap();
-    let moved = m2.offset_moved_m.expect("same basis: the change of ū is measured");
+    let moved = m2.surface_moved_m.expect("same basis: the swap's motion is measured");
+    let expected = swap_motion(&m2, &state.u, &u2);
     assert!(
-        (moved - 0.05 * ubar_max).abs() <= 1e-12 && moved < nvtmm::haptics::contact::COHERENCE_SLACK_M,
-        "ū moved {moved:e} m"
+        (moved - expected).abs() <= 1e-12 && moved < nvtmm::haptics::contact::COHERENCE_SLACK_M,
+        "the swap moved a node {moved:e} m, expected {expected:e} m"
     );
     s.swap(m2);
-    assert_eq!(s.counters().swaps_carried, 1, "the swap kept the contact's triangles");
+    assert_eq!(
+        s.counters().swaps_carried,
+        carries as u64 + 1,
+        "the swap kept the contact's triangles"
+    );
     for k in 0..40 {
         seq += 1;
         t += DT;
         tick_as_searched(&mut s, seq, t, k);
+        if k == 0 {
+            eprintln!(
+                "the first tick after the second swap searched {} spheres",
+                s.contact().searches
+            );
+        }
     }
-    eprintln!("second swap, ū moved {moved:.3e} m: the contact's triangles kept, every tick as a fresh search");
+    eprintln!(
+        "second swap, ū moved {:.3e} m, a node at the carried state {moved:.3e} m: the contact's triangles kept, every tick as a fresh search",
+        0.05 * ubar_max
+    );
+}
+
+/// How far a swap to `m` (same basis) moves a node: the largest
+/// ‖ū_new − ū_old + Φᵢ s‖, its position at the carried state δq + s
+/// against its position at δq in the previous model.
+fn swap_motion(m: &LoopModel<R>, u_old: &[Vec3], u_new: &[Vec3]) -> f64 {
+    u_new
+        .iter()
+        .zip(u_old)
+        .enumerate()
+        .map(|(i, (a, b))| (a - b + m.dynamics.rows_at(i as u32).unwrap() * m.shift).norm())
+        .fold(0.0, f64::max)
 }

@@ -515,19 +515,21 @@ impl<const R: usize> ContactOutput<R> {
     }
 
     /// Takes over `from`'s kept triangles and pair blocks for positions that
-    /// follow another model in the same basis (the same Φ rows, so the same
-    /// reduced coordinates) whose offset ū differs from that of `from`'s
-    /// model by at most `offset_moved` (m) at every node: a model swap
-    /// between basis refreshes. Each kept list then holds every triangle a
-    /// search would find while the sphere and the surface move less than
-    /// the slack less `offset_moved` (the motion bound of [`Motion`] grows
-    /// by it), so the swap tick needs no search. Without room in either
-    /// output, or with an `offset_moved` that is not finite and ≥ 0,
-    /// this forgets instead. Returns how many spheres' triangles were
-    /// carried over. Allocates nothing.
-    pub fn carry_from(&mut self, from: &ContactOutput<R>, offset_moved: f64) -> usize {
+    /// follow another model on the same Φ rows whose state is `from`'s
+    /// moved by `shift` (q ← q + `shift`), and whose positions at q +
+    /// `shift` are within `moved` (m) of `from`'s model's positions at q at
+    /// every node: a model swap between basis refreshes (ū changes, and the
+    /// shift follows the part of that change the basis spans). Each kept
+    /// state moves by `shift` too, so the motion bound of [`Motion`] counts
+    /// the state's change from there plus `moved`: each kept list holds
+    /// every triangle a search would find while that bound stays under the
+    /// slack, and the swap tick needs no search. Without room in either
+    /// output, or with a `moved` that is not finite and ≥ 0 or a `shift`
+    /// that is not finite, this forgets instead. Returns how many spheres'
+    /// triangles were carried over. Allocates nothing.
+    pub fn carry_from(&mut self, from: &ContactOutput<R>, moved: f64, shift: &SVector<f64, R>) -> usize {
         self.forget();
-        if !(offset_moved.is_finite() && offset_moved >= 0.0)
+        if !(moved.is_finite() && moved >= 0.0 && shift.iter().all(|v| v.is_finite()))
             || self.kept.len() != from.kept.len()
             || self.kept_tris.len() != from.kept_tris.len()
             || self.kept_dist.len() != from.kept_dist.len()
@@ -541,14 +543,18 @@ impl<const R: usize> ContactOutput<R> {
             if !k.valid {
                 continue;
             }
-            let carried = k.carried + offset_moved;
+            let carried = k.carried + moved;
             if !at_most(carried, COHERENCE_SLACK_M) {
                 continue;
             }
             let (base, len) = (s * KEPT_TRIANGLES, k.len as usize);
             self.kept_tris[base..base + len].copy_from_slice(&from.kept_tris[base..base + len]);
             self.kept_dist[base..base + len].copy_from_slice(&from.kept_dist[base..base + len]);
-            self.kept[s] = Kept { carried, ..*k };
+            self.kept[s] = Kept {
+                carried,
+                q: k.q + shift,
+                ..*k
+            };
             carried_spheres += 1;
         }
         // The pair blocks depend on the table and the nodes only.
@@ -562,6 +568,28 @@ impl<const R: usize> ContactOutput<R> {
             self.pair_keys[s] = *key;
         }
         carried_spheres
+    }
+
+    /// Calls `f` with each node of every triangle a sphere keeps (a node
+    /// shared by triangles comes once per triangle): the nodes whose
+    /// positions the next evaluation on the kept triangles reads. The loop
+    /// reads a new model's offset at these nodes a tick before swapping it
+    /// in ([`crate::haptics::servo::Servo::warm`]). Allocates nothing.
+    pub fn for_each_kept_node(&self, index: &SurfaceIndex, mut f: impl FnMut(u32)) {
+        for (s, k) in self.kept.iter().enumerate() {
+            if !k.valid {
+                continue;
+            }
+            let base = s * KEPT_TRIANGLES;
+            let Some(kept) = self.kept_tris.get(base..base + k.len as usize) else {
+                continue;
+            };
+            for &t in kept {
+                if let Some(tri) = index.tris.get(t as usize) {
+                    tri.iter().for_each(|&v| f(v));
+                }
+            }
+        }
     }
 
     /// Makes sphere `s`'s kept pair blocks those of patch `p`'s nodes in

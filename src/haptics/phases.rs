@@ -49,6 +49,10 @@ pub enum Phase {
     /// The watchdog gain, the force push and the pushes to the other
     /// threads (contact forces, retired models).
     Output,
+    /// After the force push, taking a refreshed model from the ring and
+    /// reading its memory, to swap it in on the next tick (only on ticks
+    /// that take one).
+    Warm,
 }
 
 /// The tick compute time above which a tick counts in the tail
@@ -56,7 +60,7 @@ pub enum Phase {
 pub const TAIL_US: f64 = 100.0;
 
 /// Number of phases.
-pub const PHASES: usize = 10;
+pub const PHASES: usize = 11;
 
 impl Phase {
     /// Every phase, in the order of the tick.
@@ -71,6 +75,7 @@ impl Phase {
         Phase::Filter,
         Phase::QpSolve,
         Phase::Output,
+        Phase::Warm,
     ];
 
     /// The report key.
@@ -86,6 +91,7 @@ impl Phase {
             Phase::Filter => "filter",
             Phase::QpSolve => "qp_solve",
             Phase::Output => "output",
+            Phase::Warm => "warm",
         }
     }
 

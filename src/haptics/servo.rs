@@ -40,13 +40,17 @@ pub struct LoopModel<const R: usize> {
     /// The residual compliance of the model's basis (contact anywhere,
     /// `crate::reduced::compliance`); None: the reduced model alone.
     pub compliance: Option<Arc<LocalCompliance>>,
-    /// The largest change of ū at any node from the previous epoch's model
-    /// (m), when this model shares that model's basis rows (its transfer is
-    /// then I); None: a new basis, or not known. Measured on the
-    /// background thread, so that the swap carries the contact's kept
-    /// triangles over instead of searching the surface on the loop
-    /// ([`Servo::swap`]).
-    pub offset_moved_m: Option<f64>,
+    /// How far the swap moves any node (m), when this model shares the
+    /// previous epoch's model's basis rows (its transfer is then I): the
+    /// largest ‖ū_new,i − ū_old,i + Φᵢ s‖ over the mesh, s the `shift`,
+    /// i.e. how far a node's position at the carried state q + s lies from
+    /// its position at q in the previous model. That is the part of ū's
+    /// change the basis does not follow, far less than the change itself
+    /// (the shift follows the rest). None: a new basis, or not known.
+    /// Measured on the background thread, so that the swap carries the
+    /// contact's kept triangles over instead of searching the surface on
+    /// the loop ([`Servo::swap`]).
+    pub surface_moved_m: Option<f64>,
 }
 
 /// Watchdog and contact settings of the loop.
@@ -155,8 +159,9 @@ pub struct ServoCounters {
     /// changed); on the others every patch reused the blocks it kept.
     pub compliance_lookup_ticks: u64,
     /// Swaps that carried the contact's kept triangles over to the new
-    /// model (same basis, ū moved less than the slack): no surface search
-    /// on the swap tick ([`LoopModel::offset_moved_m`]).
+    /// model (same basis, the swap moved the surface less than the
+    /// slack): no surface search
+    /// on the swap tick ([`LoopModel::surface_moved_m`]).
     pub swaps_carried: u64,
 }
 
@@ -309,6 +314,23 @@ fn project_point_loads<const R: usize>(d: &ReducedDynamics<R>, loads: &[(u32, Ve
     f
 }
 
+/// G += w ΦᵢᵀΦᵢ for one node's three rows, in one pass over G: each
+/// entry takes its three products at once, on contiguous columns, which
+/// vectorize (a 3 × r `tr_mul` takes a 3-long dot per entry, and three
+/// rank-one updates load and store G three times).
+fn add_gram<const R: usize>(g: &mut SMatrix<f64, R, R>, w: f64, rows: &SMatrix<f64, 3, R>) {
+    let r0: SVector<f64, R> = rows.row(0).transpose();
+    let r1: SVector<f64, R> = rows.row(1).transpose();
+    let r2: SVector<f64, R> = rows.row(2).transpose();
+    let (r0, r1, r2) = (r0.as_slice(), r1.as_slice(), r2.as_slice());
+    for (j, col) in g.as_mut_slice().chunks_exact_mut(R).enumerate() {
+        let (a0, a1, a2) = (w * r0[j], w * r1[j], w * r2[j]);
+        for (((gij, &x0), &x1), &x2) in col.iter_mut().zip(r0).zip(r1).zip(r2) {
+            *gij += x0 * a0 + x1 * a1 + x2 * a2;
+        }
+    }
+}
+
 fn step_model<const R: usize>(
     m: &mut LoopModel<R>,
     c: &ContactOutput<R>,
@@ -349,7 +371,9 @@ pub struct Servo<const R: usize> {
     index: Arc<SurfaceIndex>,
     params: ServoParams,
     scratch: Candidates,
-    contact: ContactOutput<R>,
+    // Boxed, both: a swap exchanges the two outputs (tens of KB each
+    // inline) by pointer.
+    contact: Box<ContactOutput<R>>,
     gain: f64,
     last_seq: u64,
     last_fresh_s: f64,
@@ -360,7 +384,7 @@ pub struct Servo<const R: usize> {
     fault_until_s: f64,
     fading: Option<Box<LoopModel<R>>>,
     fade_scratch: Candidates,
-    fade_contact: ContactOutput<R>,
+    fade_contact: Box<ContactOutput<R>>,
     blend: f64,
     retired: Option<Box<LoopModel<R>>>,
     extra: heapless::Vec<Vec3, { contact::MAX_SPHERES - 1 }>,
@@ -388,8 +412,8 @@ pub const FAULT_HOLD_S: f64 = 0.1;
 impl<const R: usize> Servo<R> {
     /// A loop on `model` with the surface `index`. Allocates here only.
     pub fn new(model: Box<LoopModel<R>>, index: Arc<SurfaceIndex>, params: ServoParams, now_s: f64) -> Servo<R> {
-        let contact = ContactOutput::for_index(&index);
-        let fade_contact = ContactOutput::for_index(&index);
+        let contact = Box::new(ContactOutput::for_index(&index));
+        let fade_contact = Box::new(ContactOutput::for_index(&index));
         Servo {
             model,
             index,
@@ -466,12 +490,10 @@ impl<const R: usize> Servo<R> {
         // them by ū's change, measured on the background thread: the
         // contact's kept triangles stay valid with that much more motion
         // allowed, so the swap tick searches nothing.
-        let carry = new
-            .offset_moved_m
-            .filter(|_| Arc::ptr_eq(new.dynamics.rows(), self.model.dynamics.rows()));
+        let same_basis = Arc::ptr_eq(new.dynamics.rows(), self.model.dynamics.rows());
+        let carry = new.surface_moved_m.filter(|_| same_basis);
         let q = new.transfer * self.model.dynamics.q() + new.shift;
         let qd = new.transfer * self.model.dynamics.qd();
-        let mut carried = 0usize;
         let mut evaluated_new = false;
         if q.iter().chain(qd.iter()).all(|v| v.is_finite()) {
             let dq = self.contact_match(&new, &q);
@@ -480,23 +502,35 @@ impl<const R: usize> Servo<R> {
                 // The cross-fade hides a step: start the new model at its
                 // equilibrium under the contact (one static Newton step),
                 // so it does not ring after the fade.
-                new.dynamics.set_state(&q, &qd);
-                match carry {
-                    Some(d) => carried = self.fade_contact.carry_from(&self.contact, d),
-                    None => self.fade_contact.forget(),
-                }
-                eval_contact(
-                    &new,
-                    &self.index,
-                    &self.params.contact,
-                    &self.centers,
-                    &mut self.fade_scratch,
-                    &mut self.fade_contact,
-                );
-                evaluated_new = true;
-                let c = &self.fade_contact;
-                let k = new.dynamics.stiffness() + c.reduced_stiffness;
-                let r = c.reduced_force - new.f_bar - new.dynamics.stiffness() * q
+                let (f_c, k_c) = if same_basis {
+                    // The last tick's contact is in the new model's
+                    // coordinates, and the match has put the touched nodes
+                    // where it found them: its force and stiffness are the
+                    // new model's at the matched state, up to what of ū's
+                    // change the basis cannot follow at those nodes. The
+                    // tick that follows evaluates the contact on the new
+                    // model; the swap need not do it twice.
+                    (self.contact.reduced_force, self.contact.reduced_stiffness)
+                } else {
+                    // A new basis: the old contact's reduced force is in
+                    // the old coordinates, so evaluate it on the new model
+                    // (on a search: the triangles were found on another
+                    // basis's positions).
+                    new.dynamics.set_state(&q, &qd);
+                    self.fade_contact.forget();
+                    eval_contact(
+                        &new,
+                        &self.index,
+                        &self.params.contact,
+                        &self.centers,
+                        &mut self.fade_scratch,
+                        &mut self.fade_contact,
+                    );
+                    evaluated_new = true;
+                    (self.fade_contact.reduced_force, self.fade_contact.reduced_stiffness)
+                };
+                let k = new.dynamics.stiffness() + k_c;
+                let r = f_c - new.f_bar - new.dynamics.stiffness() * q
                     + project_point_loads(&new.dynamics, &self.point_loads);
                 if let Some(step) = k.cholesky().map(|ch| ch.solve(&r)) {
                     if step.iter().all(|v| v.is_finite()) {
@@ -513,18 +547,22 @@ impl<const R: usize> Servo<R> {
         }
         self.counters.model_swaps += 1;
         // Each contact output keeps the triangles it found on one model's
-        // positions (`contact::Motion`), so each follows its model: the one
-        // just evaluated on the new model becomes the tick's, and the
-        // tick's, kept on the old model, runs on with it in the cross-fade.
-        // Only an output without triangles found on its model's positions
-        // searches again (a full search costs several times a tick).
+        // positions (`contact::Motion`), so each follows its model: the
+        // tick's, kept on the old model, runs on with it in the cross-fade,
+        // and the other becomes the tick's on the new model, with the
+        // tick's triangles carried over in the same basis (or, after an
+        // evaluation on a new basis, the ones it found there). Only an
+        // output without triangles found on its model's positions searches
+        // again (a full search costs several times a tick).
         std::mem::swap(&mut self.contact, &mut self.fade_contact);
-        if !evaluated_new {
-            match carry {
-                Some(d) => carried = self.contact.carry_from(&self.fade_contact, d),
-                None => self.contact.forget(),
+        let carried = match (evaluated_new, carry) {
+            (true, _) => 0,
+            (false, Some(d)) => self.contact.carry_from(&self.fade_contact, d, &new.shift),
+            (false, None) => {
+                self.contact.forget();
+                0
             }
-        }
+        };
         if carried > 0 {
             self.counters.swaps_carried += 1;
         }
@@ -532,6 +570,33 @@ impl<const R: usize> Servo<R> {
             self.fade_contact.forget();
         }
         std::mem::replace(&mut self.model, new)
+    }
+
+    /// Reads the memory of `new`, a model that the background thread built
+    /// on the other core and that is to be swapped in on a later tick: its
+    /// matrices, its state transfer and its offset ū at the nodes of the
+    /// contact's kept triangles (the nodes the swap's match and the first
+    /// contact evaluation on it read). Otherwise the swap tick waits for
+    /// each of those cache lines in turn as its computation reaches them;
+    /// here the reads are independent and overlap. Returns a sum of what
+    /// it read (to keep the reads). Allocates nothing.
+    pub fn warm(&self, new: &LoopModel<R>) -> f64 {
+        let lines = |m: &[f64]| m.iter().step_by(8).sum::<f64>();
+        let mut sum = new.dynamics.touch()
+            + lines(new.transfer.as_slice())
+            + lines(new.shift.as_slice())
+            + lines(new.f_bar.as_slice());
+        let offset = new.offset.as_slice();
+        let mut at = |i: u32| {
+            if let Some(u) = offset.get(i as usize) {
+                sum += u.x;
+            }
+        };
+        self.contact.for_each_kept_node(&self.index, &mut at);
+        for c in self.contact.nodes.iter() {
+            at(c.node);
+        }
+        sum
     }
 
     /// The Δ with Φᵢ(q + Δ) + ū_new,i closest to u_old,i over the touched
@@ -556,12 +621,7 @@ impl<const R: usize> Servo<R> {
             let old =
                 self.model.offset.get(i).copied().unwrap_or_else(Vec3::zeros) + rows_old * self.model.dynamics.q();
             let now = new.offset.get(i).copied().unwrap_or_else(Vec3::zeros) + rows_new * q;
-            // w Φᵀ Φ as three rank-one updates on contiguous columns, which
-            // vectorize; the 3 × r `tr_mul` takes a 3-long dot per entry.
-            for k in 0..3 {
-                let v: SVector<f64, R> = rows_new.row(k).transpose();
-                contact::add_outer(&mut g, w, &v, &v);
-            }
+            add_gram(&mut g, w, rows_new);
             b += rows_new.tr_mul(&(old - now)) * w;
         }
         let scale = g.trace() / R as f64;

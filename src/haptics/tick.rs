@@ -267,6 +267,12 @@ impl<const R: usize> HapticTick<R> {
         self.servo.swap(model)
     }
 
+    /// Reads a model's memory a tick before it is swapped in (see
+    /// [`Servo::warm`]); returns a sum of what it read.
+    pub fn warm(&self, model: &LoopModel<R>) -> f64 {
+        self.servo.warm(model)
+    }
+
     /// The servo (contact, model, watchdog).
     pub fn servo(&self) -> &Servo<R> {
         &self.servo

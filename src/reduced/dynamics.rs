@@ -489,9 +489,10 @@ impl<const R: usize> ReducedDynamics<R> {
     /// positive semi-definite, e.g. Σ k Φᵢᵀ n nᵀ Φᵢ over the touched nodes).
     /// The contact is linearized about qₙ, f_c(qₙ₊₁) ≈ f_c(qₙ) − k_c h q̇ₙ₊₁,
     /// so a penalty far stiffer than the explicit limit 4/h² stays stable.
-    /// Factors the R × R system on the stack (no allocation); if it is not
-    /// positive definite (k_c not PSD) the contact stiffness is dropped for
-    /// this step and `false` is returned.
+    /// Factors the R × R system on the stack (no allocation; with k_c = 0,
+    /// out of contact, it solves with the factor made with the model); if
+    /// it is not positive definite (k_c not PSD) the contact stiffness is
+    /// dropped for this step and `false` is returned.
     pub fn step_with_contact(&mut self, f: &SVector<f64, R>, k_c: &SMatrix<f64, R, R>) -> bool {
         let h = self.dt;
         self.advance_pulse();
@@ -542,6 +543,16 @@ impl<const R: usize> ReducedDynamics<R> {
         rhs: &mut SVector<f64, R>,
         extra: Option<&mut SVector<f64, R>>,
     ) -> bool {
+        // Out of contact k_c is exactly zero and A + h² k_c is A, whose
+        // factor was computed when the model was built (off the loop):
+        // solving with it gives the same result as factoring A again.
+        if k_c.iter().all(|&v| v == 0.0) {
+            self.system.solve_mut(rhs);
+            if let Some(x) = extra {
+                self.system.solve_mut(x);
+            }
+            return true;
+        }
         let h = self.dt;
         let mut a = self.a;
         for i in 0..self.r {
@@ -565,6 +576,24 @@ impl<const R: usize> ReducedDynamics<R> {
                 false
             }
         }
+    }
+
+    /// Reads one value of every cache line of the model's matrices (K_r,
+    /// the step matrix and its factor) and its Prony histories, and returns
+    /// their sum: a model built on another core is read here once, before
+    /// the loop needs it, so that the loop's swap and first steps on it do
+    /// not wait for memory ([`crate::haptics::servo::Servo::warm`]).
+    pub fn touch(&self) -> f64 {
+        // 8 f64 = 64 bytes, one cache line.
+        let lines = |m: &[f64]| m.iter().step_by(8).sum::<f64>();
+        let mut sum = lines(self.k.as_slice()) + lines(self.a.as_slice()) + lines(self.system.l_dirty().as_slice());
+        for g in &self.gamma {
+            sum += lines(g.as_slice());
+        }
+        if let Some(p) = &self.pulse {
+            sum += lines(p.load_per_pa.as_slice());
+        }
+        sum
     }
 
     /// The three rows of Φ at `node` (None if the node is not in the mesh).

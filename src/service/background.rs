@@ -393,18 +393,6 @@ impl<const R: usize> Background<R> {
         let qbar = to_s::<R>(&self.refresher.project_mass(u).as_slice()[..r]);
         let fb = to_s::<R>(&self.refresher.project_force(fbar).as_slice()[..r]);
         let offset = Arc::new(u.to_vec());
-        // How far ū moved at any node since the last model sent, in the
-        // same basis: the loop's swap keeps its contact triangles with that
-        // much more motion allowed instead of searching the surface.
-        // (f64::max skips a NaN: a change that is not finite gives none.)
-        let offset_moved_m = match sent_phi {
-            None if self.last_sent.0.len() == u.len() => u
-                .iter()
-                .zip(self.last_sent.0.iter())
-                .map(|(a, b)| (a - b).norm())
-                .try_fold(0.0, |m: f64, d| d.is_finite().then(|| m.max(d))),
-            _ => None,
-        };
         let (transfer, shift) = match sent_phi {
             // Same basis: δq₁ = δq₀ + Φᵀ M (ū₀ − ū₁).
             None => (SMatrix::identity(), self.last_sent.1 - qbar),
@@ -421,6 +409,22 @@ impl<const R: usize> Background<R> {
                 (tm, q0 - qbar)
             }
         };
+        // How far the swap moves any node, in the same basis: a node's
+        // position at the carried state δq + s against its position at δq
+        // in the last model sent, ū₁ − ū₀ + Φ s (the part of ū's change
+        // the basis does not follow). The loop's swap keeps its contact
+        // triangles with that much more motion allowed instead of
+        // searching the surface. (f64::max skips a NaN: a change that is
+        // not finite gives none.)
+        let surface_moved_m = match sent_phi {
+            None if self.last_sent.0.len() == u.len() && self.rows.len() == u.len() => u
+                .iter()
+                .zip(self.last_sent.0.iter())
+                .zip(self.rows.iter())
+                .map(|((a, b), phi)| (a - b + phi * shift).norm())
+                .try_fold(0.0, |m: f64, d| d.is_finite().then(|| m.max(d))),
+            _ => None,
+        };
         if !(transfer.iter().all(|v| v.is_finite()) && shift.iter().all(|v| v.is_finite())) {
             return None;
         }
@@ -433,7 +437,7 @@ impl<const R: usize> Background<R> {
             shift,
             created_s: clock::now_s(),
             compliance: self.compliance.clone(),
-            offset_moved_m,
+            surface_moved_m,
         });
         Some((model, qbar))
     }
@@ -484,7 +488,7 @@ pub fn rest_model<const R: usize>(
         shift: SVector::zeros(),
         created_s: clock::now_s(),
         compliance: None,
-        offset_moved_m: None,
+        surface_moved_m: None,
     }))
 }
 

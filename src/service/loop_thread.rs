@@ -138,6 +138,8 @@ pub(super) fn loop_thread<const R: usize>(mut tick: HapticTick<R>, mut io: LoopI
     let mut window_max_us = 0.0f64;
     // A retired model the return ring had no room for (kept, never freed here).
     let mut pending_return: Option<Box<LoopModel<R>>> = None;
+    // A model taken from the ring and warmed, to swap in on the next tick.
+    let mut incoming: Option<Box<LoopModel<R>>> = None;
     let mut contact_msg = ContactMsg {
         tick: 0,
         nodes: heapless::Vec::new(),
@@ -155,11 +157,12 @@ pub(super) fn loop_thread<const R: usize>(mut tick: HapticTick<R>, mut io: LoopI
             last = Some(s);
         }
         split.lap(Phase::Drain);
-        // A new model between ticks; only if the models it retires can be
-        // returned (never freed here).
-        if !io.models.is_empty() && !io.faults.holding_models() {
+        // The model taken and warmed on an earlier tick swaps in between
+        // ticks; only if the models it retires can be returned (never
+        // freed here).
+        if incoming.is_some() && !io.faults.holding_models() {
             if pending_return.is_none() && io.returned.slots() >= 2 {
-                if let Ok(m) = io.models.pop() {
+                if let Some(m) = incoming.take() {
                     if let Some(old) = tick.swap(m) {
                         if let Err(rtrb::PushError::Full(old)) = io.returned.push(old) {
                             pending_return = Some(old);
@@ -238,6 +241,17 @@ pub(super) fn loop_thread<const R: usize>(mut tick: HapticTick<R>, mut io: LoopI
             }
         }
         split.lap(Phase::Output);
+        // A refreshed model is taken from the ring after the force is out
+        // and swapped in on the next tick: reading its memory now (written
+        // by the background thread on the other core) lets the swap tick
+        // find it in this core's cache.
+        if incoming.is_none() && !io.models.is_empty() && !io.faults.holding_models() {
+            if let Ok(m) = io.models.pop() {
+                std::hint::black_box(tick.warm(&m));
+                incoming = Some(m);
+                split.lap(Phase::Warm);
+            }
+        }
         let end = clock::now_ns();
         let compute = end - wake;
         res.compute.record(compute as f64 * 1e-3);
@@ -282,6 +296,7 @@ pub(super) fn loop_thread<const R: usize>(mut tick: HapticTick<R>, mut io: LoopI
     res.page_faults = (faults1.0 - faults0.0, faults1.1 - faults0.1);
     // Off the clock: whatever was not returned is freed with the thread.
     drop(pending_return);
+    drop(incoming);
     res.seconds = (clock::now_ns() - t_begin) as f64 * 1e-9;
     res.instrument_switches = selector.switches();
     res.counters = *tick.counters();
