@@ -697,7 +697,21 @@ struct Sample {
     depth: f64,
     /// k_p dA (N/m).
     k: f64,
+    /// How far the point moves out of the sphere per unit of its patch's
+    /// residual deflection δ (1: as the patch on average; see
+    /// [`patch_shape`]).
+    phi: f64,
+    /// Direction of its pressure (from the sphere's centre), the
+    /// barycentric (b1, b2) in its triangle, and its triangle's vertices
+    /// as indices into `ContactOutput::active` (`u16::MAX`: not listed).
+    dir: [f32; 3],
+    bary: [f32; 2],
+    slots: [u16; 3],
 }
+
+/// A sample's slot that names no active node.
+const NO_SLOT: u16 = u16::MAX;
+const _: () = assert!(MAX_CONTACT_NODES < NO_SLOT as usize);
 
 /// A node's share of one sphere's pressure, before the series correction.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -707,6 +721,9 @@ struct ActiveNode {
     f: Vec3,
     /// Its share of the patch stiffness, Σ k_p dA b over the pressed samples (N/m).
     k: f64,
+    /// Σ_b ΔW_ab f_b over its patch's nodes b: how the node moves under
+    /// its own patch's pressed forces (m), for the deflection shape.
+    deflect: Vec3,
 }
 
 /// One sphere's contact patch: its nodes are `active[first..first + len]`.
@@ -937,6 +954,7 @@ fn press_sphere<const R: usize>(
         let da = params.pressure_stiffness * index.tri_area[t] / (level * level) as f64;
         let mut fv = [Vec3::zeros(); 3];
         let mut kv = [0.0; 3];
+        let tri_samples = out.samples_buf.len();
         let samples_buf = &mut out.samples_buf;
         let mut overflowed = false;
         let overflow = &mut overflowed;
@@ -967,7 +985,15 @@ fn press_sphere<const R: usize>(
                 kv[c] += da * b[c];
             }
             if samples_buf.len() < samples_buf.capacity() {
-                samples_buf.push(Sample { depth, k: da });
+                let dir = fw / w.max(f64::MIN_POSITIVE);
+                samples_buf.push(Sample {
+                    depth,
+                    k: da,
+                    phi: 1.0,
+                    dir: [dir.x as f32, dir.y as f32, dir.z as f32],
+                    bary: [b1 as f32, b2 as f32],
+                    slots: [NO_SLOT; 3],
+                });
             } else {
                 *overflow = true;
             }
@@ -1011,6 +1037,7 @@ fn press_sphere<const R: usize>(
         }
         out.samples += count;
         out.truncated |= overflowed;
+        let mut slots = [NO_SLOT; 3];
         for c in 0..3 {
             if kv[c] <= 0.0 {
                 continue;
@@ -1018,25 +1045,34 @@ fn press_sphere<const R: usize>(
             force += fv[c];
             k += kv[c];
             let node = tri[c];
-            match out.active[first..].iter_mut().find(|a| a.node == node) {
-                Some(a) => {
+            match out.active[first..].iter().position(|a| a.node == node) {
+                Some(at) => {
+                    let a = &mut out.active[first + at];
                     a.f += fv[c];
                     a.k += kv[c];
+                    slots[c] = (first + at) as u16;
                 }
                 None => {
+                    let at = out.active.len();
                     if out
                         .active
                         .push(ActiveNode {
                             node,
                             f: fv[c],
                             k: kv[c],
+                            deflect: Vec3::zeros(),
                         })
                         .is_err()
                     {
                         out.truncated = true;
+                    } else {
+                        slots[c] = at as u16;
                     }
                 }
             }
+        }
+        for smp in &mut out.samples_buf[tri_samples..] {
+            smp.slots = slots;
         }
     }
     let len = out.active.len() - first;
@@ -1307,19 +1343,68 @@ fn cholesky_solve(
 const SERIES_ITERATIONS: usize = 16;
 
 /// Patch `q`'s pressure law at a deflection `delta` of the tissue under it
-/// (along its force): (F, dF/dδ) with F(δ) = c Σ k_i (d_i − δ)₊ over its
-/// samples, c = F(0) / Σ k_i d_i (the pressed magnitude at no deflection,
-/// [`Patch::law_scale`]).
+/// (along its force): (F, −dF/dδ) with F(δ) = c Σ k_i (d_i − φ_i δ)₊ over
+/// its samples, c = F(0) / Σ k_i d_i (the pressed magnitude at no
+/// deflection, [`Patch::law_scale`]) and φ_i the sample's share of the
+/// deflection ([`patch_shape`]).
 fn patch_law<const R: usize>(q: usize, out: &ContactOutput<R>, delta: f64) -> (f64, f64) {
     let p = &out.patches[q];
-    let samples = &out.samples_buf[p.sample_first as usize..(p.sample_first + p.sample_len) as usize];
-    let (mut f, mut k) = (0.0, 0.0);
-    for smp in samples {
-        let pressed = smp.depth > delta;
-        f += if pressed { smp.k * (smp.depth - delta) } else { 0.0 };
-        k += if pressed { smp.k } else { 0.0 };
-    }
+    let (f, k) = samples_of(p, &out.samples_buf).iter().fold((0.0, 0.0), |(f, k), smp| {
+        let gap = smp.depth - smp.phi * delta;
+        if gap > 0.0 {
+            (f + smp.k * gap, k + smp.k * smp.phi)
+        } else {
+            (f, k)
+        }
+    });
     (p.law_scale * f, p.law_scale * k)
+}
+
+/// Patch `p`'s pressure samples.
+fn samples_of<'a>(p: &Patch, buf: &'a [Sample]) -> &'a [Sample] {
+    &buf[p.sample_first as usize..(p.sample_first + p.sample_len) as usize]
+}
+
+/// The deflection shape of patch `q` under its own load, from its nodes'
+/// `deflect` (Σ_b ΔW_ab f_b) and its self-coupling `s_qq`: sample i, at
+/// barycentric b_c between the nodes of its triangle, moves out of the
+/// sphere along its direction n_i by
+///
+/// ```text
+/// φ_i δ,   φ_i = n_i · Σ_c b_c (ΔW e)_c / S_qq,   δ = S_qq P
+/// ```
+///
+/// so the |e|-weighted mean of φ over the nodes is 1: a uniform δ would
+/// release the shallow rim of a deep patch, which the wall, bowing most
+/// under the patch's centre, still presses (measured too soft at 2–3 mm:
+/// docs/REDUCED.md). φ < 0 (the point pulled into the sphere) is taken as
+/// 0 so that the law stays monotone; a sample whose vertices are not all
+/// listed keeps φ = 1.
+fn patch_shape<const R: usize>(q: usize, s_qq: f64, out: &mut ContactOutput<R>) {
+    let p = out.patches[q];
+    let range = p.sample_first as usize..(p.sample_first + p.sample_len) as usize;
+    if !(s_qq > 0.0 && s_qq.is_finite() && p.force > 0.0) {
+        out.samples_buf[range].iter_mut().for_each(|smp| smp.phi = 1.0);
+        return;
+    }
+    // (ΔW e)_c = deflect_c / F, divided by S.
+    let scale = 1.0 / (p.force * s_qq);
+    let active = &out.active;
+    for smp in &mut out.samples_buf[range] {
+        if smp.slots.contains(&NO_SLOT) {
+            smp.phi = 1.0;
+            continue;
+        }
+        let (b1, b2) = (smp.bary[0] as f64, smp.bary[1] as f64);
+        let b = [1.0 - b1 - b2, b1, b2];
+        let mut u = Vec3::zeros();
+        for c in 0..3 {
+            u += active[smp.slots[c] as usize].deflect * b[c];
+        }
+        let n = Vec3::new(smp.dir[0] as f64, smp.dir[1] as f64, smp.dir[2] as f64);
+        let phi = n.dot(&u) * scale;
+        smp.phi = if phi > 0.0 { phi } else { 0.0 };
+    }
 }
 
 /// S_pq = Σ_ab e_aᵀ ΔW_ab e_b over the nodes of patches `p` and `q`, with
@@ -1331,16 +1416,29 @@ fn patch_coupling<const R: usize>(w: &LocalCompliance, p: usize, q: usize, out: 
         if out.keep_pair_blocks(w, &pa) {
             let (len, first) = (pa.len as usize, pa.first as usize);
             let base = pa.sphere as usize * PAIR_CACHE_NODES * PAIR_CACHE_NODES;
-            let nodes = &out.active[first..first + len];
-            let blocks = &out.pair_blocks[base..base + len * len];
             let mut s = 0.0;
-            for (a, row) in nodes.iter().zip(blocks.chunks_exact(len)) {
-                for (b, blk) in nodes.iter().zip(row) {
-                    s += a.f.dot(&(blk * b.f));
-                }
+            for ai in 0..len {
+                let row = &out.pair_blocks[base + ai * len..base + (ai + 1) * len];
+                let nodes = &out.active[first..first + len];
+                let v: Vec3 = nodes.iter().zip(row).map(|(b, blk)| blk * b.f).sum();
+                s += nodes[ai].f.dot(&v);
+                out.active[first + ai].deflect = v;
             }
             return s / (pa.force * pa.force);
         }
+        // More nodes than are kept: each row from the table.
+        let (len, first) = (pa.len as usize, pa.first as usize);
+        let mut s = 0.0;
+        for ai in first..first + len {
+            let a = out.active[ai];
+            let v: Vec3 = out.active[first..first + len]
+                .iter()
+                .filter_map(|b| w.block(a.node, b.node).map(|blk| blk * b.f))
+                .sum();
+            s += a.f.dot(&v);
+            out.active[ai].deflect = v;
+        }
+        return s / (pa.force * pa.force);
     }
     let (p, q) = (&out.patches[p], &out.patches[q]);
     let apart = (p.rest_centre - q.rest_centre).norm() - p.rest_radius - q.rest_radius;
@@ -1382,6 +1480,7 @@ fn series_patches<'r, const R: usize>(
             s[a][b] = patch_coupling(w, a, b, out);
             s[b][a] = s[a][b];
         }
+        patch_shape(a, s[a][a], out);
     }
     // Patches that do not load each other are separate problems: solve
     // each group of coupled patches on its own (most patches of an
@@ -1521,7 +1620,12 @@ fn series_group<'r, const R: usize>(
     // The penetration into the surface as the residual compliance moves it.
     let depth = (0..m)
         .filter(|&a| on[a])
-        .map(|a| patch_law(idx[a], out, delta[a]).0 / kk[a].max(f64::MIN_POSITIVE))
+        .flat_map(|a| {
+            let d = delta[a];
+            samples_of(&out.patches[idx[a]], &out.samples_buf)
+                .iter()
+                .map(move |smp| smp.depth - smp.phi * d)
+        })
         .fold(0.0, f64::max);
     for a in 0..m {
         let pa = out.patches[idx[a]];
