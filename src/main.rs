@@ -151,6 +151,12 @@ enum ExperimentCmd {
         /// probe pushes; needs --wall human.
         #[arg(long, default_value_t = 0.0)]
         pressure_pa: f64,
+        /// Push the loop's probe in from where it touches the wall at this
+        /// speed (mm/s, in (0, 1000]), as the reference is pushed in, instead
+        /// of placing it at its depth on the first tick; the first tick and
+        /// the settle time then count from its arrival.
+        #[arg(long)]
+        push_speed_mm_s: Option<f64>,
     },
     /// Linear vs exact cubic reduced StVK: precompute, µs per step, accuracy against the full NVTMM under a large load (docs/RESULTS.md).
     Cubic {
@@ -558,6 +564,7 @@ fn main() -> ExitCode {
                 push_mm,
                 wall,
                 pressure_pa,
+                push_speed_mm_s,
             } => cli::reduced::experiment_contact(&cli::reduced::ContactArgs {
                 quick,
                 json,
@@ -568,6 +575,7 @@ fn main() -> ExitCode {
                 push_mm,
                 wall,
                 pressure_pa,
+                push_speed_mm_s,
             }),
             ExperimentCmd::Cubic { out, quick } => cli::cubic::experiment_cubic(&out, quick),
             ExperimentCmd::Reduced { out, quick } => cli::reduced::experiment_reduced(&out, quick),

@@ -113,6 +113,8 @@ pub struct ContactArgs {
     pub wall: String,
     /// Steady luminal pressure (Pa).
     pub pressure_pa: f64,
+    /// Push-in speed (mm/s); None: the probe placed at its depth at once.
+    pub push_speed_mm_s: Option<f64>,
 }
 
 /// `nvtmm experiment contact`.
@@ -150,6 +152,12 @@ pub fn experiment_contact(a: &ContactArgs) -> Result<()> {
         .into());
     }
     e.pressure_pa = a.pressure_pa;
+    if let Some(v) = a.push_speed_mm_s {
+        if !(v.is_finite() && v > 0.0 && v <= 1000.0) {
+            return Err(format!("--push-speed-mm-s {v}: must be in (0, 1000] mm/s").into());
+        }
+        e.push_speed_m_s = v * 1e-3;
+    }
     let tool_mm = nvtmm::haptics::contact::ContactParams::default().tool_radius_m * 1e3;
     if a.push_mm.is_empty() {
         return Err("--push-mm: give at least one depth".into());

@@ -58,6 +58,14 @@ pub struct ContactExperiment {
     /// Steady luminal pressure (Pa); 0: none. Above 0 the wall is inflated
     /// statically to it and the loop and the reference are linearized there.
     pub pressure_pa: f64,
+    /// How fast the loop's probe is pushed in from where it touches the
+    /// wall (m/s), as the reference is; infinite: placed at its depth on
+    /// the first tick. A probe placed at once deeper than the wall is thick
+    /// starts sunk into the wall, and the loop can settle there, pressing
+    /// the wall's far surface from inside (the reference's second
+    /// equilibrium, [`reference()`]). The first-tick ratio and the settle
+    /// time count from the tick the probe reaches its depth.
+    pub push_speed_m_s: f64,
 }
 
 /// The wall of the contact experiment.
@@ -115,6 +123,7 @@ impl ContactExperiment {
             branched: false,
             wall: Wall::Paper,
             pressure_pa: 0.0,
+            push_speed_m_s: f64::INFINITY,
         }
     }
 
@@ -131,6 +140,7 @@ impl ContactExperiment {
             branched: false,
             wall: Wall::Paper,
             pressure_pa: 0.0,
+            push_speed_m_s: f64::INFINITY,
         }
     }
 }
@@ -507,6 +517,9 @@ pub fn run(e: &ContactExperiment) -> Result<ContactResult, String> {
     if e.r > R {
         return Err(format!("r = {} is above the experiment's capacity {R}", e.r));
     }
+    if e.push_speed_m_s.is_nan() || e.push_speed_m_s <= 0.0 {
+        return Err(format!("push speed {} m/s: must be above 0", e.push_speed_m_s));
+    }
     if !(e.push_m > 0.0 && e.push_m <= ContactParams::default().tool_radius_m) {
         return Err(format!(
             "push {} mm: must be in (0, {}] mm (at most the tool's radius)",
@@ -576,14 +589,21 @@ pub fn run(e: &ContactExperiment) -> Result<ContactResult, String> {
             continue;
         }
         let tool = mesh.rest()[node as usize] + nrm * (cp.tool_radius_m - e.push_m);
+        // Where the probe just touches the undeformed wall.
+        let touching = mesh.rest()[node as usize] + nrm * cp.tool_radius_m;
+        // The tick (from 1) on which the probe reaches its depth; it is
+        // then held there for `settle_s`.
+        let arrival = ((e.push_m / e.push_speed_m_s / dynp.dt).ceil() as usize).max(1);
+        let total = arrival - 1 + ticks.max(1);
         let run_loop = |with_table: bool| -> Result<LoopTrace, String> {
             let mut servo = s.servo(with_table)?;
-            let mut trace = Vec::with_capacity(ticks);
-            for t in 1..=ticks {
+            let mut trace = Vec::with_capacity(total);
+            for t in 1..=total {
+                let w = (t as f64 / arrival as f64).min(1.0);
                 let s = DeviceSample {
                     seq: t as u64,
                     time_s: t as f64 * dynp.dt,
-                    position: tool,
+                    position: touching * (1.0 - w) + tool * w,
                     velocity: Vec3::zeros(),
                     ..DeviceSample::REST
                 };
@@ -597,7 +617,6 @@ pub fn run(e: &ContactExperiment) -> Result<ContactResult, String> {
         let (trace_basis, _) = run_loop(false)?;
         let seed: Vec<u32> = touched.iter().map(|t| t.node).collect();
         // The reference pushes the probe in from where it just touches.
-        let touching = mesh.rest()[node as usize] + nrm * cp.tool_radius_m;
         let refr = match reference(mesh, &cp, index, &mut exact, &[tool], Some(&[touching]), &seed) {
             Ok(r) => r,
             Err(why) => {
@@ -614,6 +633,8 @@ pub fn run(e: &ContactExperiment) -> Result<ContactResult, String> {
             continue;
         }
         let last = |tr: &[f64]| tr.last().copied().unwrap_or(0.0);
+        // From the tick the probe reaches its depth.
+        let (trace, trace_basis) = (&trace[arrival - 1..], &trace_basis[arrival - 1..]);
         let settled_from = trace
             .iter()
             .rposition(|f| (f / full - 1.0).abs() > 0.1)
@@ -624,8 +645,8 @@ pub fn run(e: &ContactExperiment) -> Result<ContactResult, String> {
             inner,
             full_n: full,
             ratio_first: trace.first().copied().unwrap_or(0.0) / full,
-            ratio_settled: last(&trace) / full,
-            ratio_settled_basis_only: last(&trace_basis) / full,
+            ratio_settled: last(trace) / full,
+            ratio_settled_basis_only: last(trace_basis) / full,
             settle_ms: (settled_from as f64 + 1.0) * dynp.dt * 1e3,
             touched: touched.len(),
             reference_nodes: refr.nodes,

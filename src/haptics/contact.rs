@@ -462,6 +462,8 @@ pub struct ContactOutput<const R: usize> {
     /// The pressed samples' (depth, k_p dA) of every patch; fixed capacity
     /// [`MAX_SAMPLES`], never grown in [`evaluate_spheres`].
     samples_buf: Vec<Sample>,
+    /// Beside `samples_buf`, where each sample sits (same capacity).
+    samples_at: Vec<SampleAt>,
     /// Per mesh node, (tick stamp, deformed position) of this evaluation
     /// ([`ContactOutput::for_index`]; empty: no cache).
     cache: Vec<(u32, Vec3)>,
@@ -701,11 +703,18 @@ struct Sample {
     /// residual deflection δ (1: as the patch on average; see
     /// [`patch_shape`]).
     phi: f64,
-    /// Direction of its pressure (from the sphere's centre), the
-    /// barycentric (b1, b2) in its triangle, and its triangle's vertices
-    /// as indices into `ContactOutput::active` (`u16::MAX`: not listed).
+}
+
+/// Where a pressed sample sits, beside its [`Sample`] (kept apart so that
+/// the series solve's passes over the samples read only what they use).
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct SampleAt {
+    /// Direction of its pressure (from the sphere's centre).
     dir: [f32; 3],
+    /// Barycentric (b1, b2) in its triangle.
     bary: [f32; 2],
+    /// Its triangle's vertices as indices into `ContactOutput::active`
+    /// (`NO_SLOT`: not listed).
     slots: [u16; 3],
 }
 
@@ -778,6 +787,7 @@ impl<const R: usize> Default for ContactOutput<R> {
             stamps: Vec::new(),
             stamp: 0,
             samples_buf: Vec::with_capacity(MAX_SAMPLES),
+            samples_at: Vec::with_capacity(MAX_SAMPLES),
             cache: Vec::new(),
             tick: 0,
             kept: Vec::new(),
@@ -862,6 +872,7 @@ pub fn evaluate_spheres<'r, const R: usize>(
     out.active.clear();
     out.patches.clear();
     out.samples_buf.clear();
+    out.samples_at.clear();
     out.tick = out.tick.wrapping_add(1);
     if out.tick == 0 {
         out.cache.iter_mut().for_each(|c| c.0 = 0);
@@ -956,6 +967,7 @@ fn press_sphere<const R: usize>(
         let mut kv = [0.0; 3];
         let tri_samples = out.samples_buf.len();
         let samples_buf = &mut out.samples_buf;
+        let samples_at = &mut out.samples_at;
         let mut overflowed = false;
         let overflow = &mut overflowed;
         let mut count = 0usize;
@@ -984,12 +996,11 @@ fn press_sphere<const R: usize>(
                 fv[c] += fw * b[c];
                 kv[c] += da * b[c];
             }
-            if samples_buf.len() < samples_buf.capacity() {
+            // Both at their fixed capacity: never grown in the tick.
+            if samples_buf.len() < samples_buf.capacity() && samples_at.len() < samples_at.capacity() {
                 let dir = fw / w.max(f64::MIN_POSITIVE);
-                samples_buf.push(Sample {
-                    depth,
-                    k: da,
-                    phi: 1.0,
+                samples_buf.push(Sample { depth, k: da, phi: 1.0 });
+                samples_at.push(SampleAt {
                     dir: [dir.x as f32, dir.y as f32, dir.z as f32],
                     bary: [b1 as f32, b2 as f32],
                     slots: [NO_SLOT; 3],
@@ -1071,8 +1082,8 @@ fn press_sphere<const R: usize>(
                 }
             }
         }
-        for smp in &mut out.samples_buf[tri_samples..] {
-            smp.slots = slots;
+        for at in &mut out.samples_at[tri_samples..] {
+            at.slots = slots;
         }
     }
     let len = out.active.len() - first;
@@ -1080,6 +1091,7 @@ fn press_sphere<const R: usize>(
     if len == 0 || !(magnitude > 0.0 && magnitude.is_finite() && k > 0.0) {
         out.active.truncate(first);
         out.samples_buf.truncate(sample_first);
+        out.samples_at.truncate(sample_first);
         return;
     }
     out.max_depth = out.max_depth.max(depth_max);
@@ -1390,18 +1402,18 @@ fn patch_shape<const R: usize>(q: usize, s_qq: f64, out: &mut ContactOutput<R>) 
     // (ΔW e)_c = deflect_c / F, divided by S.
     let scale = 1.0 / (p.force * s_qq);
     let active = &out.active;
-    for smp in &mut out.samples_buf[range] {
-        if smp.slots.contains(&NO_SLOT) {
+    for (smp, at) in out.samples_buf[range.clone()].iter_mut().zip(&out.samples_at[range]) {
+        if at.slots.contains(&NO_SLOT) {
             smp.phi = 1.0;
             continue;
         }
-        let (b1, b2) = (smp.bary[0] as f64, smp.bary[1] as f64);
+        let (b1, b2) = (at.bary[0] as f64, at.bary[1] as f64);
         let b = [1.0 - b1 - b2, b1, b2];
         let mut u = Vec3::zeros();
         for c in 0..3 {
-            u += active[smp.slots[c] as usize].deflect * b[c];
+            u += active[at.slots[c] as usize].deflect * b[c];
         }
-        let n = Vec3::new(smp.dir[0] as f64, smp.dir[1] as f64, smp.dir[2] as f64);
+        let n = Vec3::new(at.dir[0] as f64, at.dir[1] as f64, at.dir[2] as f64);
         let phi = n.dot(&u) * scale;
         smp.phi = if phi > 0.0 { phi } else { 0.0 };
     }
