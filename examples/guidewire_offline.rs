@@ -4,6 +4,7 @@
 //! For tuning the script; the service runs the same wire in its thread.
 //!
 //! `cargo run --release --example guidewire_offline [rt-config/guidewire.toml]`
+//! (`GUIDEWIRE_NO_BUCKLING=1`: without the buckling check).
 
 use nvtmm::math::Vec3;
 use nvtmm::service::ServiceConfig;
@@ -51,11 +52,16 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         axis.as_slice()
     );
     let mut w = Wire::new(wp, access_point, axis, g.inserted_m)?;
+    // `GUIDEWIRE_NO_BUCKLING=1`: without the buckling check, to compare.
+    if std::env::var_os("GUIDEWIRE_NO_BUCKLING").is_some() {
+        w.set_buckling_check(false);
+    }
     let dt = wp.dt_s;
     let end = g.script.last().map(|r| r[0]).unwrap_or(1.0) + 1.0;
     let steps = (end / dt).round() as usize;
     let mut last_seg = String::new();
     let mut worst: f64 = 0.0;
+    let mut buckled = 0usize;
     // The largest |axial hub force| and Newton residual over each 0.1 s.
     let (mut axial_max, mut residual_max, mut fed_max) = (0.0f64, 0.0f64, 0.0f64);
     // `GUIDEWIRE_TRACE=t0,t1` prints every step between t0 and t1 (s).
@@ -74,6 +80,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         let rep = w.step(&lumen).map_err(|e| format!("t = {t:.3} s: {e}"))?;
         step_us.push(ts.elapsed().as_secs_f64() * 1e6);
         worst = worst.max(rep.max_penetration_m);
+        buckled += rep.buckled as usize;
         if let Some((a, b)) = trace {
             if t >= a && t <= b {
                 println!(
@@ -116,7 +123,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         }
     }
     println!(
-        "end: tip in {}, {} nodes, deepest {:.3} mm, {:.1} µs a step",
+        "end: tip in {}, {} nodes, deepest {:.3} mm, {:.1} µs a step, {buckled} steps moved off a saddle",
         wall.segment_at(wall.rest(), w.tip()).unwrap_or("?"),
         w.num_nodes(),
         worst * 1e3,

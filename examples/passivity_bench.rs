@@ -60,6 +60,13 @@ fn main() {
         st.iter_quantile(1.0)
     );
     println!(
+        "solves {}: {} exact on their active set, {} by the interior-point solver; shortcuts {}",
+        st.solves,
+        st.exact,
+        st.solves - st.exact,
+        st.interior
+    );
+    println!(
         "active: norm {}, rate {} (exceeded {}), energy {}; fallbacks {}",
         st.active_norm,
         st.active_rate,

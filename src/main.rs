@@ -136,6 +136,21 @@ enum ExperimentCmd {
         /// fixed) instead of the unbranched one.
         #[arg(long)]
         branched: bool,
+        /// Random seed of the surface points.
+        #[arg(long, default_value_t = 7)]
+        seed: u64,
+        /// How far the probe is held into the undeformed wall (mm), one run
+        /// per value, comma-separated, each in (0, 3] (at most the probe's radius).
+        #[arg(long, value_delimiter = ',', default_value = "0.5")]
+        push_mm: Vec<f64>,
+        /// The wall: `paper` (NVTMM StVK 65 kPa) or `human` (the human aorta
+        /// scene's Neo-Hookean 0.7 MPa, which holds arterial pressure).
+        #[arg(long, default_value = "paper")]
+        wall: String,
+        /// Steady luminal pressure (Pa) the wall is inflated to before the
+        /// probe pushes; needs --wall human.
+        #[arg(long, default_value_t = 0.0)]
+        pressure_pa: f64,
     },
     /// Linear vs exact cubic reduced StVK: precompute, µs per step, accuracy against the full NVTMM under a large load (docs/RESULTS.md).
     Cubic {
@@ -539,7 +554,21 @@ fn main() -> ExitCode {
                 nodes,
                 points,
                 branched,
-            } => cli::reduced::experiment_contact(quick, json, nodes, points, branched),
+                seed,
+                push_mm,
+                wall,
+                pressure_pa,
+            } => cli::reduced::experiment_contact(&cli::reduced::ContactArgs {
+                quick,
+                json,
+                nodes,
+                points,
+                branched,
+                seed,
+                push_mm,
+                wall,
+                pressure_pa,
+            }),
             ExperimentCmd::Cubic { out, quick } => cli::cubic::experiment_cubic(&out, quick),
             ExperimentCmd::Reduced { out, quick } => cli::reduced::experiment_reduced(&out, quick),
             ExperimentCmd::Fig5 { out, quick } => cli::sim::experiment_fig5(&out, quick),

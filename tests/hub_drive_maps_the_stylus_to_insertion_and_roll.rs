@@ -322,3 +322,60 @@ fn the_scripted_hands_map_inverts_the_drive() {
     let held = DriveParams { roll_scale: 0.0, ..d };
     assert_eq!(held.gimbal_for(0.4), [0.0; 3]);
 }
+
+/// Switching instruments lets go of one and takes hold of another where the
+/// stylus happens to be: engaging anchors the drive at its present commands,
+/// so neither the stylus's absolute position nor the roll it made while the
+/// drive was idle moves the hub; the stylus's motions from there on do, at
+/// the usual scale.
+#[test]
+fn engaging_takes_the_stylus_up_where_it_is() {
+    let dp = DriveParams {
+        axis: [0.0, 0.0, -1.0],
+        inserted_at_origin_m: 0.1,
+        insertion_scale: 2.0,
+        max_speed_m_s: 0.1,
+        roll_scale: 1.0,
+        ..DriveParams::default()
+    };
+    let w = wire_with(dp);
+    let mut d = HubDrive::new(&w, 0.1, 0.0).expect("drive");
+    let mut t = 0.0;
+    // Taken at the origin with the stylus unrolled, driven to 0.12 m and
+    // 0.5 rad.
+    d.command(&sample(Vec3::zeros(), 0.0), t);
+    for _ in 0..2000 {
+        t += 1e-3;
+        d.command(&sample(Vec3::new(0.0, 0.0, -0.01), 0.5), t);
+    }
+    let held = d.command(&sample(Vec3::new(0.0, 0.0, -0.01), 0.5), t);
+    assert!((held.inserted_m - 0.12).abs() < 1e-12 && (held.roll_rad - 0.5).abs() < 1e-12);
+    // Idle while the stylus wanders (another instrument is active): it
+    // ends 40 mm further in and rolled past ±π.
+    let away = sample(Vec3::new(0.0, 0.0, -0.05), wrapped(2.9 + 1.0));
+    d.engage(&away);
+    assert!(
+        (d.target(away.position) - 0.12).abs() < 1e-12,
+        "the stylus maps to the present insertion"
+    );
+    for _ in 0..100 {
+        t += 1e-3;
+        let c = d.command(&away, t);
+        assert!((c.inserted_m - 0.12).abs() < 1e-12, "no jump: {}", c.inserted_m);
+        assert!((c.roll_rad - 0.5).abs() < 1e-12, "no roll: {}", c.roll_rad);
+    }
+    // From here the stylus drives it as before: 5 mm of stylus is 10 mm of
+    // wire, a further 0.3 rad of stylus roll is 0.3 rad of wire.
+    let on = sample(Vec3::new(0.0, 0.0, -0.055), wrapped(3.9 + 0.3));
+    let mut c = d.command(&on, t);
+    for _ in 0..2000 {
+        t += 1e-3;
+        c = d.command(&on, t);
+    }
+    assert!((c.inserted_m - 0.13).abs() < 1e-9, "{}", c.inserted_m);
+    assert!((c.roll_rad - 0.8).abs() < 1e-9, "{}", c.roll_rad);
+    // An unusable sample engages nothing.
+    let before = d.target(on.position);
+    d.engage(&sample(Vec3::new(f64::NAN, 0.0, 0.0), 0.0));
+    assert_eq!(d.target(on.position), before);
+}

@@ -11,11 +11,14 @@ use nvtmm::rt::alloc::{self, RtAllocator};
 #[global_allocator]
 static ALLOC: RtAllocator = RtAllocator;
 
+/// Throw-away clarabel solves run on the RT thread after the ticks.
+const PRIMES: u64 = 200;
+
 #[test]
 fn qp_allocates_nothing_on_the_rt_thread() {
     // Built off the RT thread (allocates), used on it.
     let mut filter = PassivityFilter::new(&PassivityParams::default()).unwrap();
-    let (sys, handoff, solves, before) = std::thread::spawn(move || {
+    let (sys, handoff, solves, exact, before) = std::thread::spawn(move || {
         let info = alloc::enter_rt(1 << 20).unwrap();
         assert!(info.installed, "{info:?}");
         // The first solve on this thread frees clarabel's set-up timer block
@@ -38,11 +41,18 @@ fn qp_allocates_nothing_on_the_rt_thread() {
             let out = filter.filter(f_des, x, v);
             assert!(out.force.iter().all(|c| c.is_finite()));
         }
+        // Most of those solves are answered by the exact active-set step
+        // without clarabel; these run clarabel itself, as the loop does
+        // when no active set is certified.
+        for _ in 0..PRIMES {
+            filter.prime();
+        }
         // A block allocated here and freed on another thread.
         let handoff = Box::new([7u8; 100]);
         let sys = alloc::thread_system_calls() - sys0;
         alloc::leave_rt();
-        (sys, handoff, filter.stats().solves, before)
+        let st = filter.stats();
+        (sys, handoff, st.solves, st.exact, before)
     })
     .join()
     .unwrap();
@@ -50,9 +60,10 @@ fn qp_allocates_nothing_on_the_rt_thread() {
     assert_eq!(sys, 0, "system-allocator calls from the RT thread");
     assert_eq!(after.system_calls_on_rt, before.system_calls_on_rt);
     assert!(solves > 4000, "most random ticks need the QP: {solves}");
+    let clarabel_solves = solves - exact + PRIMES;
     assert!(
-        after.pool_allocs - before.pool_allocs >= solves,
-        "clarabel's per-solve allocation should come from the pool: {after:?}"
+        after.pool_allocs - before.pool_allocs >= clarabel_solves,
+        "clarabel's per-solve allocation should come from the pool ({clarabel_solves} clarabel solves): {after:?}"
     );
     assert!(after.pool_high_water_bytes > 0 && after.pool_high_water_bytes < 1 << 20);
     // Cross-thread free: back into the pool.

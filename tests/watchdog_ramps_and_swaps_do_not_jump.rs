@@ -245,7 +245,9 @@ fn swap_mid_contact(new_basis: bool) {
     for &(i, f) in &node_forces {
         fbar[i as usize] = f;
     }
-    let rows = basis_rows::<R>(&p.basis).unwrap();
+    // The service gives its models the rows of the loop's first model (one
+    // allocation), which is how a swap knows the basis did not change.
+    let rows = s.model().dynamics.rows().clone();
     let mut bg = Background::<R> {
         model: Box::new(Nvtmm::new(&p.mesh, &Material::aorta())) as Box<dyn ForceModel>,
         solver: ImplicitEuler::new(&p.mesh, p.mass.clone(), params).unwrap(),
@@ -284,13 +286,29 @@ fn swap_mid_contact(new_basis: bool) {
         assert!(off_identity > 1e-3, "the basis changed: ‖T − I‖ = {off_identity:e}");
         m
     } else {
-        let (m, _) = bg.build_model(&state.u, &fbar, 1, None).unwrap();
+        let (m, qbar) = bg.build_model(&state.u, &fbar, 1, None).unwrap();
         assert_eq!(m.transfer, nalgebra::SMatrix::<f64, R, R>::identity());
+        // What the background keeps of the model it sent (the next model's
+        // transfer starts from it).
+        bg.last_sent = (m.offset.clone(), qbar, 1);
         m
     };
     let ubar_max = state.u.iter().map(|u| u.norm()).fold(0.0, f64::max);
     assert!(ubar_max > 2e-4, "the full solve moved: {ubar_max}");
+    // The background measured how far ū moved since the last model (at
+    // rest here) in the same basis; a new basis has no such bound.
+    if new_basis {
+        assert_eq!(m.offset_moved_m, None);
+    } else {
+        assert_eq!(m.offset_moved_m, Some(ubar_max));
+    }
+    let carries = !new_basis && ubar_max < nvtmm::haptics::contact::COHERENCE_SLACK_M;
     let old = s.swap(m).map(|o| o.epoch);
+    // In the same basis, with ū moved less than the slack, the swap keeps
+    // the contact's triangles (no search); the ticks below check that they
+    // give what a fresh search gives.
+    assert_eq!(s.counters().swaps_carried, carries as u64, "ū moved {ubar_max:e} m");
+    eprintln!("new basis {new_basis}: ū moved {ubar_max:.3e} m, contact triangles kept over the swap: {carries}");
     assert_eq!(old, None, "the old model fades out first");
     assert!(s.is_blending());
     assert_eq!(s.model().epoch, 1);
@@ -302,12 +320,10 @@ fn swap_mid_contact(new_basis: bool) {
     let index = SurfaceIndex::new(&p.mesh, &s.params().contact);
     let mut fresh = nvtmm::haptics::contact::ContactOutput::<R>::for_index(&index);
     let mut scratch = nvtmm::haptics::contact::Candidates::new();
-    for k in 0..60 {
-        seq += 1;
-        t += DT;
-        // The contact a fresh search finds on the model's positions now,
-        // which the tick's contact (on the triangles the swap found, then
-        // kept) must equal to round-off.
+    // The contact a fresh search finds on the model's positions now, which
+    // the tick's contact (on the triangles the swap found or kept, then
+    // kept) must equal to round-off.
+    let mut tick_as_searched = |s: &mut Servo<R>, seq: u64, t: f64, k: usize| {
         let m = s.model();
         nvtmm::haptics::contact::evaluate_spheres(
             &index,
@@ -320,7 +336,7 @@ fn swap_mid_contact(new_basis: bool) {
             &mut scratch,
             &mut fresh,
         );
-        let f = tick(&mut s, Some(&sample(pos, seq, t)), t).0;
+        let f = tick(s, Some(&sample(pos, seq, t)), t).0;
         let c = s.contact();
         let diff = (c.tool_force - fresh.tool_force).norm();
         assert!(
@@ -330,6 +346,12 @@ fn swap_mid_contact(new_basis: bool) {
             fresh.tool_force
         );
         assert!((c.reduced_stiffness - fresh.reduced_stiffness).norm() <= 1e-9 * fresh.reduced_stiffness.norm());
+        f
+    };
+    for k in 0..60 {
+        seq += 1;
+        t += DT;
+        let f = tick_as_searched(&mut s, seq, t, k);
         worst = worst.max((f - prev).norm());
         prev = f;
         if let Some(r) = s.take_retired() {
@@ -347,4 +369,26 @@ fn swap_mid_contact(new_basis: bool) {
     assert!(!s.is_blending());
     assert!(f_before.norm() > 1e-3);
     assert!(worst <= 0.05 * f_before.norm(), "step {worst} vs {}", f_before.norm());
+    if new_basis {
+        return;
+    }
+    // The next refresh in the same basis, ū a little further on (5 % more,
+    // well within the contact's slack): the swap keeps the contact's
+    // triangles, and every tick after it, through the cross-fade, still
+    // gives what a fresh search gives.
+    let u2: Vec<Vec3> = state.u.iter().map(|u| u * 1.05).collect();
+    let (m2, _) = bg.build_model(&u2, &fbar, 2, None).unwrap();
+    let moved = m2.offset_moved_m.expect("same basis: the change of ū is measured");
+    assert!(
+        (moved - 0.05 * ubar_max).abs() <= 1e-12 && moved < nvtmm::haptics::contact::COHERENCE_SLACK_M,
+        "ū moved {moved:e} m"
+    );
+    s.swap(m2);
+    assert_eq!(s.counters().swaps_carried, 1, "the swap kept the contact's triangles");
+    for k in 0..40 {
+        seq += 1;
+        t += DT;
+        tick_as_searched(&mut s, seq, t, k);
+    }
+    eprintln!("second swap, ū moved {moved:.3e} m: the contact's triangles kept, every tick as a fresh search");
 }

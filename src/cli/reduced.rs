@@ -93,63 +93,146 @@ pub fn experiment_reduced(out: &Path, quick: bool) -> Result<()> {
     Ok(())
 }
 
+/// The options of `nvtmm experiment contact`.
+pub struct ContactArgs {
+    /// Small size.
+    pub quick: bool,
+    /// JSON out.
+    pub json: bool,
+    /// Arch nodes.
+    pub nodes: Option<usize>,
+    /// Surface points.
+    pub points: Option<usize>,
+    /// The branched arch.
+    pub branched: bool,
+    /// Seed of the points.
+    pub seed: u64,
+    /// Push depths (mm).
+    pub push_mm: Vec<f64>,
+    /// `paper` or `human`.
+    pub wall: String,
+    /// Steady luminal pressure (Pa).
+    pub pressure_pa: f64,
+}
+
 /// `nvtmm experiment contact`.
-pub fn experiment_contact(
-    quick: bool,
-    json: bool,
-    nodes: Option<usize>,
-    points: Option<usize>,
-    branched: bool,
-) -> Result<()> {
-    use nvtmm::experiment::contact::{run, ContactExperiment};
-    let mut e = if quick {
+pub fn experiment_contact(a: &ContactArgs) -> Result<()> {
+    use nvtmm::experiment::contact::{run, ContactExperiment, Wall};
+    let mut e = if a.quick {
         ContactExperiment::quick()
     } else {
         ContactExperiment::full()
     };
-    if let Some(n) = nodes {
+    if let Some(n) = a.nodes {
         e.nodes = n;
     }
-    if let Some(p) = points {
+    if let Some(p) = a.points {
         if p < 2 {
             return Err(format!("--points {p}: at least 2 (one per wall)").into());
         }
         e.points = p;
     }
-    e.branched = branched;
-    let r = run(&e)?;
-    if json {
-        let v = serde_json::json!({
-            "nodes": r.nodes,
-            "branched": branched,
-            "r": r.r,
-            "points": r.points.len(),
-            "ratio_settled_p05": r.ratio_settled.p05,
-            "ratio_settled_p50": r.ratio_settled.p50,
-            "ratio_settled_p95": r.ratio_settled.p95,
-            "ratio_settled_worst": r.ratio_settled.worst,
-            "ratio_first_p05": r.ratio_first.p05,
-            "ratio_first_p50": r.ratio_first.p50,
-            "ratio_first_p95": r.ratio_first.p95,
-            "ratio_basis_only_p50": r.ratio_settled_basis_only.p50,
-            "ratio_basis_only_worst": r.ratio_settled_basis_only.worst,
-            "settle_ms_p50": r.settle_ms.p50,
-            "settle_ms_p99": r.settle_ms.worst,
-            "table_s": r.table.seconds,
-            "table_solves": r.table.solves,
-        });
-        println!("{}", serde_json::to_string_pretty(&v)?);
-        return Ok(());
+    e.branched = a.branched;
+    e.seed = a.seed;
+    e.wall = match a.wall.as_str() {
+        "paper" => Wall::Paper,
+        "human" => Wall::Human,
+        w => return Err(format!("--wall {w:?}: one of \"paper\", \"human\"").into()),
+    };
+    if !(a.pressure_pa.is_finite() && (0.0..=40e3).contains(&a.pressure_pa)) {
+        return Err(format!("--pressure-pa {}: must be in [0, 40000] Pa", a.pressure_pa).into());
     }
+    if a.pressure_pa > 0.0 && e.wall == Wall::Paper {
+        return Err(format!(
+            "--pressure-pa {}: the paper's 65 kPa wall cannot hold a luminal pressure (docs/PRESSURE.md, \"Material\"); add --wall human",
+            a.pressure_pa
+        )
+        .into());
+    }
+    e.pressure_pa = a.pressure_pa;
+    let tool_mm = nvtmm::haptics::contact::ContactParams::default().tool_radius_m * 1e3;
+    if a.push_mm.is_empty() {
+        return Err("--push-mm: give at least one depth".into());
+    }
+    for &d in &a.push_mm {
+        if !(d.is_finite() && d > 0.0 && d <= tool_mm) {
+            return Err(
+                format!("--push-mm {d}: each depth must be in (0, {tool_mm}] mm (at most the probe's radius)").into(),
+            );
+        }
+    }
+    let mut runs = Vec::new();
+    for &d in &a.push_mm {
+        e.push_m = d * 1e-3;
+        let r = run(&e)?;
+        if !a.json {
+            print_contact(&r, a.branched);
+        }
+        runs.push(r);
+    }
+    if a.json {
+        let v: Vec<serde_json::Value> = runs
+            .iter()
+            .map(|r| {
+                serde_json::json!({
+                    "nodes": r.nodes,
+                    "branched": a.branched,
+                    "r": r.r,
+                    "seed": a.seed,
+                    "push_mm": r.push_m * 1e3,
+                    "wall": r.wall,
+                    "pressure_pa": r.pressure_pa,
+                    "inflation_mm": r.inflation_m * 1e3,
+                    "points": r.points.len(),
+                    "dropped": r.dropped,
+                    "within_10_percent": r.points.iter().filter(|p| (p.ratio_settled - 1.0).abs() <= 0.1).count(),
+                    "ratio_settled_p05": r.ratio_settled.p05,
+                    "ratio_settled_p50": r.ratio_settled.p50,
+                    "ratio_settled_p95": r.ratio_settled.p95,
+                    "ratio_settled_worst": r.ratio_settled.worst,
+                    "ratio_first_p05": r.ratio_first.p05,
+                    "ratio_first_p50": r.ratio_first.p50,
+                    "ratio_first_p95": r.ratio_first.p95,
+                    "ratio_basis_only_p50": r.ratio_settled_basis_only.p50,
+                    "ratio_basis_only_worst": r.ratio_settled_basis_only.worst,
+                    "settle_ms_p50": r.settle_ms.p50,
+                    "settle_ms_p99": r.settle_ms.worst,
+                    "reference_nodes_max": r.points.iter().map(|p| p.reference_nodes).max().unwrap_or(0),
+                    "reference_rounds_max": r.points.iter().map(|p| p.reference_rounds).max().unwrap_or(0),
+                    "table_s": r.table.seconds,
+                    "table_solves": r.table.solves,
+                })
+            })
+            .collect();
+        let v = if v.len() == 1 {
+            v[0].clone()
+        } else {
+            serde_json::Value::Array(v)
+        };
+        println!("{}", serde_json::to_string_pretty(&v)?);
+    }
+    Ok(())
+}
+
+fn print_contact(r: &nvtmm::experiment::contact::ContactResult, branched: bool) {
     println!(
-        "contact anywhere: {} points on the {}-node {}arch, r = {} (vibration modes only), residual compliance table {:.2} s ({} solves, {} blocks)",
+        "contact anywhere: {} points on the {}-node {}arch, push {} mm, wall {}, pressure {} Pa (inflation {:.2} mm), r = {} (vibration modes only), residual compliance table {:.2} s ({} solves, {} blocks)",
         r.points.len(),
         r.nodes,
         if branched { "branched " } else { "" },
+        r.push_m * 1e3,
+        r.wall.name(),
+        r.pressure_pa,
+        r.inflation_m * 1e3,
         r.r,
         r.table.seconds,
         r.table.solves,
         r.table.blocks
+    );
+    let within = r.points.iter().filter(|p| (p.ratio_settled - 1.0).abs() <= 0.1).count();
+    println!(
+        "{within} of {} points settle within 10 % of the reference",
+        r.points.len()
     );
     println!("| rendered / full force | p05 | p50 | p95 | worst |\n|---|---|---|---|---|");
     for (name, s) in [
@@ -166,7 +249,21 @@ pub fn experiment_contact(
         "settle time (force within 10 % of the full model's from then on): p50 {:.0} ms, worst {:.0} ms",
         r.settle_ms.p50, r.settle_ms.worst
     );
-    Ok(())
+    let (nodes, rounds) = r.points.iter().fold((0, 0), |(n, k), p| {
+        (n.max(p.reference_nodes), k.max(p.reference_rounds))
+    });
+    println!("reference: up to {nodes} nodes solved for, up to {rounds} active-set rounds");
+    if r.dropped.is_empty() {
+        println!("no point dropped");
+    }
+    for d in &r.dropped {
+        println!(
+            "dropped node {} ({} wall): {}",
+            d.node,
+            if d.inner { "inner" } else { "outer" },
+            d.reason
+        );
+    }
 }
 
 /// `nvtmm bench contact`.

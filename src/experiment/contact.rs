@@ -8,11 +8,13 @@
 //! surface nodes of the inner and the outer wall, the probe is held pushed
 //! `push_m` into the wall along the surface normal while the loop ticks at
 //! 1 kHz ([`crate::haptics::servo::Servo`]). The rendered force is compared
-//! with the full linear model's at the same state (rest) under the same
-//! sphere contact: the touched nodes move by (K⁻¹)_SS f (exact columns, 3
-//! solves per touched node on a Cholesky factor of K) and the penalty and
-//! the sphere geometry are solved to equilibrium, so the ratio isolates the
-//! reduced model's error.
+//! with the full linear model's at the same state (rest, or the wall
+//! inflated to a luminal pressure) under the same sphere contact
+//! ([`reference`]: the surface nodes near the probe move by the exact
+//! columns of K⁻¹, the probe is pushed in from where it touches, and the
+//! active set is iterated to convergence), so the ratio isolates the
+//! reduced model's error. Every point drawn but not compared is reported
+//! with the reason ([`DroppedPoint`]).
 //!
 //! Reported: the ratio of rendered to full force on the first tick and once
 //! settled (after `settle_s`), with and without the compliance table (the
@@ -25,8 +27,7 @@ use crate::haptics::servo::{Servo, ServoParams};
 use crate::material::Material;
 use crate::math::Vec3;
 use crate::mesh::arch::{generate, ArchParams};
-use crate::model::nvtmm::Nvtmm;
-use crate::model::{BlockTangent, ForceModel};
+use crate::model::BlockTangent;
 use crate::reduced::compliance::{ComplianceParams, ComplianceStats, ExactCompliance, LocalCompliance};
 use crate::reduced::{basis_rows, DynamicsParams, ModalBasis, Refresher};
 use crate::service::background::rest_model;
@@ -52,6 +53,52 @@ pub struct ContactExperiment {
     pub compliance: ComplianceParams,
     /// On the arch with its three supra-aortic branches.
     pub branched: bool,
+    /// The vessel wall.
+    pub wall: Wall,
+    /// Steady luminal pressure (Pa); 0: none. Above 0 the wall is inflated
+    /// statically to it and the loop and the reference are linearized there.
+    pub pressure_pa: f64,
+}
+
+/// The wall of the contact experiment.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Wall {
+    /// The paper's wall: NVTMM, St Venant–Kirchhoff, 65 kPa (cannot hold
+    /// arterial pressure).
+    #[default]
+    Paper,
+    /// The human aorta scene's wall (`rt-config/scenes/aorta_pressure.toml`):
+    /// Neo-Hookean (element FEM), 0.7 MPa, ν = 0.45 (docs/PRESSURE.md).
+    Human,
+}
+
+impl Wall {
+    /// The material, the law and the model kind of this wall.
+    pub fn material(self) -> (Material, crate::material::Law, crate::model::ModelKind) {
+        use crate::material::Law;
+        use crate::model::ModelKind;
+        match self {
+            Wall::Paper => (Material::aorta(), Law::Stvk, ModelKind::Nvtmm),
+            Wall::Human => (
+                Material {
+                    youngs_pa: 0.7e6,
+                    poisson: 0.45,
+                    density: 1050.0,
+                },
+                Law::NeoHookean,
+                ModelKind::Fem,
+            ),
+        }
+    }
+
+    /// Its name in reports.
+    pub fn name(self) -> &'static str {
+        match self {
+            Wall::Paper => "paper (NVTMM StVK 65 kPa)",
+            Wall::Human => "human aorta (Neo-Hookean 0.7 MPa)",
+        }
+    }
 }
 
 impl ContactExperiment {
@@ -66,6 +113,8 @@ impl ContactExperiment {
             seed: 7,
             compliance: ComplianceParams::default(),
             branched: false,
+            wall: Wall::Paper,
+            pressure_pa: 0.0,
         }
     }
 
@@ -80,6 +129,8 @@ impl ContactExperiment {
             seed: 7,
             compliance: ComplianceParams::default(),
             branched: false,
+            wall: Wall::Paper,
+            pressure_pa: 0.0,
         }
     }
 }
@@ -103,6 +154,23 @@ pub struct ContactPoint {
     pub settle_ms: f64,
     /// Touched nodes at the end.
     pub touched: usize,
+    /// Nodes the reference solved for (its converged candidate set).
+    pub reference_nodes: usize,
+    /// Nodes in contact in the reference at its equilibrium.
+    pub reference_active: usize,
+    /// Rounds of the reference's active-set iteration.
+    pub reference_rounds: usize,
+}
+
+/// A point left out of the statistics, and why.
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct DroppedPoint {
+    /// Mesh node.
+    pub node: u32,
+    /// Whether it is on the inner (lumen) wall.
+    pub inner: bool,
+    /// Why.
+    pub reason: String,
 }
 
 /// Quantiles of a sample.
@@ -150,8 +218,18 @@ pub struct ContactResult {
     pub nodes: usize,
     /// Basis size.
     pub r: usize,
-    /// Every point.
+    /// Every point compared.
     pub points: Vec<ContactPoint>,
+    /// Every point drawn but not compared, with the reason.
+    pub dropped: Vec<DroppedPoint>,
+    /// How far the probe was held into the wall (m).
+    pub push_m: f64,
+    /// The wall.
+    pub wall: Wall,
+    /// Steady luminal pressure (Pa).
+    pub pressure_pa: f64,
+    /// Largest displacement of the inflation to that pressure (m).
+    pub inflation_m: f64,
     /// Settled ratio, with the table.
     pub ratio_settled: Spread,
     /// First-tick ratio, with the table.
@@ -200,6 +278,8 @@ pub fn touched_of(servo: &Servo<R>) -> Vec<Touched> {
 pub struct Setup {
     /// The mesh the setup runs on.
     pub mesh: crate::mesh::TetMesh,
+    /// Largest displacement of the inflation to the pressure (m; 0 without).
+    pub inflation_m: f64,
     /// The unbranched arch's grid and centreline (None on the branched
     /// arch).
     pub arch: Option<crate::mesh::arch::Arch>,
@@ -234,8 +314,12 @@ pub struct SetupSpec {
     pub r: usize,
     /// The residual compliance table's settings.
     pub compliance: ComplianceParams,
-    /// Young's modulus of the wall (Pa); the rest is the aorta's.
+    /// Young's modulus of the paper's wall (Pa); the rest is the aorta's.
     pub youngs_pa: f64,
+    /// The wall ([`Wall::Human`] ignores `youngs_pa`).
+    pub wall: Wall,
+    /// Steady luminal pressure (Pa) on the inner wall; 0: none.
+    pub pressure_pa: f64,
     /// The built-in arch with its three supra-aortic branches (every vessel
     /// end fixed) instead of the unbranched one (both ends fixed).
     pub branched: bool,
@@ -249,6 +333,8 @@ impl Default for SetupSpec {
             compliance: ComplianceParams::default(),
             youngs_pa: Material::aorta().youngs_pa,
             branched: false,
+            wall: Wall::Paper,
+            pressure_pa: 0.0,
         }
     }
 }
@@ -281,14 +367,13 @@ impl Setup {
             let arch = generate(&ArchParams::default(), nodes).map_err(|x| x.to_string())?;
             (arch.mesh.clone(), Some(arch))
         };
-        let mat = Material {
-            youngs_pa: spec.youngs_pa,
-            ..Material::aorta()
-        };
-        let mesh = &owned;
-        let model = Nvtmm::new(mesh, &mat);
+        let (mut mat, law, kind) = spec.wall.material();
+        if spec.wall == Wall::Paper {
+            mat.youngs_pa = spec.youngs_pa;
+        }
+        let model = crate::model::factory::build_model(kind, &owned, &mat, law, &[]);
         // Every vessel end (the inlet and each outlet) fixed.
-        let mut fixed: Vec<u32> = mesh
+        let mut fixed: Vec<u32> = owned
             .node_sets()
             .iter()
             .filter(|(name, _)| name.starts_with("inlet") || name.starts_with("outlet"))
@@ -296,15 +381,58 @@ impl Setup {
             .collect();
         fixed.sort_unstable();
         fixed.dedup();
-        let n = mesh.num_nodes();
+        let n = owned.num_nodes();
+        // The state the loop and the reference are linearized at: rest, or
+        // the wall inflated statically to the pressure; its tangent holds
+        // the pressure's load stiffness (symmetric part).
+        let mut u0 = vec![Vec3::zeros(); n];
+        let mut k = BlockTangent::zeros(&owned);
+        if spec.pressure_pa > 0.0 {
+            use crate::solver::pressure::{LuminalPressure, PressureSchedule, PressureTangent};
+            use crate::solver::statics::{mask_of_fixed, solve_pressurized, StaticParams};
+            let load = LuminalPressure::on_set(
+                &owned,
+                "inner_wall",
+                PressureSchedule::steady(spec.pressure_pa),
+                PressureTangent::Symmetric,
+            )
+            .map_err(|e| e.to_string())?;
+            let params = StaticParams {
+                load_steps: 8,
+                ..StaticParams::default()
+            };
+            solve_pressurized(
+                &owned,
+                model.as_ref(),
+                &load,
+                spec.pressure_pa,
+                &mask_of_fixed(n, &fixed),
+                &params,
+                &mut u0,
+            )
+            .map_err(|e| {
+                format!(
+                    "inflating the {} wall to {} Pa: {e}",
+                    spec.wall.name(),
+                    spec.pressure_pa
+                )
+            })?;
+            load.add_stiffness(spec.pressure_pa, &u0, &mut k);
+        }
+        model.add_stiffness(&u0, &mut k);
+        let inflation_m = u0.iter().map(|v| v.norm()).fold(0.0, f64::max);
+        // The contact sees the inflated surface: a mesh whose rest is there
+        // (same nodes, tets and sets, so the tangent's layout is its own).
+        let owned = if spec.pressure_pa > 0.0 {
+            let x: Vec<Vec3> = owned.rest().iter().zip(&u0).map(|(x, u)| x + u).collect();
+            crate::mesh::TetMesh::new(x, owned.tets().to_vec(), owned.node_sets().clone()).map_err(|e| e.to_string())?
+        } else {
+            owned
+        };
+        let mesh = &owned;
         let mass = mesh.lumped_mass(mat.density);
-        let zeros = vec![Vec3::zeros(); n];
         let basis = ModalBasis::compute(&crate::reduced::BasisSpec {
-            stiffness: crate::reduced::Stiffness::Model {
-                mesh,
-                model: &model,
-                u: &zeros,
-            },
+            stiffness: crate::reduced::Stiffness::Tangent(&k),
             mass: &mass,
             fixed: &fixed,
             r,
@@ -313,12 +441,10 @@ impl Setup {
             params: crate::reduced::BasisParams::default(),
         })
         .map_err(|x| x.to_string())?;
-        let mut k = BlockTangent::zeros(mesh);
-        model.add_stiffness(&zeros, &mut k);
         let (table, stats) = LocalCompliance::compute(mesh, &k, &basis, compliance)?;
         let table = Arc::new(table);
         let rows = basis_rows::<R>(&basis).map_err(|x| x.to_string())?;
-        let k0 = Refresher::new(mesh, &basis, &mass).reduced_stiffness(&model, &zeros);
+        let k0 = Refresher::new(mesh, &basis, &mass).project_tangent(&k);
         let dynp = DynamicsParams {
             dt: 1e-3,
             alpha: 5.0,
@@ -343,6 +469,7 @@ impl Setup {
         };
         Ok(Setup {
             mesh: owned,
+            inflation_m,
             arch,
             fixed,
             k,
@@ -366,17 +493,12 @@ impl Setup {
     }
 
     /// The full model's reaction on each sphere with the same contact
-    /// ([`full_forces`]), on the nodes the spheres press at rest and the
-    /// ones the loop `touched`.
+    /// ([`reference`]: the active set iterated to convergence), starting
+    /// from the nodes the loop `touched`.
     pub fn full_reactions(&self, spheres: &[Vec3], touched: &[Touched]) -> Result<Vec<Vec3>, String> {
         let mut exact = ExactCompliance::new(&self.k, &self.fixed)?;
-        let mesh = &self.mesh;
-        let mut nodes = pressed_at_rest(mesh, &self.cp, &self.index, spheres);
-        nodes.extend(touched.iter().map(|t| t.node));
-        nodes.sort_unstable();
-        nodes.dedup();
-        let w = exact.blocks(&nodes)?;
-        Ok(full_forces(mesh, &self.cp, &self.index, spheres, &nodes, &w))
+        let seed: Vec<u32> = touched.iter().map(|t| t.node).collect();
+        Ok(reference(&self.mesh, &self.cp, &self.index, &mut exact, spheres, None, &seed)?.forces)
     }
 }
 
@@ -385,11 +507,20 @@ pub fn run(e: &ContactExperiment) -> Result<ContactResult, String> {
     if e.r > R {
         return Err(format!("r = {} is above the experiment's capacity {R}", e.r));
     }
+    if !(e.push_m > 0.0 && e.push_m <= ContactParams::default().tool_radius_m) {
+        return Err(format!(
+            "push {} mm: must be in (0, {}] mm (at most the tool's radius)",
+            e.push_m * 1e3,
+            ContactParams::default().tool_radius_m * 1e3
+        ));
+    }
     let s = Setup::with(&SetupSpec {
         nodes: e.nodes,
         r: e.r,
         compliance: e.compliance,
         branched: e.branched,
+        wall: e.wall,
+        pressure_pa: e.pressure_pa,
         ..SetupSpec::default()
     })?;
     let Setup {
@@ -433,9 +564,15 @@ pub fn run(e: &ContactExperiment) -> Result<ContactResult, String> {
     );
     let ticks = (e.settle_s / dynp.dt).round() as usize;
     let mut points = Vec::new();
+    let mut dropped = Vec::new();
     for (node, inner) in targets {
+        let drop = |reason: String| DroppedPoint { node, inner, reason };
         let nrm = normals[node as usize];
         if nrm.norm() < 0.5 {
+            dropped.push(drop(format!(
+                "no surface normal at the node (|n| = {:.2}: its triangles' normals cancel)",
+                nrm.norm()
+            )));
             continue;
         }
         let tool = mesh.rest()[node as usize] + nrm * (cp.tool_radius_m - e.push_m);
@@ -458,18 +595,22 @@ pub fn run(e: &ContactExperiment) -> Result<ContactResult, String> {
         };
         let (trace, touched) = run_loop(true)?;
         let (trace_basis, _) = run_loop(false)?;
-        // The full linear model with the same penalty contact, on the
-        // nodes the probe touches (normals from the loop's last tick).
-        let mut nodes = pressed_at_rest(mesh, &cp, index, &[tool]);
-        nodes.extend(touched.iter().map(|t| t.node));
-        nodes.sort_unstable();
-        nodes.dedup();
-        if nodes.is_empty() {
-            continue;
-        }
-        let w = exact.blocks(&nodes)?;
-        let full = full_forces(mesh, &cp, index, &[tool], &nodes, &w)[0].norm();
+        let seed: Vec<u32> = touched.iter().map(|t| t.node).collect();
+        // The reference pushes the probe in from where it just touches.
+        let touching = mesh.rest()[node as usize] + nrm * cp.tool_radius_m;
+        let refr = match reference(mesh, &cp, index, &mut exact, &[tool], Some(&[touching]), &seed) {
+            Ok(r) => r,
+            Err(why) => {
+                dropped.push(drop(format!("no reference: {why}")));
+                continue;
+            }
+        };
+        let full = refr.forces[0].norm();
         if full.is_nan() || full <= 0.0 {
+            dropped.push(drop(format!(
+                "the reference takes no force (the probe, {} mm into the undeformed wall, touches nothing there)",
+                e.push_m * 1e3
+            )));
             continue;
         }
         let last = |tr: &[f64]| tr.last().copied().unwrap_or(0.0);
@@ -486,7 +627,10 @@ pub fn run(e: &ContactExperiment) -> Result<ContactResult, String> {
             ratio_settled: last(&trace) / full,
             ratio_settled_basis_only: last(&trace_basis) / full,
             settle_ms: (settled_from as f64 + 1.0) * dynp.dt * 1e3,
-            touched: nodes.len(),
+            touched: touched.len(),
+            reference_nodes: refr.nodes,
+            reference_active: refr.active,
+            reference_rounds: refr.rounds,
         });
     }
     let col = |f: fn(&ContactPoint) -> f64| points.iter().map(f).collect::<Vec<f64>>();
@@ -498,6 +642,11 @@ pub fn run(e: &ContactExperiment) -> Result<ContactResult, String> {
         ratio_settled_basis_only: Spread::of(&col(|p| p.ratio_settled_basis_only), true),
         settle_ms: Spread::of(&col(|p| p.settle_ms), false),
         points,
+        dropped,
+        push_m: e.push_m,
+        wall: e.wall,
+        pressure_pa: e.pressure_pa,
+        inflation_m: s.inflation_m,
         table: stats,
     })
 }
@@ -529,12 +678,153 @@ pub fn pressed_at_rest(
     nodes
 }
 
+/// The full linear model's answer to the tool: the reaction on each sphere
+/// and how it was found ([`reference`]).
+#[derive(Debug, Clone, PartialEq)]
+pub struct Reference {
+    /// Reaction on each sphere (N).
+    pub forces: Vec<Vec3>,
+    /// Nodes solved for (the converged candidate set).
+    pub nodes: usize,
+    /// Nodes in contact at equilibrium.
+    pub active: usize,
+    /// Rounds of the active-set iteration.
+    pub rounds: usize,
+    /// The contact force on each node in contact (N) and its displacement (m).
+    pub node_forces: Vec<(u32, Vec3, Vec3)>,
+}
+
+/// Rounds of [`reference`]'s active-set iteration before it gives up.
+pub const REFERENCE_ROUNDS: usize = 8;
+
+/// Longest move of a sphere between two solves of [`reference`] (m).
+pub const REFERENCE_STEP_M: f64 = 0.2e-3;
+
 /// The full linear model's reactions on the tool `spheres` with the same
 /// contact as the loop (the pressure on the deformed surface triangles,
-/// [`crate::haptics::contact`]): the nodes `nodes` sit at x = X + u with
-/// u = W f(x) (W = (K⁻¹) on `nodes`, all three components; every other
-/// node at rest), solved by Newton's method with a finite-difference
-/// Jacobian of the contact forces. Non-finite if it does not converge.
+/// [`crate::haptics::contact`]), its active set iterated to convergence.
+///
+/// The unknowns are the displacements of a candidate set C of surface
+/// nodes: every node within the tool radius plus the longest surface edge
+/// of a sphere centre, and the `seed` nodes. They satisfy u_C = W f_C(x)
+/// with W = (K⁻¹)_CC (exact columns) and f the contact forces at the
+/// deformed positions, so every candidate, pressed or not, moves as the
+/// full model moves it under the contact, and the triangles the contact
+/// integrates over have their true shape at any depth. Once solved
+/// ([`full_forces`]), a node that takes force but is not in C (the patch
+/// grew past the candidates) joins C, with the surface nodes near it, and
+/// the solve is repeated, until the active set lies within C.
+///
+/// With `from` (where each sphere starts, e.g. just touching the wall),
+/// the spheres are moved from there to `spheres` in steps of at most
+/// [`REFERENCE_STEP_M`], each solve starting from the last: the
+/// equilibrium a probe pushed in reaches. A probe held deeper into the
+/// undeformed wall than the wall is thick has a second, unphysical
+/// equilibrium (the sphere sunk into the wall, pushing its far surface from
+/// inside), which a solve started from rest can find instead.
+pub fn reference(
+    mesh: &crate::mesh::TetMesh,
+    cp: &ContactParams,
+    index: &SurfaceIndex,
+    exact: &mut ExactCompliance,
+    spheres: &[Vec3],
+    from: Option<&[Vec3]>,
+    seed: &[u32],
+) -> Result<Reference, String> {
+    let rest = mesh.rest();
+    let surface = mesh.surface_nodes();
+    let longest = mesh
+        .surface()
+        .iter()
+        .flat_map(|t| [(t[0], t[1]), (t[1], t[2]), (t[2], t[0])])
+        .map(|(a, b)| (rest[a as usize] - rest[b as usize]).norm())
+        .fold(0.0, f64::max);
+    let near = |centres: &[Vec3], reach: f64| -> Vec<u32> {
+        surface
+            .iter()
+            .copied()
+            .filter(|&i| centres.iter().any(|c| (rest[i as usize] - c).norm() <= reach))
+            .collect()
+    };
+    let start = from.unwrap_or(spheres);
+    if start.len() != spheres.len() {
+        return Err(format!("{} start positions for {} spheres", start.len(), spheres.len()));
+    }
+    let travel = start
+        .iter()
+        .zip(spheres)
+        .map(|(a, b)| (a - b).norm())
+        .fold(0.0, f64::max);
+    let steps = ((travel / REFERENCE_STEP_M).ceil() as usize).max(1);
+    let path: Vec<Vec<Vec3>> = (1..=steps)
+        .map(|k| {
+            let w = k as f64 / steps as f64;
+            start.iter().zip(spheres).map(|(a, b)| a * (1.0 - w) + b * w).collect()
+        })
+        .collect();
+    let mut set: Vec<u32> = near(spheres, cp.tool_radius_m + longest);
+    set.extend(near(start, cp.tool_radius_m + longest));
+    set.extend_from_slice(seed);
+    set.extend(pressed_at_rest(mesh, cp, index, spheres));
+    set.sort_unstable();
+    set.dedup();
+    if set.is_empty() {
+        return Err("no surface node near the tool".into());
+    }
+    'rounds: for round in 1..=REFERENCE_ROUNDS {
+        let w = exact.blocks(&set)?;
+        let mut u = nalgebra::DVector::zeros(3 * set.len());
+        let mut solved = None;
+        for (k, at) in path.iter().enumerate() {
+            let s = full_forces_from(mesh, cp, index, at, &set, &w, &mut u)
+                .map_err(|e| format!("{e} (step {} of {steps} of the push)", k + 1))?;
+            if !s.outside.is_empty() {
+                let grown: Vec<Vec3> = s.outside.iter().map(|&i| rest[i as usize]).collect();
+                set.extend(s.outside.iter().copied());
+                set.extend(near(&grown, longest));
+                set.sort_unstable();
+                set.dedup();
+                continue 'rounds;
+            }
+            solved = Some(s);
+        }
+        let solved = solved.ok_or("no step")?;
+        {
+            return Ok(Reference {
+                forces: solved.forces,
+                nodes: set.len(),
+                active: solved.active,
+                rounds: round,
+                node_forces: solved.node_forces,
+            });
+        }
+    }
+    Err(format!(
+        "the active set still grew after {REFERENCE_ROUNDS} rounds ({} candidates)",
+        set.len()
+    ))
+}
+
+/// What [`full_forces`] found.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Solved {
+    /// Reaction on each sphere (N).
+    pub forces: Vec<Vec3>,
+    /// Nodes of `nodes` in contact at the solution.
+    pub active: usize,
+    /// The contact force on each node in contact (N), and its displacement (m).
+    pub node_forces: Vec<(u32, Vec3, Vec3)>,
+    /// Nodes not in `nodes` that take contact force at the solution (the
+    /// candidate set was too small; empty when it was not).
+    pub outside: Vec<u32>,
+}
+
+/// Solves the contact of the tool `spheres` with the surface whose nodes
+/// `nodes` sit at x = X + u with u = W f(x) (W = K⁻¹ on `nodes`, all three
+/// components; every other node at rest): Newton's method on
+/// r(u) = u − W f(u) with a central-difference Jacobian of the contact
+/// forces and a backtracking line search on ‖r‖ (the forces are only
+/// piecewise smooth). An error says why it did not converge.
 pub fn full_forces(
     mesh: &crate::mesh::TetMesh,
     cp: &ContactParams,
@@ -542,14 +832,31 @@ pub fn full_forces(
     spheres: &[Vec3],
     nodes: &[u32],
     w: &DMatrix<f64>,
-) -> Vec<Vec3> {
+) -> Result<Solved, String> {
+    let mut u = nalgebra::DVector::zeros(3 * nodes.len());
+    full_forces_from(mesh, cp, index, spheres, nodes, w, &mut u)
+}
+
+/// As [`full_forces`], starting from the displacements `u` of `nodes`
+/// (3 per node), which it leaves at the solution.
+pub fn full_forces_from(
+    mesh: &crate::mesh::TetMesh,
+    cp: &ContactParams,
+    index: &SurfaceIndex,
+    spheres: &[Vec3],
+    nodes: &[u32],
+    w: &DMatrix<f64>,
+    u: &mut nalgebra::DVector<f64>,
+) -> Result<Solved, String> {
     use crate::haptics::contact::{evaluate_spheres, Candidates, ContactOutput};
+    use nalgebra::DVector;
     let m = nodes.len();
     let slot: std::collections::HashMap<u32, usize> = nodes.iter().enumerate().map(|(a, &i)| (i, a)).collect();
     let mut scratch = Candidates::new();
     let mut out = ContactOutput::<1>::for_index(index);
-    // Node forces on `nodes` (3m) and the reaction on each sphere.
-    let mut forces = |u: &nalgebra::DVector<f64>| -> (nalgebra::DVector<f64>, Vec<Vec3>) {
+    // Node forces on `nodes` (3m), the reaction on each sphere, the nodes
+    // in contact in and outside `nodes`.
+    let mut forces = |u: &DVector<f64>| -> (DVector<f64>, Vec<Vec3>, usize, Vec<u32>) {
         evaluate_spheres(
             index,
             cp,
@@ -567,23 +874,40 @@ pub fn full_forces(
             &mut scratch,
             &mut out,
         );
-        let mut f = nalgebra::DVector::<f64>::zeros(3 * m);
+        let mut f = DVector::<f64>::zeros(3 * m);
+        let (mut active, mut outside) = (0, Vec::new());
         for c in out.nodes.iter() {
-            if let Some(&a) = slot.get(&c.node) {
-                for k in 0..3 {
-                    f[3 * a + k] += c.force[k];
+            match slot.get(&c.node) {
+                Some(&a) => {
+                    active += 1;
+                    for k in 0..3 {
+                        f[3 * a + k] += c.force[k];
+                    }
                 }
+                None if c.force.norm() > 0.0 => outside.push(c.node),
+                None => {}
             }
         }
-        (f, out.sphere_forces.iter().copied().collect())
+        (f, out.sphere_forces.iter().copied().collect(), active, outside)
     };
-    let mut u = nalgebra::DVector::<f64>::zeros(3 * m);
-    let h = 1e-4 * cp.tool_radius_m;
-    for _ in 0..60 {
-        let (f, _) = forces(&u);
-        let r = &u - w * &f;
-        if r.norm() <= 1e-12 * cp.tool_radius_m {
-            break;
+    let scale = cp.tool_radius_m;
+    let tol = 1e-10 * scale;
+    let h = 1e-6 * scale;
+    if u.len() != 3 * m {
+        return Err(format!("{} start displacements for {m} nodes", u.len()));
+    }
+    let residual = |u: &DVector<f64>, f: &DVector<f64>| u - w * f;
+    let (f0, ..) = forces(u);
+    let mut r = residual(u, &f0);
+    let mut rn = r.norm();
+    let mut iters = 0;
+    while rn > tol {
+        iters += 1;
+        if iters > 200 {
+            return Err(format!(
+                "the reference's Newton did not converge in 200 iterations (‖r‖ = {:.1e} m on {m} nodes)",
+                rn
+            ));
         }
         let mut df = DMatrix::<f64>::zeros(3 * m, 3 * m);
         for j in 0..3 * m {
@@ -595,24 +919,44 @@ pub fn full_forces(
             df.set_column(j, &col);
         }
         let jac = DMatrix::<f64>::identity(3 * m, 3 * m) - w * df;
-        let Some(step) = jac.lu().solve(&r) else {
-            return vec![Vec3::repeat(f64::NAN); spheres.len()];
-        };
-        // Damped: never move a node by more than a tenth of the radius at once.
-        let big = step.amax();
-        let damp = if big > 0.1 * cp.tool_radius_m {
-            0.1 * cp.tool_radius_m / big
-        } else {
-            1.0
-        };
-        u -= step * damp;
+        let step = jac
+            .lu()
+            .solve(&r)
+            .ok_or_else(|| format!("the reference's Jacobian is singular on {m} nodes"))?;
+        // Backtrack until ‖r‖ falls; a full step that does not is halved
+        // down to 2⁻²⁰, then taken anyway (a kink of the piecewise law).
+        let mut t = 1.0;
+        loop {
+            let trial = &*u - &step * t;
+            let (ft, ..) = forces(&trial);
+            let rt = residual(&trial, &ft);
+            if rt.norm() < (1.0 - 1e-4 * t) * rn || t < 1e-6 {
+                *u = trial;
+                r = rt;
+                rn = r.norm();
+                break;
+            }
+            t *= 0.5;
+        }
     }
-    let (f, reactions) = forces(&u);
-    let r = &u - w * &f;
-    if r.norm().is_nan() || r.norm() > 1e-9 * cp.tool_radius_m {
-        return vec![Vec3::repeat(f64::NAN); spheres.len()];
+    let (f_end, reactions, active, mut outside) = forces(u);
+    if !reactions.iter().all(|f| f.iter().all(|v| v.is_finite())) {
+        return Err("the reference's force is not finite".into());
     }
-    reactions
+    outside.sort_unstable();
+    outside.dedup();
+    let node_forces = (0..m)
+        .filter_map(|a| {
+            let f = Vec3::new(f_end[3 * a], f_end[3 * a + 1], f_end[3 * a + 2]);
+            (f.norm() > 0.0).then(|| (nodes[a], f, Vec3::new(u[3 * a], u[3 * a + 1], u[3 * a + 2])))
+        })
+        .collect();
+    Ok(Solved {
+        forces: reactions,
+        active,
+        node_forces,
+        outside,
+    })
 }
 
 /// A probe sliding over the wall ([`slide`]).

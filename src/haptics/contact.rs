@@ -116,6 +116,10 @@ struct Kept<const R: usize> {
     center: Vec3,
     q: SVector<f64, R>,
     len: u16,
+    /// How far the surface may already have moved, besides Φ (q − `q`),
+    /// since the search (m): the change of the offset ū at the swaps the
+    /// triangles were carried over ([`ContactOutput::carry_from`]).
+    carried: f64,
 }
 
 /// Candidate capacity of one query (a larger patch is truncated and counted).
@@ -440,6 +444,12 @@ pub struct ContactOutput<const R: usize> {
     /// Time the residual-compliance series solve took this evaluation (ns;
     /// 0 without one), for the loop's phase timing.
     pub series_ns: i64,
+    /// Patches whose node-pair blocks of the residual compliance were read
+    /// from the table this evaluation (their touched nodes or the table
+    /// changed); the other patches of the series solve reused the blocks
+    /// they kept (at most [`PAIR_CACHE_NODES`] nodes; a larger patch reads
+    /// the table every time and is counted every time).
+    pub pair_lookups: usize,
     /// Reaction on each tool sphere (N), in the order given.
     pub sphere_forces: heapless::Vec<Vec3, MAX_SPHERES>,
     active: heapless::Vec<ActiveNode, MAX_CONTACT_NODES>,
@@ -484,6 +494,7 @@ impl<const R: usize> ContactOutput<R> {
                     center: Vec3::zeros(),
                     q: SVector::zeros(),
                     len: 0,
+                    carried: 0.0,
                 };
                 MAX_SPHERES
             ],
@@ -503,6 +514,56 @@ impl<const R: usize> ContactOutput<R> {
         self.pair_keys.iter_mut().for_each(|k| k.table = 0);
     }
 
+    /// Takes over `from`'s kept triangles and pair blocks for positions that
+    /// follow another model in the same basis (the same Φ rows, so the same
+    /// reduced coordinates) whose offset ū differs from that of `from`'s
+    /// model by at most `offset_moved` (m) at every node: a model swap
+    /// between basis refreshes. Each kept list then holds every triangle a
+    /// search would find while the sphere and the surface move less than
+    /// the slack less `offset_moved` (the motion bound of [`Motion`] grows
+    /// by it), so the swap tick needs no search. Without room in either
+    /// output, or with an `offset_moved` that is not finite and ≥ 0,
+    /// this forgets instead. Returns how many spheres' triangles were
+    /// carried over. Allocates nothing.
+    pub fn carry_from(&mut self, from: &ContactOutput<R>, offset_moved: f64) -> usize {
+        self.forget();
+        if !(offset_moved.is_finite() && offset_moved >= 0.0)
+            || self.kept.len() != from.kept.len()
+            || self.kept_tris.len() != from.kept_tris.len()
+            || self.kept_dist.len() != from.kept_dist.len()
+            || self.pair_keys.len() != from.pair_keys.len()
+            || self.pair_blocks.len() != from.pair_blocks.len()
+        {
+            return 0;
+        }
+        let mut carried_spheres = 0;
+        for (s, k) in from.kept.iter().enumerate() {
+            if !k.valid {
+                continue;
+            }
+            let carried = k.carried + offset_moved;
+            if !at_most(carried, COHERENCE_SLACK_M) {
+                continue;
+            }
+            let (base, len) = (s * KEPT_TRIANGLES, k.len as usize);
+            self.kept_tris[base..base + len].copy_from_slice(&from.kept_tris[base..base + len]);
+            self.kept_dist[base..base + len].copy_from_slice(&from.kept_dist[base..base + len]);
+            self.kept[s] = Kept { carried, ..*k };
+            carried_spheres += 1;
+        }
+        // The pair blocks depend on the table and the nodes only.
+        for (s, key) in from.pair_keys.iter().enumerate() {
+            if key.table == 0 {
+                continue;
+            }
+            let base = s * PAIR_CACHE_NODES * PAIR_CACHE_NODES;
+            let n = key.len as usize * key.len as usize;
+            self.pair_blocks[base..base + n].copy_from_slice(&from.pair_blocks[base..base + n]);
+            self.pair_keys[s] = *key;
+        }
+        carried_spheres
+    }
+
     /// Makes sphere `s`'s kept pair blocks those of patch `p`'s nodes in
     /// table `w` (looked up only if the nodes or the table changed).
     /// Returns whether the patch's blocks are kept (false: too many nodes,
@@ -510,6 +571,7 @@ impl<const R: usize> ContactOutput<R> {
     fn keep_pair_blocks(&mut self, w: &LocalCompliance, p: &Patch) -> bool {
         let (s, len) = (p.sphere as usize, p.len as usize);
         if len > PAIR_CACHE_NODES || s >= self.pair_keys.len() {
+            self.pair_lookups += 1;
             return false;
         }
         let nodes = &self.active[p.first as usize..p.first as usize + len];
@@ -517,6 +579,8 @@ impl<const R: usize> ContactOutput<R> {
         if key.table == w.id() && key.len as usize == len && nodes.iter().zip(&key.nodes).all(|(a, &n)| a.node == n) {
             return true;
         }
+        self.pair_lookups += 1;
+        let key = &mut self.pair_keys[s];
         key.table = w.id();
         key.len = len as u16;
         for (k, a) in key.nodes.iter_mut().zip(nodes) {
@@ -536,7 +600,7 @@ impl<const R: usize> ContactOutput<R> {
     fn may_reuse(&self, s: usize, center: &Vec3, motion: &Motion<R>) -> Option<f64> {
         match self.kept.get(s) {
             Some(k) if k.valid => {
-                let moved = (center - k.center).norm() + motion.row_bound * (motion.q - k.q).norm();
+                let moved = k.carried + (center - k.center).norm() + motion.row_bound * (motion.q - k.q).norm();
                 at_most(moved, COHERENCE_SLACK_M).then_some(moved)
             }
             _ => None,
@@ -661,6 +725,7 @@ impl<const R: usize> Default for ContactOutput<R> {
             iterations: 0,
             searches: 0,
             series_ns: 0,
+            pair_lookups: 0,
             sphere_forces: heapless::Vec::new(),
             active: heapless::Vec::new(),
             patches: heapless::Vec::new(),
@@ -770,6 +835,7 @@ pub fn evaluate_spheres<'r, const R: usize>(
     out.positions = 0;
     out.searches = 0;
     out.series_ns = 0;
+    out.pair_lookups = 0;
     for (s, center) in centers.iter().take(MAX_SPHERES).enumerate() {
         let _ = out.sphere_forces.push(Vec3::zeros());
         press_sphere(
@@ -1064,6 +1130,7 @@ fn search_triangles<const R: usize>(
         center: *center,
         q: *m.q,
         len: len as u16,
+        carried: 0.0,
     };
     // The tick integrates the kept ones that touch the sphere now (the
     // others cannot press).
@@ -1100,7 +1167,12 @@ fn push_force<const R: usize>(out: &mut ContactOutput<R>, node: u32, sphere: u16
 
 /// K += α x yᵀ, column by column (contiguous, so it vectorizes; nalgebra's
 /// `ger` calls a non-inlined axpy per column).
-fn add_outer<const R: usize>(k: &mut SMatrix<f64, R, R>, alpha: f64, x: &SVector<f64, R>, y: &SVector<f64, R>) {
+pub(crate) fn add_outer<const R: usize>(
+    k: &mut SMatrix<f64, R, R>,
+    alpha: f64,
+    x: &SVector<f64, R>,
+    y: &SVector<f64, R>,
+) {
     let x = x.as_slice();
     for (col, &yj) in k.as_mut_slice().chunks_exact_mut(R).zip(y.as_slice()) {
         let a = alpha * yj;

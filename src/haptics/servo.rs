@@ -40,6 +40,13 @@ pub struct LoopModel<const R: usize> {
     /// The residual compliance of the model's basis (contact anywhere,
     /// `crate::reduced::compliance`); None: the reduced model alone.
     pub compliance: Option<Arc<LocalCompliance>>,
+    /// The largest change of ū at any node from the previous epoch's model
+    /// (m), when this model shares that model's basis rows (its transfer is
+    /// then I); None: a new basis, or not known. Measured on the
+    /// background thread, so that the swap carries the contact's kept
+    /// triangles over instead of searching the surface on the loop
+    /// ([`Servo::swap`]).
+    pub offset_moved_m: Option<f64>,
 }
 
 /// Watchdog and contact settings of the loop.
@@ -143,6 +150,14 @@ pub struct ServoCounters {
     pub uncorrected_ticks: u64,
     /// Ticks the residual compliance was applied (contact anywhere).
     pub compliance_ticks: u64,
+    /// Of `compliance_ticks`, the ticks that read node-pair blocks of the
+    /// residual compliance from its table (a patch whose touched nodes
+    /// changed); on the others every patch reused the blocks it kept.
+    pub compliance_lookup_ticks: u64,
+    /// Swaps that carried the contact's kept triangles over to the new
+    /// model (same basis, ū moved less than the slack): no surface search
+    /// on the swap tick ([`LoopModel::offset_moved_m`]).
+    pub swaps_carried: u64,
 }
 
 /// Longest delay from a patch's first touch to its first corrected tick
@@ -446,8 +461,17 @@ impl<const R: usize> Servo<R> {
     }
 
     fn swap_in(&mut self, mut new: Box<LoopModel<R>>) -> Box<LoopModel<R>> {
+        // In the same basis the reduced coordinates mean the same motion in
+        // both models (T = I), and every node's position differs between
+        // them by ū's change, measured on the background thread: the
+        // contact's kept triangles stay valid with that much more motion
+        // allowed, so the swap tick searches nothing.
+        let carry = new
+            .offset_moved_m
+            .filter(|_| Arc::ptr_eq(new.dynamics.rows(), self.model.dynamics.rows()));
         let q = new.transfer * self.model.dynamics.q() + new.shift;
         let qd = new.transfer * self.model.dynamics.qd();
+        let mut carried = 0usize;
         let mut evaluated_new = false;
         if q.iter().chain(qd.iter()).all(|v| v.is_finite()) {
             let dq = self.contact_match(&new, &q);
@@ -457,7 +481,10 @@ impl<const R: usize> Servo<R> {
                 // equilibrium under the contact (one static Newton step),
                 // so it does not ring after the fade.
                 new.dynamics.set_state(&q, &qd);
-                self.fade_contact.forget();
+                match carry {
+                    Some(d) => carried = self.fade_contact.carry_from(&self.contact, d),
+                    None => self.fade_contact.forget(),
+                }
                 eval_contact(
                     &new,
                     &self.index,
@@ -493,7 +520,13 @@ impl<const R: usize> Servo<R> {
         // searches again (a full search costs several times a tick).
         std::mem::swap(&mut self.contact, &mut self.fade_contact);
         if !evaluated_new {
-            self.contact.forget();
+            match carry {
+                Some(d) => carried = self.contact.carry_from(&self.fade_contact, d),
+                None => self.contact.forget(),
+            }
+        }
+        if carried > 0 {
+            self.counters.swaps_carried += 1;
         }
         if self.params.swap_blend_s <= 0.0 {
             self.fade_contact.forget();
@@ -523,7 +556,12 @@ impl<const R: usize> Servo<R> {
             let old =
                 self.model.offset.get(i).copied().unwrap_or_else(Vec3::zeros) + rows_old * self.model.dynamics.q();
             let now = new.offset.get(i).copied().unwrap_or_else(Vec3::zeros) + rows_new * q;
-            g += rows_new.tr_mul(rows_new) * w;
+            // w Φᵀ Φ as three rank-one updates on contiguous columns, which
+            // vectorize; the 3 × r `tr_mul` takes a 3-long dot per entry.
+            for k in 0..3 {
+                let v: SVector<f64, R> = rows_new.row(k).transpose();
+                contact::add_outer(&mut g, w, &v, &v);
+            }
             b += rows_new.tr_mul(&(old - now)) * w;
         }
         let scale = g.trace() / R as f64;
@@ -757,6 +795,9 @@ impl<const R: usize> Servo<R> {
         }
         if !c.nodes.is_empty() && self.model.compliance.is_some() {
             self.counters.compliance_ticks += 1;
+            if c.pair_lookups > 0 {
+                self.counters.compliance_lookup_ticks += 1;
+            }
         }
         let t0 = clock::now_ns();
         let (mut desired, mut finite) = step_model(

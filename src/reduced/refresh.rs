@@ -148,9 +148,21 @@ impl Refresher {
     /// K_r(u) = Φᵀ K(u) Φ (r × r, symmetrized) of `model` at displacement `u`:
     /// one tangent assembly, then [`Refresher::project_tangent`].
     pub fn reduced_stiffness(&mut self, model: &dyn ForceModel, u: &[Vec3]) -> DMatrix<f64> {
+        self.reduced_stiffness_with(model, u, |_| {})
+    }
+
+    /// As [`Refresher::reduced_stiffness`] with `extra` adding to the
+    /// assembled tangent before the projection (e.g. a load's stiffness).
+    pub fn reduced_stiffness_with(
+        &mut self,
+        model: &dyn ForceModel,
+        u: &[Vec3],
+        extra: impl FnOnce(&mut BlockTangent),
+    ) -> DMatrix<f64> {
         let mut k = std::mem::take(&mut self.tangent);
         k.clear();
         model.add_stiffness(u, &mut k);
+        extra(&mut k);
         let kr = self.project_tangent(&k);
         self.tangent = k;
         kr

@@ -359,7 +359,7 @@ impl<const R: usize> Background<R> {
         epoch: u64,
         sent_phi: Option<&DMatrix<f64>>,
     ) -> Option<(Box<LoopModel<R>>, SVector<f64, R>)> {
-        let kr = self.refresher.reduced_stiffness(self.model.as_ref(), u);
+        let kr = reduced_tangent(&mut self.refresher, self.model.as_ref(), self.pressure.as_ref(), u);
         self.model_from(kr, u, fbar, epoch, sent_phi)
     }
 
@@ -393,6 +393,18 @@ impl<const R: usize> Background<R> {
         let qbar = to_s::<R>(&self.refresher.project_mass(u).as_slice()[..r]);
         let fb = to_s::<R>(&self.refresher.project_force(fbar).as_slice()[..r]);
         let offset = Arc::new(u.to_vec());
+        // How far ū moved at any node since the last model sent, in the
+        // same basis: the loop's swap keeps its contact triangles with that
+        // much more motion allowed instead of searching the surface.
+        // (f64::max skips a NaN: a change that is not finite gives none.)
+        let offset_moved_m = match sent_phi {
+            None if self.last_sent.0.len() == u.len() => u
+                .iter()
+                .zip(self.last_sent.0.iter())
+                .map(|(a, b)| (a - b).norm())
+                .try_fold(0.0, |m: f64, d| d.is_finite().then(|| m.max(d))),
+            _ => None,
+        };
         let (transfer, shift) = match sent_phi {
             // Same basis: δq₁ = δq₀ + Φᵀ M (ū₀ − ū₁).
             None => (SMatrix::identity(), self.last_sent.1 - qbar),
@@ -421,8 +433,28 @@ impl<const R: usize> Background<R> {
             shift,
             created_s: clock::now_s(),
             compliance: self.compliance.clone(),
+            offset_moved_m,
         });
         Some((model, qbar))
+    }
+}
+
+/// K_r at `u`: the wall's tangent plus, with a pressure, its load
+/// stiffness at the pressure the full solve carries now (the symmetric part,
+/// as the full step's tangent has it), so a model built from an assembly
+/// matches one built from the step's tangent.
+pub fn reduced_tangent(
+    refresher: &mut Refresher,
+    model: &dyn ForceModel,
+    pressure: Option<&BackgroundPressure>,
+    u: &[Vec3],
+) -> DMatrix<f64> {
+    match pressure {
+        Some(p) => {
+            let pa = p.load.schedule.pressure_at(p.t_s);
+            refresher.reduced_stiffness_with(model, u, |k| p.load.add_stiffness(pa, u, k))
+        }
+        None => refresher.reduced_stiffness(model, u),
     }
 }
 
@@ -452,6 +484,7 @@ pub fn rest_model<const R: usize>(
         shift: SVector::zeros(),
         created_s: clock::now_s(),
         compliance: None,
+        offset_moved_m: None,
     }))
 }
 
@@ -668,4 +701,77 @@ pub fn run<const R: usize>(mut bg: Background<R>, mut io: BackgroundIo<R>) -> Ba
     stats.wall_s = (clock::now_ns() - t_start) as f64 * 1e-9;
     stats.max_displacement_m = state.u.iter().map(|u| u.norm()).fold(0.0, f64::max);
     stats
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::material::Material;
+    use crate::mesh::arch::ArchGrid;
+    use crate::mesh::tube::{generate, TubeParams};
+    use crate::model::nvtmm::Nvtmm;
+    use crate::reduced::{BasisParams, BasisSpec, ModalBasis, Statics, Stiffness};
+    use crate::solver::pressure::{PressureSchedule, PressureTangent};
+
+    #[test]
+    fn the_reduced_tangent_holds_the_pressure_load_stiffness() {
+        let mesh = generate(
+            &TubeParams {
+                inner_radius: 0.010,
+                outer_radius: 0.012,
+                length: 0.04,
+            },
+            ArchGrid {
+                axial: 5,
+                circumferential: 12,
+                layers: 2,
+            },
+        )
+        .unwrap();
+        let mat = Material {
+            youngs_pa: 1e6,
+            ..Material::aorta()
+        };
+        let model = Nvtmm::new(&mesh, &mat);
+        let mass = mesh.lumped_mass(mat.density);
+        let mut fixed: Vec<u32> = mesh.node_set("end_0").unwrap().to_vec();
+        fixed.extend_from_slice(mesh.node_set("end_1").unwrap());
+        let u = vec![Vec3::zeros(); mesh.num_nodes()];
+        let basis = ModalBasis::compute(&BasisSpec {
+            stiffness: Stiffness::Model {
+                mesh: &mesh,
+                model: &model,
+                u: &u,
+            },
+            mass: &mass,
+            fixed: &fixed,
+            r: 6,
+            statics: Statics::None,
+            warm: None,
+            params: BasisParams::default(),
+        })
+        .unwrap();
+        let mut refresher = Refresher::new(&mesh, &basis, &mass);
+        let pa = 12e3;
+        let schedule = PressureSchedule {
+            ramp_s: 1.0,
+            ..PressureSchedule::steady(pa)
+        };
+        let load = LuminalPressure::on_set(&mesh, "inner_wall", schedule, PressureTangent::Symmetric).unwrap();
+        let mut p = BackgroundPressure::new(load.clone());
+        p.t_s = 10.0; // past the ramp: the full pressure
+        let plain = reduced_tangent(&mut refresher, &model, None, &u);
+        let with = reduced_tangent(&mut refresher, &model, Some(&p), &u);
+        // What the pressure alone projects to.
+        let mut kp = BlockTangent::zeros(&mesh);
+        load.add_stiffness(pa, &u, &mut kp);
+        let kp_r = refresher.project_tangent(&kp);
+        assert!(kp_r.norm() > 1e-6 * plain.norm(), "{}", kp_r.norm());
+        let diff = (&with - &plain - &kp_r).norm();
+        assert!(diff <= 1e-9 * plain.norm(), "{diff:e} vs {:e}", plain.norm());
+        // Before the ramp starts nothing is added.
+        p.t_s = 0.0;
+        let at_start = reduced_tangent(&mut refresher, &model, Some(&p), &u);
+        assert!((&at_start - &plain).norm() <= 1e-12 * plain.norm());
+    }
 }

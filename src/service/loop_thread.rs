@@ -9,7 +9,7 @@
 
 use super::background::{ContactMsg, CONTACT_MSG_NODES};
 use super::device_io::ForceCmd;
-use super::instrument::{Hand, LoopSide};
+use super::instrument::{LoopSide, Selector};
 use super::live::LiveStats;
 use super::publisher::StateSnapshot;
 use crate::haptics::device::DeviceSample;
@@ -50,6 +50,8 @@ pub(super) struct LoopResult {
     pub contact_ring_full: u64,
     pub state_ring_full: u64,
     pub swaps_deferred: u64,
+    /// Presses of the switch button that changed the active instrument.
+    pub instrument_switches: u64,
 }
 
 /// Loop-side rings.
@@ -112,6 +114,7 @@ pub(super) fn loop_thread<const R: usize>(mut tick: HapticTick<R>, mut io: LoopI
         contact_ring_full: 0,
         state_ring_full: 0,
         swaps_deferred: 0,
+        instrument_switches: 0,
     };
     let period = plan.period;
     // The jitter baseline: a bare absolute-deadline sleep loop, same thread,
@@ -128,6 +131,7 @@ pub(super) fn loop_thread<const R: usize>(mut tick: HapticTick<R>, mut io: LoopI
     let faults0 = crate::rt::thread::thread_page_faults();
     let t_begin = clock::now_ns();
     let mut streak = 0u32;
+    let mut selector = Selector::new(io.instruments.iter().map(|i| i.hub_driven()));
     let mut last: Option<DeviceSample> = None;
     let mut last_pose_time: Nanos = 0;
     let mut n: u64 = 0;
@@ -173,13 +177,10 @@ pub(super) fn loop_thread<const R: usize>(mut tick: HapticTick<R>, mut io: LoopI
             _ => last,
         };
         // Each instrument's contribution, in one shape (docs/INSTRUMENTS.md).
-        let hand = Hand {
-            sample: last.as_ref(),
-            now_s,
-        };
+        selector.update(last.as_ref());
         let mut parts: heapless::Vec<Contribution<'_>, MAX_INSTRUMENTS> = heapless::Vec::new();
-        for inst in io.instruments.iter_mut() {
-            let _ = parts.push(inst.contribute(&hand));
+        for (k, inst) in io.instruments.iter_mut().enumerate() {
+            let _ = parts.push(inst.contribute(&selector.hand(k, last.as_ref(), now_s)));
         }
         split.lap(Phase::Instruments);
         let out = tick.run_with(
@@ -282,6 +283,7 @@ pub(super) fn loop_thread<const R: usize>(mut tick: HapticTick<R>, mut io: LoopI
     // Off the clock: whatever was not returned is freed with the thread.
     drop(pending_return);
     res.seconds = (clock::now_ns() - t_begin) as f64 * 1e-9;
+    res.instrument_switches = selector.switches();
     res.counters = *tick.counters();
     res.contact =
         crate::service::report::ContactReport::from_loop(tick.contact_events(), tick.counters(), period as f64 * 1e-9);

@@ -44,6 +44,9 @@ pub struct QpReport {
     /// Ticks whose model force was inside every bound and went out as it
     /// was, without a solve (the shortcut).
     pub shortcuts: u64,
+    /// Of `solves`, those the exact active-set step answered with a KKT
+    /// certificate, without the interior-point solver (docs/PASSIVITY.md).
+    pub exact_solves: u64,
 }
 
 /// One ring's counters.
@@ -276,6 +279,9 @@ pub struct Report {
     /// Every instrument of the run, in the loop's order: its id, kind,
     /// faults raised and its kind's own keys (docs/INSTRUMENTS.md).
     pub instruments: Vec<crate::service::instrument::InstrumentReport>,
+    /// Presses of the switch button that changed the active hub-driven
+    /// instrument (docs/INSTRUMENTS.md, "Two instruments, one hand").
+    pub instrument_switches: u64,
 }
 
 /// Contact anywhere in the run (the `contact` keys of the report).
@@ -424,9 +430,10 @@ impl Report {
             );
         } else {
             s += &format!(
-                "  QP: {} solves ({} ticks inside every bound took the shortcut), active norm {} rate {} energy {}, \
+                "  QP: {} solves ({} exact on their active set, the rest by the interior-point solver; {} ticks inside every bound took the shortcut), active norm {} rate {} energy {}, \
                  iters p99 {}, solve p50 {:.1} µs p99 {:.1} µs, {} fallbacks, tank low {:.4} J; observer: in {:.4} J, out {:.4} J, unobserved {:.4} J, uncredited {:.4} J\n",
                 q.solves,
+                q.exact_solves,
                 q.shortcuts,
                 q.active_norm,
                 q.active_rate,
@@ -500,6 +507,11 @@ impl Report {
             w.contact_patches_max,
             w.uncorrected_ticks,
             crate::haptics::contact::MAX_COMPLIANT_PATCHES
+        );
+        s += &format!(
+            "    the compliance's pair blocks read from its table on {} of those ticks (the others reused them: same touched nodes); \
+             {} of {} swaps kept the contact's triangles (no search on the swap tick)\n",
+            w.compliance_lookup_ticks, w.swaps_carried, w.model_swaps
         );
         let c = &self.contact;
         s += &format!(

@@ -246,6 +246,7 @@ impl<const R: usize> RunningService for Running<R> {
                 unobserved_j: qp.unobserved_j,
                 uncredited_j: qp.uncredited_j,
                 shortcuts: qp.interior,
+                exact_solves: qp.exact,
             },
             energy_in_j: energy_in,
             energy_out_j: energy_out,
@@ -279,6 +280,7 @@ impl<const R: usize> RunningService for Running<R> {
             wire: None,
             task: pr.task,
             instruments: Vec::new(),
+            instrument_switches: lr.instrument_switches,
         };
         // Each instrument joins its thread and adds its section (and the
         // guidewire its `wire.*` keys and its thread's allocations).

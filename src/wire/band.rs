@@ -335,6 +335,78 @@ impl BandMatrix {
         }
     }
 
+    /// Makes this matrix a copy of `o` (same bandwidth, size within this
+    /// capacity), without allocating.
+    pub fn copy_from(&mut self, o: &BandMatrix) {
+        debug_assert_eq!(self.p, o.p);
+        self.n = o.n.min(self.cap);
+        let len = self.n * (self.p + 1);
+        self.a[..len].copy_from_slice(&o.a[..len]);
+    }
+
+    /// L D Lᵀ in place (as [`BandMatrix::factor`], without pivoting) of a
+    /// symmetric matrix that may be indefinite: a pivot may be negative,
+    /// only a zero or non-finite one fails. Returns the most negative
+    /// pivot's row and value, if any.
+    ///
+    /// Why: by Sylvester's law of inertia D has as many negative entries
+    /// as the matrix has negative eigenvalues, and for a negative pivot
+    /// d_k the vector v with Lᵀ v = e_k ([`BandMatrix::unit_back_solve`])
+    /// is a direction of negative curvature, vᵀ A v = d_k (the modified
+    /// Cholesky's test: Gill, Murray and Wright, *Practical
+    /// Optimization*, 1981, §4.4.2). The wire's buckling check uses it
+    /// on the static Hessian.
+    pub fn factor_indefinite(&mut self) -> Result<Option<(usize, f64)>, BandError> {
+        let (n, p) = (self.n, self.p);
+        let w = p + 1;
+        let c = &mut self.col[..w];
+        let mut worst: Option<(usize, f64)> = None;
+        for k in 0..n {
+            let d = self.a[k * w + p];
+            if d == 0.0 || !d.is_finite() {
+                return Err(BandError::NotPositive { row: k, pivot: d });
+            }
+            if d < 0.0 && worst.is_none_or(|(_, v)| d < v) {
+                worst = Some((k, d));
+            }
+            let inv = 1.0 / d;
+            self.dinv[k] = inv;
+            let m = p.min(n - 1 - k);
+            for r in 1..m + 1 {
+                let idx = (k + r) * w + p - r;
+                let cr = self.a[idx];
+                c[r] = cr;
+                let lr = cr * inv;
+                self.a[idx] = lr;
+                for (dst, cs) in self.a[idx + 1..idx + r + 1].iter_mut().zip(&c[1..r + 1]) {
+                    *dst -= lr * cs;
+                }
+            }
+        }
+        Ok(worst)
+    }
+
+    /// After a factorisation: v with Lᵀ v = e_k (zero beyond k), into
+    /// `v[..size()]`. For a negative pivot d_k, vᵀ A v = d_k.
+    pub fn unit_back_solve(&self, k: usize, v: &mut [f64]) {
+        let (n, p) = (self.n, self.p);
+        let w = p + 1;
+        let v = &mut v[..n];
+        v.fill(0.0);
+        if k >= n {
+            return;
+        }
+        v[k] = 1.0;
+        for i in (0..k + 1).rev() {
+            let xi = v[i];
+            let k0 = i.saturating_sub(p);
+            let row = i * w + (k0 + p - i);
+            for (bk, lik) in v[k0..i].iter_mut().zip(&self.a[row..row + (i - k0)]) {
+                *bk -= lik * xi;
+            }
+        }
+    }
+
     /// y = A x for the (unfactored) symmetric matrix.
     pub fn mul(&self, x: &[f64], y: &mut [f64]) {
         let n = self.n;
@@ -353,6 +425,34 @@ impl BandMatrix {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn an_indefinite_band_gives_its_negative_curvature() {
+        // A chain of springs under compression: tridiagonal 2 − c on the
+        // diagonal, −1 off it; its least eigenvalue is 2 − c − 2 cos(π/(n+1)).
+        let n = 30;
+        for (c, negative) in [(0.0, false), (0.05, true)] {
+            let mut m = BandMatrix::new(n, 10);
+            m.reset(n);
+            for i in 0..n {
+                m.add(i, i, 2.0 - c);
+                if i > 0 {
+                    m.add(i, i - 1, -1.0);
+                }
+            }
+            let a = m.clone();
+            let worst = m.factor_indefinite().expect("no zero pivot");
+            assert_eq!(worst.is_some(), negative, "c = {c}");
+            if let Some((k, d)) = worst {
+                let mut v = vec![0.0; n];
+                m.unit_back_solve(k, &mut v);
+                let mut av = vec![0.0; n];
+                a.mul(&v, &mut av);
+                let q: f64 = v.iter().zip(&av).map(|(x, y)| x * y).sum();
+                assert!((q - d).abs() <= 1e-9 * d.abs(), "vᵀAv {q} against the pivot {d}");
+            }
+        }
+    }
 
     #[test]
     fn banded_cholesky_solves_a_random_spd_system() {

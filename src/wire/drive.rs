@@ -217,6 +217,9 @@ pub struct HubDrive {
     max_inserted: f64,
     max_speed: f64,
     inserted: f64,
+    /// Insertion added to the stylus's target (m): where [`HubDrive::engage`]
+    /// took the stylus up.
+    offset: f64,
     roll0: f64,
     roll: f64,
     /// Stylus roll unwrapped, relative to the first usable sample.
@@ -250,6 +253,7 @@ impl HubDrive {
             } else {
                 0.0
             },
+            offset: 0.0,
             roll0: if roll_rad.is_finite() { roll_rad } else { 0.0 },
             roll: if roll_rad.is_finite() { roll_rad } else { 0.0 },
             stylus_roll: 0.0,
@@ -294,7 +298,25 @@ impl HubDrive {
 
     /// Where the stylus asks the insertion to be (m), unclamped.
     pub fn target(&self, position: Vec3) -> f64 {
-        self.p.inserted_at_origin_m + self.p.insertion_scale * (position - self.origin).dot(&self.axis)
+        self.p.inserted_at_origin_m + self.p.insertion_scale * (position - self.origin).dot(&self.axis) + self.offset
+    }
+
+    /// Takes the stylus up where it is, as a hand takes hold of an
+    /// instrument it let go of: from sample `s` on, the stylus's motions
+    /// since this sample move the hub from its present commands (insertion
+    /// and roll), so the instrument does not jump to where the stylus's
+    /// absolute position would put it. What the stylus did while this drive
+    /// was not sampled (another instrument was active) is not this
+    /// instrument's. An unusable sample changes nothing.
+    pub fn engage(&mut self, s: &DeviceSample) {
+        let roll_raw = s.gimbal_rad.get(self.p.roll_index).copied().unwrap_or(0.0);
+        if !s.is_valid() || !roll_raw.is_finite() {
+            return;
+        }
+        self.offset = 0.0;
+        self.offset = self.inserted - self.target(s.position);
+        self.last_raw_roll = Some(roll_raw);
+        self.roll0 = self.roll - self.p.roll_scale * self.stylus_roll;
     }
 
     /// Takes a sample at time `now_s` (s, the caller's clock) and returns

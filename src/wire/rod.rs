@@ -111,6 +111,10 @@ pub struct StepReport {
     /// Deepest penetration of the rod's surface into the sheath's inner
     /// wall (m).
     pub max_sheath_penetration_m: f64,
+    /// The step began on a saddle of the wire's static energy (a column
+    /// past its buckling load) and moved off it along a direction of
+    /// negative curvature (docs/WIRE.md "Buckling").
+    pub buckled: bool,
 }
 
 /// The coaxial terms of a rod (docs/CATHETER.md): the sheath it may run
@@ -356,6 +360,19 @@ pub struct Wire {
     /// H⁻¹ u for the grip's rank-one correction (`Wire::newton_direction`).
     dz: Vec<f64>,
     h: BandMatrix,
+    /// The static Hessian (no inertia, with the compressive geometric
+    /// stiffness) for the buckling check, and its direction of negative
+    /// curvature (`Wire::buckle`).
+    hs: BandMatrix,
+    dv: Vec<f64>,
+    /// Per node: friction's Hessian blocks at the last assembly (on the
+    /// node, node–twist, twist–twist), which the static Hessian leaves out.
+    fric_h: Vec<(Mat3, Vec3, f64)>,
+    /// `eval_at` leaves out inertia and drag: the wire's static potential.
+    statics: bool,
+    /// Whether a step looks for the saddle of a buckling column
+    /// (`Wire::set_buckling_check`).
+    buckling_check: bool,
     hub_grad: Vec3,
     hub_dtheta: f64,
     last_axial: f64,
@@ -467,6 +484,16 @@ pub const CONTACT_ONSET_M: f64 = 1e-5;
 /// settled, no feed slides (docs/WIRE.md "Pushes start from the unmoved
 /// wire once it has settled").
 pub const SLIDE_MIN_FEED_SMOOTHINGS: f64 = 10.0;
+
+/// The buckling check adds a compressed edge's geometric stiffness only
+/// where the bends at its ends are within this of their rest curvature
+/// (the material curvature, about the turning angle a segment): the
+/// Gauss–Newton bend Hessian leaves out terms of that size, and where the
+/// wire is bent far from its rest shape (around the arch, the J tip held
+/// straight) the approximate static Hessian showed negative curvature the
+/// wire did not have; following it jammed a J-tip wire in the ascending
+/// aorta at the grip's limit (docs/WIRE.md "Buckling").
+pub const BUCKLING_BEND_OFF: f64 = 0.02;
 
 /// The default `residual_tolerance_n` (docs/WIRE.md "Fast pulls", change 4).
 pub const RESIDUAL_TOLERANCE_N: f64 = 0.2;
@@ -649,6 +676,11 @@ impl Wire {
             dx: vec![0.0; 4 * cap],
             dz: vec![0.0; 4 * cap],
             h: BandMatrix::new(4 * cap, BAND),
+            hs: BandMatrix::new(4 * cap, BAND),
+            dv: vec![0.0; 4 * cap],
+            fric_h: vec![(Mat3::zeros(), Vec3::zeros(), 0.0); cap],
+            statics: false,
+            buckling_check: true,
             hub_grad: Vec3::zeros(),
             hub_dtheta: 0.0,
             last_axial: 0.0,
@@ -726,6 +758,13 @@ impl Wire {
         if mu.is_finite() {
             self.p.friction = mu.clamp(0.0, 2.0);
         }
+    }
+
+    /// Turns the buckling check on (the default) or off: with it off, a
+    /// perfect column pushed past its Euler load stays straight until
+    /// rounding lets it buckle (docs/WIRE.md "Buckling"; for comparisons).
+    pub fn set_buckling_check(&mut self, on: bool) {
+        self.buckling_check = on;
     }
 
     /// A dead load on the tip node (N), e.g. for a cantilever test.
@@ -1074,6 +1113,24 @@ impl Wire {
         // The extra iterations' time limit (0: none); read only if set.
         let limit_ns = (self.p.residual_time_limit_us * 1e3) as i64;
         let t_start = if limit_ns > 0 { crate::rt::clock::now_ns() } else { 0 };
+        // A pushed wire that settled may sit on a saddle of its static
+        // energy (a straight column past its buckling load): look for
+        // negative curvature there, and leave the saddle along it. (A wire
+        // off equilibrium is not on a saddle, and its own motion breaks
+        // any symmetry.) The evaluation is the first iteration's.
+        if self.buckling_check
+            && self.last_axial > 0.0
+            && self.last_residual <= self.settled_tolerance()
+            && n >= 4
+            && self.p.max_evaluations >= 6
+        {
+            rep.evaluations += 1;
+            e_cur = self.eval_at(lumen, true, true, true);
+            have = Have::Hessian;
+            if e_cur.is_finite() && self.buckle(lumen, e_cur, &mut rep) {
+                have = Have::Nothing;
+            }
+        }
         for it in 0..max_it {
             // `eval_pen` is that of the current iterate for it ≥ 1 (the
             // accepted trial's evaluation).
@@ -1288,6 +1345,213 @@ impl Wire {
             return Err(WireFault::NonFinite);
         }
         Ok(rep)
+    }
+
+    /// The buckling check at the step's start, with the incremental
+    /// potential's gradient and Hessian assembled there (`grad`, `h`, its
+    /// energy `e0`): true if it evaluated trials, so the buffers no longer
+    /// hold the start's evaluation (`StepReport::buckled` says whether the
+    /// wire moved off a saddle of its static energy).
+    ///
+    /// Why: a straight column loaded past its Euler load is a saddle of
+    /// its potential energy, and a perfect one stays on it (its lateral
+    /// gradient is zero, and the step's Hessian cannot show the saddle: it
+    /// drops the compressive stretch's geometric stiffness to stay
+    /// positive, and its inertia ρA/dt² outweighs the negative curvature
+    /// of a long span). The wire then builds force at the hub until
+    /// rounding lets it buckle, at several times the Euler load. Here the
+    /// static Hessian, the step's less its inertia and drag plus every
+    /// compressed edge's geometric stiffness (f/|e|)(I − t tᵀ), f < 0, is
+    /// factored L D Lᵀ without requiring positive pivots
+    /// (`BandMatrix::factor_indefinite`); a negative pivot d_k gives the
+    /// direction v, Lᵀ v = e_k, of negative curvature vᵀ H v = d_k. The
+    /// wire moves along ±v (downhill, the step's cap on node moves and
+    /// twists, halved until the static energy falls by at least half what
+    /// its quadratic model predicts and no node goes deeper into the wall
+    /// than at the start or a tenth of its radius; at most four trials).
+    /// Only a wire that settled in the last step is checked. The move
+    /// shifts the step's start and inertial target with it: it is a
+    /// change of state that lowers the potential energy and adds no
+    /// kinetic energy, the perturbation that a real wire's imperfections
+    /// supply. Nothing allocates: `hs` and `dv` are sized at construction.
+    fn buckle(&mut self, lumen: &dyn Lumen, e0: f64, rep: &mut StepReport) -> bool {
+        let n = self.s.n;
+        let dofs = 4 * n;
+        // The static Hessian and gradient from the step's.
+        self.hs.copy_from(&self.h);
+        let mut inertia_energy = 0.0;
+        for i in 2..n {
+            let (km, kd) = (self.coef[i].mass, self.coef[i].drag);
+            for c in 0..3 {
+                self.hs.add(4 * i + c, 4 * i + c, -(km + kd));
+            }
+            let a = self.s.x[i] - self.xtilde[i];
+            let b = self.s.x[i] - self.x0[i];
+            inertia_energy += 0.5 * km * a.norm_squared() + 0.5 * kd * b.norm_squared();
+        }
+        for j in 1..n - 1 {
+            let kt = self.coef[j].twist_mass;
+            self.hs.add(4 * j + 3, 4 * j + 3, -kt);
+            let d = self.s.theta[j] - self.th0[j];
+            inertia_energy += 0.5 * kt * d * d;
+        }
+        // Friction is not a potential of the static problem: its stick
+        // stiffness would pin every contact and make any compressed span
+        // between two contacts look like a column to buckle. It enters the
+        // move's energy instead, as the work to slip the contacts.
+        for i in 2..n {
+            let (hf, h_xs, h_ss) = self.fric_h[i];
+            if h_ss == 0.0 && hf == Mat3::zeros() {
+                continue;
+            }
+            let ts = 4 * Self::contact_edge(i, n) + 3;
+            for r in 0..3 {
+                for c in 0..=r {
+                    self.hs.add(4 * i + r, 4 * i + c, -hf[(r, c)]);
+                }
+                if h_ss > 0.0 {
+                    self.hs.add(4 * i + r, ts, -h_xs[r]);
+                }
+            }
+            if h_ss > 0.0 {
+                self.hs.add(ts, ts, -h_ss);
+            }
+        }
+        let f_grip = self.p.max_hub_force_n;
+        let mut compressed = false;
+        // How far node i's bend is from its rest (material curvature,
+        // about the turning angle per segment): the Gauss–Newton bend
+        // Hessian leaves out terms of that size, so only where it is small
+        // is the static Hessian accurate enough to tell a saddle.
+        let bend_off = |w: &Wire, i: usize| -> f64 {
+            if i == 0 || i + 1 >= n {
+                return 0.0;
+            }
+            let (te, tf) = (w.tan[i - 1], w.tan[i]);
+            let kb = te.cross(&tf) * (2.0 / (1.0 + te.dot(&tf)).max(1e-12));
+            let k1 = 0.5 * kb.dot(&(w.m2[i - 1] + w.m2[i]));
+            let k2 = -0.5 * kb.dot(&(w.m1[i - 1] + w.m1[i]));
+            ((k1 - w.coef[i].kb_rest).powi(2) + k2 * k2).sqrt()
+        };
+        for j in 1..n - 1 {
+            let k = self.coef[j].stretch;
+            let st = self.len[j] - self.s.rest[j];
+            let force = if j == 1 && (k * st).abs() > f_grip {
+                f_grip * st.signum()
+            } else {
+                k * st
+            };
+            if force >= 0.0 || bend_off(self, j).max(bend_off(self, j + 1)) > BUCKLING_BEND_OFF {
+                continue;
+            }
+            compressed = true;
+            let geo = force * self.inv_len[j];
+            let t = self.tan[j];
+            for r in 0..3 {
+                for c in 0..=r {
+                    let b = geo * (if r == c { 1.0 } else { 0.0 } - t[r] * t[c]);
+                    // Node j + 1's block, and node j's and the coupling
+                    // unless node j is the clamped hub.
+                    self.hs.add(4 * (j + 1) + r, 4 * (j + 1) + c, b);
+                    if j >= 2 {
+                        self.hs.add(4 * j + r, 4 * j + c, b);
+                        self.hs.add(4 * (j + 1) + r, 4 * j + c, -b);
+                        if r != c {
+                            self.hs.add(4 * (j + 1) + c, 4 * j + r, -b);
+                        }
+                    }
+                }
+            }
+        }
+        if !compressed {
+            return false;
+        }
+        let Ok(Some((k, d))) = self.hs.factor_indefinite() else {
+            return false;
+        };
+        self.hs.unit_back_solve(k, &mut self.dv[..dofs]);
+        // Downhill for the static energy (whose gradient is the step's
+        // less the inertia's), within the step's cap.
+        let mut slope = 0.0;
+        let (mut mx, mut mt): (f64, f64) = (0.0, 0.0);
+        for i in 0..n {
+            let mut g = Vec3::new(self.grad[4 * i], self.grad[4 * i + 1], self.grad[4 * i + 2]);
+            if i >= 2 {
+                let (km, kd) = (self.coef[i].mass, self.coef[i].drag);
+                g -= (self.s.x[i] - self.xtilde[i]) * km + (self.s.x[i] - self.x0[i]) * kd;
+            }
+            let v = Vec3::new(self.dv[4 * i], self.dv[4 * i + 1], self.dv[4 * i + 2]);
+            let mut gt = self.grad[4 * i + 3];
+            if i >= 1 && i < n - 1 {
+                gt -= self.coef[i].twist_mass * (self.s.theta[i] - self.th0[i]);
+            }
+            slope += g.dot(&v) + gt * self.dv[4 * i + 3];
+            mx = mx.max(v.norm());
+            mt = mt.max(self.dv[4 * i + 3].abs());
+        }
+        let cap = (0.5 * self.p.diameter_m * 0.5 / mx.max(1e-300)).min(0.5 / mt.max(1e-300));
+        if !(cap.is_finite() && cap > 0.0) {
+            return false;
+        }
+        let sign = if slope > 0.0 { -1.0 } else { 1.0 };
+        let (slope, curv) = (-slope.abs(), d);
+        // The static energy at the start: the step's less its inertia's.
+        let v0 = e0 - inertia_energy;
+        // No deeper into the wall than the start (or a tenth of the radius).
+        let pen_max = self.eval_pen.max(0.05 * self.p.diameter_m);
+        let mut alpha = cap;
+        let mut tried = false;
+        for _ in 0..4 {
+            if rep.evaluations + 4 > self.p.max_evaluations {
+                break;
+            }
+            tried = true;
+            rep.evaluations += 1;
+            let v1 = self.eval_energy_static(lumen, alpha, sign);
+            let model = alpha * slope + 0.5 * alpha * alpha * curv;
+            if v1.is_finite() && v1 - v0 <= 0.5 * model && self.eval_pen <= pen_max {
+                // Move the state, the step's start and its inertial target
+                // together; frames re-based as for an accepted iterate.
+                for i in 0..n {
+                    let dxi = self.xt[i] - self.s.x[i];
+                    self.s.x[i] = self.xt[i];
+                    self.x0[i] += dxi;
+                    self.xtilde[i] += dxi;
+                    let dth = self.tht[i] - self.s.theta[i];
+                    self.s.theta[i] = self.tht[i];
+                    self.th0[i] += dth;
+                    self.d10[i] = self.d1c[i];
+                    self.t0[i] = self.tan[i];
+                    self.rt0[i] = self.rt[i];
+                    self.rt0_sc[i] = sin_cos_near(self.rt0[i], &mut self.rt_near[i]);
+                }
+                rep.buckled = true;
+                return true;
+            }
+            alpha *= 0.5;
+        }
+        // Back to the step's start (the caller evaluates it again if a
+        // trial overwrote its geometry).
+        for i in 0..n {
+            self.xt[i] = self.s.x[i];
+            self.tht[i] = self.s.theta[i];
+        }
+        tried
+    }
+
+    /// The static potential (no inertia or drag) at the state moved by
+    /// `sign · alpha · dv`, left in `xt`, `tht` and their geometry.
+    fn eval_energy_static(&mut self, lumen: &dyn Lumen, alpha: f64, sign: f64) -> f64 {
+        let n = self.s.n;
+        for i in 0..n {
+            let d = Vec3::new(self.dv[4 * i], self.dv[4 * i + 1], self.dv[4 * i + 2]);
+            self.xt[i] = self.s.x[i] + d * (sign * alpha);
+            self.tht[i] = self.s.theta[i] + self.dv[4 * i + 3] * (sign * alpha);
+        }
+        self.statics = true;
+        let e = self.eval_at(lumen, true, false, false);
+        self.statics = false;
+        e
     }
 
     /// The Newton update `dx = −H⁻¹ g` from the assembled gradient and
@@ -1537,8 +1801,10 @@ impl Wire {
         let mut energy = 0.0;
         let mut max_pen: f64 = 0.0;
 
-        // Inertia and drag (free nodes), twist inertia (free edges).
-        for i in 2..n {
+        // Inertia and drag (free nodes), twist inertia (free edges); none in
+        // the static potential (the buckling check's).
+        let dynamic = if self.statics { 0 } else { n };
+        for i in 2..dynamic {
             let (km, kd) = (coef[i].mass, coef[i].drag);
             let a = self.xt[i] - self.xtilde[i];
             let b = self.xt[i] - self.x0[i];
@@ -1553,7 +1819,7 @@ impl Wire {
                 }
             }
         }
-        for j in 1..n - 1 {
+        for j in 1..dynamic.saturating_sub(1) {
             let kt = coef[j].twist_mass;
             let d = self.tht[j] - self.th0[j];
             energy += 0.5 * kt * d * d;
@@ -1761,6 +2027,7 @@ impl Wire {
             let mut g_spin = 0.0;
             let mut h_xs = Vec3::zeros();
             let mut h_ss = 0.0;
+            let mut h_f = Mat3::zeros();
             if mu > 0.0 && lam > 0.0 {
                 let (pm, ut, un) = self.slip(i);
                 energy += mu
@@ -1779,11 +2046,15 @@ impl Wire {
                     (pm - outer(&uh, &uh)) * (mu * lam / un)
                 };
                 hm += hf;
+                h_f = hf;
                 let b = self.spin[i];
                 g_spin = b.dot(&gf);
                 h_xs = hf * b;
                 h_ss = b.dot(&h_xs);
                 touched = true;
+            }
+            if hess {
+                self.fric_h[i] = (h_f, h_xs, h_ss);
             }
             if assemble && touched {
                 let ts = 4 * Self::contact_edge(i, n) + 3;

@@ -104,7 +104,44 @@ pub(super) fn polish(
     ball: EnergyBall,
     set: PolishSet,
 ) -> Option<Vec3> {
+    let rows = Rows {
+        f_des,
+        f_prev,
+        bound,
+        delta,
+        w,
+        ball,
+    };
+    let (f, lam) = newton(&rows, set, f0)?;
+    let on = [set.norm.is_some(), set.rate.is_some(), set.energy.is_some()];
+    let obj = |f: &Vec3| {
+        let r = (f - f_prev).norm();
+        (f - f_des).norm_squared() + if set.slack { w * (r - delta).max(0.0) } else { 0.0 }
+    };
+    let tol = 1e-10 * bound.max(1.0);
+    let r = (f - f_prev).norm();
+    let feasible = f.norm() <= bound + tol
+        && ball.contains(&f, tol)
+        && (set.slack || r <= delta + tol)
+        && (!set.slack || r >= delta - tol);
+    let signs = (0..3).all(|i| !on[i] || lam[i] >= -tol);
+    // The rate row is soft (weight w on its slack): a hard rate row is
+    // optimal only while its force λ δ does not exceed w.
+    let soft_ok = set.slack || !on[1] || lam[1] * delta <= w * (1.0 + 1e-9) + tol;
+    let finite = f.iter().all(|c| c.is_finite());
+    // A feasible KKT point with the right signs is the optimum (convex
+    // problem); the objective test is only a sanity check.
+    (finite && feasible && signs && soft_ok && obj(&f) <= obj(&f0) + 1e-6 * (1.0 + obj(&f0).abs())).then_some(f)
+}
+
+/// Newton's method on the KKT equations of the active set `set` of the
+/// QP `d` from `f0` (the rows of `set` held at equality, the others left
+/// out): at most 8 steps on a 6 × 6 system. Returns the last point and the
+/// rows' multipliers (0 for the rows left out), None if a step was
+/// singular.
+fn newton(d: &Rows, set: PolishSet, f0: Vec3) -> Option<(Vec3, [f64; 3])> {
     use nalgebra::{SMatrix, SVector};
+    let (f_des, f_prev, bound, delta, w, ball) = (d.f_des, d.f_prev, d.bound, d.delta, d.w, d.ball);
     let mut f = f0;
     let mut lam = [
         set.norm.unwrap_or(0.0),
@@ -112,10 +149,6 @@ pub(super) fn polish(
         set.energy.unwrap_or(0.0),
     ];
     let on = [set.norm.is_some(), set.rate.is_some(), set.energy.is_some()];
-    let obj = |f: &Vec3| {
-        let r = (f - f_prev).norm();
-        (f - f_des).norm_squared() + if set.slack { w * (r - delta).max(0.0) } else { 0.0 }
-    };
     for _ in 0..8 {
         let mut kkt = SMatrix::<f64, 6, 6>::zeros();
         let mut rhs = SVector::<f64, 6>::zeros();
@@ -164,18 +197,150 @@ pub(super) fn polish(
             break;
         }
     }
-    let tol = 1e-10 * bound.max(1.0);
-    let r = (f - f_prev).norm();
-    let feasible = f.norm() <= bound + tol
-        && ball.contains(&f, tol)
-        && (set.slack || r <= delta + tol)
-        && (!set.slack || r >= delta - tol);
-    let signs = (0..3).all(|i| !on[i] || lam[i] >= -tol);
-    // The rate row is soft (weight w on its slack): a hard rate row is
-    // optimal only while its force λ δ does not exceed w.
-    let soft_ok = set.slack || !on[1] || lam[1] * delta <= w * (1.0 + 1e-9) + tol;
-    let finite = f.iter().all(|c| c.is_finite());
-    // A feasible KKT point with the right signs is the optimum (convex
-    // problem); the objective test is only a sanity check.
-    (finite && feasible && signs && soft_ok && obj(&f) <= obj(&f0) + 1e-6 * (1.0 + obj(&f0).abs())).then_some(f)
+    Some((f, lam))
+}
+
+/// The QP's data for [`exact`].
+#[derive(Debug, Clone, Copy)]
+pub(super) struct Rows {
+    pub(super) f_des: Vec3,
+    pub(super) f_prev: Vec3,
+    pub(super) bound: f64,
+    pub(super) delta: f64,
+    pub(super) w: f64,
+    pub(super) ball: EnergyBall,
+}
+
+/// Which rows an active-set guess holds at equality (bits: 1 norm, 2 rate
+/// as a hard row, 4 energy) and whether the rate term is the smooth
+/// penalty `w (‖F − F_prev‖ − Δ)` (the slack is positive).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub(super) struct Guess {
+    pub(super) mask: u8,
+    pub(super) slack: bool,
+}
+
+/// Every active set of the QP other than the empty one (which is the
+/// interior shortcut), in the order the exact step tries them after the
+/// last tick's: one row, two rows, three; then the same with the rate term
+/// as the penalty (a hard rate row and the penalty exclude each other).
+const GUESSES: [Guess; 11] = [
+    Guess { mask: 1, slack: false },
+    Guess { mask: 4, slack: false },
+    Guess { mask: 2, slack: false },
+    Guess { mask: 5, slack: false },
+    Guess { mask: 3, slack: false },
+    Guess { mask: 6, slack: false },
+    Guess { mask: 7, slack: false },
+    Guess { mask: 0, slack: true },
+    Guess { mask: 1, slack: true },
+    Guess { mask: 4, slack: true },
+    Guess { mask: 5, slack: true },
+];
+
+/// The QP solved exactly by enumerating its active sets, without the
+/// interior-point solver: for each guess (`first`, the last tick's set,
+/// then [`GUESSES`]), Newton on the guess's KKT equations, and the point is
+/// accepted only with a KKT certificate: stationary, the guessed rows at
+/// equality, the other rows satisfied, the multipliers non-negative and
+/// the hard rate row's force within the penalty's weight (or, for the
+/// penalty, the rate sphere left). A KKT point of this convex problem is
+/// its optimum, unique since the objective is strictly convex in F; so the
+/// answer is the solver's, to round-off instead of the solver's
+/// tolerance. None if no guess is certified (a degenerate case: the
+/// solver then runs). At most 12 guesses of ≤ 8 Newton steps on a 6 × 6
+/// system; no allocation.
+pub(super) fn exact(d: &Rows, first: Option<Guess>) -> Option<(Vec3, Guess)> {
+    let skip_energy = d.ball.slack;
+    let tries = first
+        .into_iter()
+        .chain(GUESSES.iter().copied().filter(|g| Some(*g) != first));
+    for g in tries {
+        if skip_energy && g.mask & 4 != 0 {
+            continue;
+        }
+        if let Some(f) = certified(d, g) {
+            return Some((f, g));
+        }
+    }
+    None
+}
+
+/// One guess of [`exact`]: a start point and multipliers from the rows'
+/// projections, Newton, and the KKT certificate.
+#[allow(clippy::needless_range_loop)] // index arithmetic reads as the formula
+fn certified(d: &Rows, g: Guess) -> Option<Vec3> {
+    let (fd, fp, delta, w, ball) = (d.f_des, d.f_prev, d.delta, d.w, d.ball);
+    let bound = d.bound;
+    // Start: F_des moved by the penalty's pull, then projected on each
+    // guessed sphere in turn; each multiplier from its row's projection
+    // of F_des (exact for one row).
+    let mut f0 = fd;
+    if g.slack {
+        let u = fd - fp;
+        let n = u.norm();
+        if n > 0.0 {
+            f0 = fd - u * (0.5 * w / n);
+        }
+    }
+    let spheres = [(Vec3::zeros(), bound), (fp, delta), (ball.c, ball.r)];
+    let mut lam = [None; 3];
+    for (i, (c, r)) in spheres.iter().enumerate() {
+        if g.mask & (1 << i) == 0 {
+            continue;
+        }
+        let off = f0 - c;
+        let n = off.norm();
+        if n > 0.0 && r.is_finite() {
+            f0 = c + off * (r / n);
+        }
+        let nd = (fd - c).norm();
+        lam[i] = Some(if *r > 0.0 { (2.0 * (nd / r - 1.0)).max(0.0) } else { 0.0 });
+    }
+    let set = PolishSet {
+        norm: lam[0],
+        rate: lam[1],
+        energy: lam[2],
+        slack: g.slack,
+    };
+    let (f, lam) = newton(d, set, f0)?;
+    if !f.iter().chain(lam.iter()).all(|v| v.is_finite()) {
+        return None;
+    }
+    // The certificate: stationarity, the guessed rows on, the others
+    // satisfied, the signs.
+    let scale = bound.max(1.0);
+    let tol = 1e-10 * scale;
+    let mut grad = (f - fd) * 2.0;
+    let dr = f - fp;
+    let r = dr.norm();
+    if g.slack {
+        if !(r >= delta - tol && r > 0.0) {
+            return None;
+        }
+        grad += dr * (w / r);
+    }
+    let jac = [f, dr, f - ball.c];
+    let dist = [f.norm(), r, (f - ball.c).norm()];
+    for i in 0..3 {
+        let (_, radius) = spheres[i];
+        if g.mask & (1 << i) != 0 {
+            if (dist[i] - radius).abs() > tol || lam[i] < -tol {
+                return None;
+            }
+            grad += jac[i] * lam[i];
+        } else if i == 1 {
+            if !g.slack && r > delta + tol {
+                return None;
+            }
+        } else if dist[i] > radius + tol {
+            return None;
+        }
+    }
+    // A hard rate row is the optimum only while its force λ‖F − F_prev‖
+    // does not exceed the penalty's weight (beyond it the slack opens).
+    if g.mask & 2 != 0 && lam[1] * delta > w * (1.0 + 1e-9) + tol {
+        return None;
+    }
+    (grad.norm() <= 1e-9 * (scale + fd.norm() + if g.slack { w } else { 0.0 })).then_some(f)
 }

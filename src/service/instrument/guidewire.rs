@@ -26,7 +26,6 @@
 
 use super::{BuildContext, Built, Hand, InstrumentReport, Kind, LoopSide, PublisherSide, ServiceSide, VesselView};
 use crate::config::{Checker, ConfigError};
-use crate::haptics::device::DeviceSample;
 use crate::haptics::frame::DeviceFrame;
 use crate::haptics::tick::Contribution;
 use crate::haptics::touchx::{GimbalWaypoint, Waypoint};
@@ -318,11 +317,14 @@ pub(super) struct WireLink {
 }
 
 impl WireLink {
-    /// The wire's contribution to this tick: drive the hub from `sample`
-    /// (device frame), read the wire's latest axial force and wall loads,
-    /// and give the hand force (scene frame), the point loads (the reduced
-    /// model only) and a fault when the wire thread stalled or reset.
-    pub(super) fn contribute(&mut self, sample: Option<&DeviceSample>, now_s: f64) -> Contribution<'_> {
+    /// The wire's contribution to this tick: drive the hub from the hand's
+    /// sample (device frame) while the wire is the active instrument, read
+    /// the wire's latest axial force and wall loads, and give the hand force
+    /// (scene frame; none while another instrument is active: the hub then
+    /// holds), the point loads (the reduced model only) and a fault when the
+    /// wire thread stalled or reset.
+    pub(super) fn contribute(&mut self, hand: &Hand<'_>) -> Contribution<'_> {
+        let (sample, now_s) = (hand.sample, hand.now_s);
         let mut fault = false;
         let steps = self.shared.steps();
         if steps != self.last_steps || !self.last_progress_s.is_finite() {
@@ -357,7 +359,10 @@ impl WireLink {
             }
         }
         let force = match sample {
-            Some(s) => {
+            Some(s) if hand.active => {
+                if hand.engaged {
+                    self.drive.engage(s);
+                }
                 let cmd = self.drive.command(s, now_s);
                 if self
                     .hub
@@ -376,7 +381,7 @@ impl WireLink {
                 };
                 self.frame.force_to_scene(self.drive.hand_force(s, axial))
             }
-            None => Vec3::zeros(),
+            _ => Vec3::zeros(),
         };
         Contribution {
             force,
@@ -639,7 +644,11 @@ pub(super) fn build<const R: usize>(
 
 impl LoopSide for WireLink {
     fn contribute(&mut self, hand: &Hand<'_>) -> Contribution<'_> {
-        WireLink::contribute(self, hand.sample, hand.now_s)
+        WireLink::contribute(self, hand)
+    }
+
+    fn hub_driven(&self) -> bool {
+        true
     }
 }
 

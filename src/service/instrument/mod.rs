@@ -50,6 +50,15 @@ pub struct Hand<'a> {
     pub sample: Option<&'a DeviceSample>,
     /// Loop time (s).
     pub now_s: f64,
+    /// Whether the stylus works this instrument's hub now (always true for
+    /// an instrument that is not hub-driven, [`LoopSide::hub_driven`]). An
+    /// instrument that is not active holds its hub where it is, as a hand
+    /// holds one instrument while it works the other, and gives the hand no
+    /// force.
+    pub active: bool,
+    /// True on the tick the instrument became active: it takes the stylus
+    /// up where it is ([`crate::wire::HubDrive::engage`]).
+    pub engaged: bool,
 }
 
 /// An instrument's part in the haptic loop. Runs on the loop thread after
@@ -58,6 +67,91 @@ pub struct Hand<'a> {
 pub trait LoopSide: Send {
     /// This tick's contribution, borrowing the instrument's own buffers.
     fn contribute(&mut self, hand: &Hand<'_>) -> Contribution<'_>;
+    /// Whether the stylus drives this instrument through a hub (a wire, a
+    /// catheter), so that the switch button selects among such
+    /// instruments ([`Selector`]). The probe is the stylus itself: false.
+    fn hub_driven(&self) -> bool {
+        false
+    }
+}
+
+/// The device button that switches the active instrument: bit 0, the
+/// Touch X's first stylus button (the page's `i` key and a gamepad's X
+/// send it too, docs/DRIVING.md).
+pub const SWITCH_BUTTON: u32 = 1;
+
+/// Which hub-driven instrument the stylus works. The first hub-driven
+/// instrument in registry order is active at the start; each press of
+/// [`SWITCH_BUTTON`] (its rising edge) makes the next one active, in turn.
+/// The others hold. Plain data: runs on the loop thread.
+#[derive(Debug, Clone)]
+pub struct Selector {
+    hub_driven: heapless::Vec<bool, MAX_INSTRUMENTS>,
+    active: Option<usize>,
+    pressed: bool,
+    engaged: bool,
+    switches: u64,
+}
+
+impl Selector {
+    /// A selector over instruments whose [`LoopSide::hub_driven`] are
+    /// `hub_driven`, in loop order (at most [`MAX_INSTRUMENTS`]).
+    pub fn new(hub_driven: impl IntoIterator<Item = bool>) -> Selector {
+        let mut v = heapless::Vec::new();
+        for h in hub_driven {
+            let _ = v.push(h);
+        }
+        let active = v.iter().position(|&h| h);
+        Selector {
+            hub_driven: v,
+            active,
+            pressed: false,
+            engaged: false,
+            switches: 0,
+        }
+    }
+
+    /// Reads this tick's sample: a fresh press of the switch button moves
+    /// to the next hub-driven instrument. Allocates nothing.
+    pub fn update(&mut self, sample: Option<&DeviceSample>) {
+        self.engaged = false;
+        let Some(s) = sample else { return };
+        let pressed = s.buttons & SWITCH_BUTTON != 0;
+        let edge = pressed && !self.pressed;
+        self.pressed = pressed;
+        let Some(a) = self.active else { return };
+        if !edge {
+            return;
+        }
+        let n = self.hub_driven.len();
+        if let Some(next) = (1..n).map(|k| (a + k) % n).find(|&k| self.hub_driven[k]) {
+            self.active = Some(next);
+            self.engaged = true;
+            self.switches += 1;
+        }
+    }
+
+    /// The hand instrument `k` is given this tick.
+    pub fn hand<'a>(&self, k: usize, sample: Option<&'a DeviceSample>, now_s: f64) -> Hand<'a> {
+        let hub = self.hub_driven.get(k).copied().unwrap_or(false);
+        let active = !hub || self.active == Some(k);
+        Hand {
+            sample,
+            now_s,
+            active,
+            engaged: hub && active && self.engaged,
+        }
+    }
+
+    /// The active hub-driven instrument's index, if there is one.
+    pub fn active(&self) -> Option<usize> {
+        self.active
+    }
+
+    /// Switches so far.
+    pub fn switches(&self) -> u64 {
+        self.switches
+    }
 }
 
 /// The deformed vessel as the publisher sees it for one state snapshot.
@@ -180,4 +274,54 @@ pub struct InstrumentReport {
     /// One line for the human-readable summary.
     #[serde(skip)]
     pub summary: String,
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn pressed(buttons: u32) -> DeviceSample {
+        DeviceSample {
+            buttons,
+            ..DeviceSample::REST
+        }
+    }
+
+    #[test]
+    fn each_press_of_the_switch_button_moves_to_the_next_hub_driven_instrument() {
+        // A probe, a wire, a catheter.
+        let mut s = Selector::new([false, true, true]);
+        assert_eq!(s.active(), Some(1));
+        let h = s.hand(0, None, 0.0);
+        assert!(h.active && !h.engaged, "the probe is always active");
+        assert!(!s.hand(2, None, 0.0).active);
+        s.update(Some(&pressed(SWITCH_BUTTON)));
+        assert_eq!(s.active(), Some(2));
+        assert!(s.hand(2, None, 0.0).engaged && !s.hand(1, None, 0.0).active);
+        // Held down: no further switch; engaged for one tick only.
+        s.update(Some(&pressed(SWITCH_BUTTON | 4)));
+        assert_eq!(s.active(), Some(2));
+        assert!(!s.hand(2, None, 0.0).engaged);
+        // Released, other buttons, no sample: nothing.
+        s.update(Some(&pressed(4)));
+        s.update(None);
+        assert_eq!((s.active(), s.switches()), (Some(2), 1));
+        // Pressed again: back to the wire, skipping the probe.
+        s.update(Some(&pressed(SWITCH_BUTTON)));
+        assert_eq!((s.active(), s.switches()), (Some(1), 2));
+    }
+
+    #[test]
+    fn with_one_hub_driven_instrument_the_button_switches_nothing() {
+        let mut s = Selector::new([false, true]);
+        for b in [SWITCH_BUTTON, 0, SWITCH_BUTTON] {
+            s.update(Some(&pressed(b)));
+        }
+        assert_eq!((s.active(), s.switches()), (Some(1), 0));
+        assert!(!s.hand(1, None, 0.0).engaged);
+        let mut none = Selector::new([false]);
+        none.update(Some(&pressed(SWITCH_BUTTON)));
+        assert_eq!(none.active(), None);
+        assert!(none.hand(0, None, 0.0).active);
+    }
 }
