@@ -101,8 +101,14 @@ impl Coaxial {
                 )
                 .into());
         }
-        let w = Wire::new(wire, access_point, axis, wire_inserted_m).map_err(CoaxialError::Wire)?;
-        let c = Wire::new(catheter, access_point, axis, catheter_inserted_m).map_err(CoaxialError::Catheter)?;
+        let mut w = Wire::new(wire, access_point, axis, wire_inserted_m).map_err(CoaxialError::Wire)?;
+        let mut c = Wire::new(catheter, access_point, axis, catheter_inserted_m).map_err(CoaxialError::Catheter)?;
+        // The buckling check judges one rod's own static Hessian; in the
+        // pair each rod's stiffness leans on the other's (the sheath's
+        // wall, the core's stiffness), which that Hessian does not hold, so
+        // its negative curvature is not the pair's (docs/CATHETER.md).
+        w.set_buckling_check(false);
+        c.set_buckling_check(false);
         Ok(Coaxial {
             wire: w,
             catheter: c,
