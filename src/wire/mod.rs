@@ -12,11 +12,16 @@
 //! - [`band`]: the banded L D Lᵀ solve behind the implicit step.
 //! - [`drive`]: the hub drive, stylus to insertion and roll and the wire's
 //!   resistance back to the hand (`[wire.drive]` keys).
+//! - [`catheter`]: the catheter as the same rod (a braided tube with a
+//!   lumen and a shaped tip, [`catheter::TipShape`]).
+//! - [`coaxial`]: a wire inside a catheter, stepped together.
 //!
 //! The formulation and why it was chosen: docs/WIRE.md. The service wiring
 //! (report keys, the stream's polyline) lives elsewhere.
 
 pub mod band;
+pub mod catheter;
+pub mod coaxial;
 pub mod coupling;
 pub mod drive;
 pub mod lumen;
@@ -40,6 +45,10 @@ pub struct WireParams {
     pub length_m: f64,
     /// Outer diameter (m); 0.89 mm is 0.035".
     pub diameter_m: f64,
+    /// Inner diameter (m) of a tube, a catheter's lumen; 0 for a solid
+    /// wire. The cross-section's area, bending and twisting moments are
+    /// those of the annulus (I = π (D⁴ − d⁴) / 64).
+    pub inner_diameter_m: f64,
     /// Young's modulus (Pa): nitinol ≈ 40–80 GPa, stainless steel ≈ 200 GPa.
     pub youngs_modulus_pa: f64,
     /// Poisson's ratio, giving the shear modulus G = E / (2 (1 + ν)).
@@ -55,6 +64,12 @@ pub struct WireParams {
     /// Bending and twisting stiffness of the distal segment relative to the
     /// shaft.
     pub tip_stiffness_factor: f64,
+    /// The rest shape of the distal part as arcs of constant curvature,
+    /// listed from the tip back (a catheter's shaped tip, see
+    /// [`catheter::TipShape`]). Empty: `tip_curvature_per_m` over
+    /// `tip_length_m`. Given, it replaces that pair's curvature (the
+    /// stiffness factor still applies over `tip_length_m`).
+    pub rest_shape: Vec<RestArc>,
     /// Rest length of a segment (m).
     pub segment_length_m: f64,
     /// Capacity in nodes (hub and one node behind it included): the inserted
@@ -118,12 +133,14 @@ impl Default for WireParams {
         WireParams {
             length_m: 1.5,
             diameter_m: 0.89e-3,
+            inner_diameter_m: 0.0,
             youngs_modulus_pa: 60e9,
             poisson_ratio: 0.33,
             density_kg_m3: 6450.0,
             tip_length_m: 0.02,
             tip_curvature_per_m: 40.0,
             tip_stiffness_factor: 0.1,
+            rest_shape: Vec::new(),
             segment_length_m: 3e-3,
             max_nodes: 128,
             friction: 0.1,
@@ -163,12 +180,54 @@ impl WireParams {
         let c = Checker::new(path);
         c.f64_in("length_m", self.length_m, 1e-3, 10.0, "m")?;
         c.f64_in("diameter_m", self.diameter_m, 1e-5, 1e-2, "m")?;
+        if !(self.inner_diameter_m >= 0.0 && self.inner_diameter_m <= 0.95 * self.diameter_m) {
+            return Err(c.err(
+                "inner_diameter_m",
+                format!(
+                    "{}: must be at least 0 and at most 0.95 diameter_m ({} m)",
+                    self.inner_diameter_m,
+                    0.95 * self.diameter_m
+                ),
+            ));
+        }
         c.f64_in("youngs_modulus_pa", self.youngs_modulus_pa, 1e4, 1e12, "Pa")?;
         c.f64_in("poisson_ratio", self.poisson_ratio, 0.0, 0.5, "")?;
         c.f64_in("density_kg_m3", self.density_kg_m3, 1.0, 3e4, "kg/m³")?;
         c.f64_in("tip_length_m", self.tip_length_m, 0.0, self.length_m, "m")?;
         c.f64_in("tip_curvature_per_m", self.tip_curvature_per_m, -2e3, 2e3, "1/m")?;
         c.f64_in("tip_stiffness_factor", self.tip_stiffness_factor, 1e-4, 10.0, "")?;
+        if self.rest_shape.len() > MAX_REST_ARCS {
+            return Err(c.err(
+                "rest_shape",
+                format!("{} arcs: at most {MAX_REST_ARCS}", self.rest_shape.len()),
+            ));
+        }
+        let mut total = 0.0;
+        for (k, a) in self.rest_shape.iter().enumerate() {
+            let key = |f: &str| format!("rest_shape[{k}].{f}");
+            if !(a.length_m > 0.0 && a.length_m <= self.length_m) {
+                return Err(c.err(
+                    &key("length_m"),
+                    format!("{}: must be in (0, length_m = {}] m", a.length_m, self.length_m),
+                ));
+            }
+            if a.curvature_per_m.is_nan() || a.curvature_per_m.abs() > 2e3 {
+                return Err(c.err(
+                    &key("curvature_per_m"),
+                    format!("{}: must be in [-2000, 2000] 1/m", a.curvature_per_m),
+                ));
+            }
+            if a.plane_rad.is_nan() || a.plane_rad.abs() > std::f64::consts::TAU {
+                return Err(c.err(&key("plane_rad"), format!("{}: must be in [-2π, 2π] rad", a.plane_rad)));
+            }
+            total += a.length_m;
+        }
+        if total > self.length_m {
+            return Err(c.err(
+                "rest_shape",
+                format!("the arcs add up to {total} m, more than length_m ({} m)", self.length_m),
+            ));
+        }
         c.f64_in("segment_length_m", self.segment_length_m, 1e-4, 0.1, "m")?;
         if self.segment_length_m < self.diameter_m {
             return Err(c.err(
@@ -221,19 +280,77 @@ impl WireParams {
         (self.max_nodes.saturating_sub(3) as f64 * h + 1.5 * h).min(self.length_m)
     }
 
-    /// Cross-section area (m²).
+    /// Cross-section area (m²): π (D² − d²) / 4 (d the inner diameter, 0
+    /// for a solid wire).
     pub fn area(&self) -> f64 {
-        std::f64::consts::PI * self.diameter_m * self.diameter_m / 4.0
+        std::f64::consts::PI * (self.diameter_m.powi(2) - self.inner_diameter_m.powi(2)) / 4.0
     }
 
-    /// Bending stiffness E I of the shaft (N·m²), I = π d⁴ / 64.
+    /// Polar moment of the cross-section J = π (D⁴ − d⁴) / 32 (m⁴).
+    pub fn polar_moment(&self) -> f64 {
+        std::f64::consts::PI * (self.diameter_m.powi(4) - self.inner_diameter_m.powi(4)) / 32.0
+    }
+
+    /// Bending stiffness E I of the shaft (N·m²), I = π (D⁴ − d⁴) / 64.
     pub fn bending_stiffness(&self) -> f64 {
-        self.youngs_modulus_pa * std::f64::consts::PI * self.diameter_m.powi(4) / 64.0
+        self.youngs_modulus_pa * 0.5 * self.polar_moment()
     }
 
-    /// Twisting stiffness G J of the shaft (N·m²), J = π d⁴ / 32.
+    /// Twisting stiffness G J of the shaft (N·m²), G = E / (2 (1 + ν)).
     pub fn twisting_stiffness(&self) -> f64 {
-        self.youngs_modulus_pa / (2.0 * (1.0 + self.poisson_ratio)) * std::f64::consts::PI * self.diameter_m.powi(4)
-            / 32.0
+        self.youngs_modulus_pa / (2.0 * (1.0 + self.poisson_ratio)) * self.polar_moment()
     }
+
+    /// The bending stiffness at material coordinate `u` (arc length from
+    /// the tip, m): the shaft's, times `tip_stiffness_factor` within
+    /// `tip_length_m` of the tip.
+    pub fn bending_stiffness_at(&self, u: f64) -> f64 {
+        if u < self.tip_length_m {
+            self.bending_stiffness() * self.tip_stiffness_factor
+        } else {
+            self.bending_stiffness()
+        }
+    }
+
+    /// The rest shape's turning over material coordinates `a..b` (m from
+    /// the tip, a ≤ b): ∫ κ (cos φ, sin φ) du over the arcs of
+    /// `rest_shape` (rad, in the material frame's (m1, m2) plane).
+    pub fn rest_turning(&self, a: f64, b: f64) -> (f64, f64) {
+        let (mut t1, mut t2) = (0.0, 0.0);
+        let mut u0 = 0.0;
+        for arc in &self.rest_shape {
+            let u1 = u0 + arc.length_m;
+            let overlap = (b.min(u1) - a.max(u0)).max(0.0);
+            if overlap > 0.0 {
+                let (s, c) = arc.plane_rad.sin_cos();
+                t1 += arc.curvature_per_m * c * overlap;
+                t2 += arc.curvature_per_m * s * overlap;
+            }
+            u0 = u1;
+            if u0 >= b {
+                break;
+            }
+        }
+        (t1, t2)
+    }
+}
+
+/// Arcs a [`WireParams::rest_shape`] holds at most.
+pub const MAX_REST_ARCS: usize = 16;
+
+/// One arc of a rest shape: `length_m` of constant curvature
+/// `curvature_per_m`, bending toward the material direction at angle
+/// `plane_rad` from m1 (toward m2): arcs at different angles make a shape
+/// out of one plane.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Deserialize, serde::Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct RestArc {
+    /// Length of the arc along the rod (m).
+    pub length_m: f64,
+    /// Its curvature (1/m): it turns by curvature × length.
+    pub curvature_per_m: f64,
+    /// The direction it bends toward, from m1 toward m2 (rad); 0 is the
+    /// plane of `tip_curvature_per_m`.
+    #[serde(default)]
+    pub plane_rad: f64,
 }
