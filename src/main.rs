@@ -319,6 +319,9 @@ enum BenchCmd {
         /// With --tick: run the ticks as the service's wire thread does, on this CPU at SCHED_FIFO priority 80 with memory locked, one tick a period (the wire's `dt_s`) instead of back to back; where the OS refuses, the output says so.
         #[arg(long, value_name = "CPU")]
         rt: Option<usize>,
+        /// Time the coupled step of a wire inside a catheter instead: both of --nodes nodes (default 128) in a curved tube, the hubs moving in and out out of phase and rolling; per-step percentiles and each rod's Newton iterations (docs/CATHETER.md).
+        #[arg(long, conflicts_with = "tick")]
+        coaxial: bool,
         /// Print JSON.
         #[arg(long)]
         json: bool,
@@ -532,9 +535,12 @@ fn main() -> ExitCode {
                 line_load,
                 follow_wall,
                 rt,
+                coaxial,
                 json,
             } => {
-                if tick {
+                if coaxial {
+                    cli::wire::bench_coaxial_cmd(nodes.unwrap_or(128), steps, json)
+                } else if tick {
                     cli::wire::bench_wire_tick_cmd(
                         &config.unwrap_or_else(cli::wire::default_guidewire_config),
                         &nvtmm::bench::wire_tick::WireTickOptions {

@@ -4,7 +4,9 @@
 //! ([`reduced`], `nvtmm bench reduced`) and a timing harness for implicit
 //! steps ([`timing`]) and the guidewire's step against its node count
 //! ([`wire`], `nvtmm bench wire`), and the whole guidewire tick in the
-//! branched arch ([`wire_tick`], `nvtmm bench wire --tick`). The scripts in `tools/` call these commands.
+//! branched arch ([`wire_tick`], `nvtmm bench wire --tick`), and the
+//! coupled step of a wire inside a catheter ([`coaxial`], `nvtmm bench
+//! wire --coaxial`). The scripts in `tools/` call these commands.
 //!
 //! The *standard load* is what every timing here uses: the built-in arch with
 //! both ends fixed (`inlet`, `outlet_descending`) and a 0.15 N force pressing
@@ -12,6 +14,7 @@
 //! nodes within 5 mm of the top (a probe's footprint), ramped in over 20 ms; implicit Euler at dt = 1 ms, one Newton iteration (SOFA's linearised
 //! step), block IC(0)-preconditioned CG to 1e-6.
 
+pub mod coaxial;
 pub mod contact;
 pub mod extremes;
 pub mod reduced;

@@ -58,6 +58,35 @@ pub fn bench_wire_cmd(nodes: Option<usize>, steps: usize, iterations: usize, jso
     Ok(())
 }
 
+/// `nvtmm bench wire --coaxial [--nodes N] [--steps S] [--json]`: the
+/// coupled step of a wire inside a catheter in a curved tube.
+pub fn bench_coaxial_cmd(nodes: usize, steps: usize, json: bool) -> Result<()> {
+    let b = nvtmm::bench::coaxial::bench_coaxial(nodes, steps)?;
+    if json {
+        println!("{}", serde_json::to_string_pretty(&b)?);
+        return Ok(());
+    }
+    println!(
+        "coupled step, {} wire nodes inside {} catheter nodes, {} steps: p50 {:.1} µs, p99 {:.1} µs, p99.9 {:.1} µs, max {:.1} µs",
+        b.wire_nodes, b.catheter_nodes, b.steps, b.us_p50, b.us_p99, b.us_p999, b.us_max
+    );
+    println!(
+        "  {} Gauss–Seidel pass a step; Newton iterations: wire mean {:.2} (most {}), catheter mean {:.2} (most {}); evaluations mean {:.1} (most {})",
+        b.passes_per_step,
+        b.wire_iterations_mean,
+        b.wire_iterations_max,
+        b.catheter_iterations_mean,
+        b.catheter_iterations_max,
+        b.evaluations_mean,
+        b.evaluations_max
+    );
+    println!(
+        "  contacts a step: {:.1} with the wall, {:.1} of the wire on the catheter; {} steps ended off equilibrium",
+        b.wall_contacts_mean, b.sheath_contacts_mean, b.unsettled_steps
+    );
+    Ok(())
+}
+
 /// `nvtmm bench wire --tick [--config C] [--nodes N] [--steps S]
 /// [--iterations K] [--evaluations E] [--line-load F] [--follow-wall] [--rt CPU] [--json]`: the whole guidewire tick in
 /// the branched arch, and its parts.
