@@ -748,6 +748,44 @@ mod tests {
         assert_eq!(d.static_solve(&f).unwrap()[0], 0.5);
     }
 
+    /// Out of contact (k_c = 0) the step solves with the factor made with
+    /// the model instead of factoring A again: the same state as a fresh
+    /// factorization of A + h² · 0, to round-off, and a nonzero k_c still
+    /// takes the fresh one.
+    #[test]
+    fn a_step_without_contact_stiffness_reuses_the_models_factor() {
+        let p = DynamicsParams {
+            dt: 1e-3,
+            alpha: 5.0,
+            beta: 1e-3,
+        };
+        let basis = ModalBasis {
+            phi: DMatrix::from_fn(6, 2, |i, j| ((i + 1) * (j + 2)) as f64 * 0.1),
+            omega2: vec![4.0, 9.0],
+            num_static: 0,
+            fixed: Vec::new(),
+            iterations: 0,
+        };
+        let k_r = DMatrix::from_row_slice(2, 2, &[4.0, 0.5, 0.5, 9.0]);
+        let mut d = ReducedDynamics::<4>::with_stiffness(&basis, &k_r, &p).unwrap();
+        let f = SVector::<f64, 4>::new(1.0, -2.0, 0.0, 0.0);
+        for k_c in [SMatrix::<f64, 4, 4>::zeros(), SMatrix::<f64, 4, 4>::identity() * 30.0] {
+            d.set_state(
+                &SVector::<f64, 4>::new(1e-3, -2e-3, 0.0, 0.0),
+                &SVector::<f64, 4>::new(0.1, 0.2, 0.0, 0.0),
+            );
+            let mut a = d.a;
+            for i in 0..2 {
+                for j in 0..2 {
+                    a[(i, j)] += p.dt * p.dt * k_c[(i, j)];
+                }
+            }
+            let expected = Cholesky::new(a).unwrap().solve(&d.rhs(&f));
+            assert!(d.step_with_contact(&f, &k_c));
+            assert!((d.qd() - expected).norm() <= 1e-14 * expected.norm(), "k_c = {k_c}");
+        }
+    }
+
     /// The heartbeat's modal load is the explicit force g (p(t) − p_mean)
     /// at each step's end time, in every kind of step.
     #[test]
