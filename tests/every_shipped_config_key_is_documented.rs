@@ -371,12 +371,20 @@ fn depth(t: &Table, key: &str) -> usize {
     n
 }
 
-/// The shipped file of `kind` that holds most of `key`'s path.
+/// The shipped file of `kind` that holds most of `key`'s path; among
+/// those, the one with the fewest tables (the fewest other keys whose
+/// checks a bound could trip), then the first by name.
 fn base_for<'a>(files: &'a [(PathBuf, Kind, Table)], kind: Kind, key: &str) -> &'a (PathBuf, Kind, Table) {
     files
         .iter()
         .filter(|f| f.1 == kind)
-        .max_by_key(|f| (depth(&f.2, key), std::cmp::Reverse(f.0.clone())))
+        .max_by_key(|f| {
+            (
+                depth(&f.2, key),
+                std::cmp::Reverse(f.2.len()),
+                std::cmp::Reverse(f.0.clone()),
+            )
+        })
         .unwrap_or_else(|| panic!("no shipped file of kind {kind:?}"))
 }
 

@@ -30,6 +30,10 @@
 //!   zero without one): the Touch X renders no torque, so nothing pushes
 //!   back on them. Reported quantized to `gimbal_resolution_rad` and wrapped
 //!   to (−π, π], as an absolute angle sensor reads a continuous roll.
+//! - **Buttons.** The stylus's buttons follow a third script
+//!   ([`TouchXSim::set_button_script`]: from each row's time on, the
+//!   buttons it holds; none without one), e.g. the switch between
+//!   instruments on bit 0.
 //! - **Command timeout.** Like a device-side servo that stops playing a
 //!   stale command, a force written more than the command timeout ago
 //!   (device time; [`TouchXSim::set_command_timeout`], default
@@ -432,6 +436,11 @@ pub struct TouchXSim {
     script: HandScript,
     gimbal: Option<GimbalScript>,
     gimbal_rad: [f64; 3],
+    /// The buttons' script: (script time s, buttons held from then on),
+    /// times increasing; empty: no button is ever pressed.
+    buttons: Vec<(f64, u32)>,
+    /// Index of the button row last used (times are read in order).
+    button_cursor: usize,
     started: bool,
     /// Caller time of the first read (script time 0), once known.
     origin_s: Option<f64>,
@@ -480,6 +489,8 @@ impl TouchXSim {
             script,
             gimbal: None,
             gimbal_rad: [0.0; 3],
+            buttons: Vec::new(),
+            button_cursor: 0,
             started: false,
             origin_s: None,
             n: 0,
@@ -548,6 +559,37 @@ impl TouchXSim {
             thermal_limits: self.thermal_limits,
             catchup_skips: self.catchup_skips,
             command_timeouts: self.command_timeouts,
+        }
+    }
+
+    /// Scripts the stylus's buttons (same script clock as the hand's
+    /// waypoints): rows of (time s, the buttons held from that time on, bit
+    /// 0 the first stylus button), times strictly increasing; before the
+    /// first row no button is held. Replaces any earlier button script.
+    /// Allocates: call before [`HapticDevice::start`].
+    pub fn set_button_script(&mut self, rows: &[(f64, u32)]) -> Result<(), ScriptError> {
+        for (i, r) in rows.iter().enumerate() {
+            if !r.0.is_finite() {
+                return Err(ScriptError::NonFinite(i));
+            }
+            if i > 0 && r.0 <= rows[i - 1].0 {
+                return Err(ScriptError::NotIncreasing(i));
+            }
+        }
+        self.buttons = rows.to_vec();
+        self.button_cursor = 0;
+        Ok(())
+    }
+
+    /// The buttons the script holds at script time `t` (s); reads in
+    /// order, allocation-free.
+    fn buttons_at(&mut self, t: f64) -> u32 {
+        while self.button_cursor < self.buttons.len() && self.buttons[self.button_cursor].0 <= t {
+            self.button_cursor += 1;
+        }
+        match self.button_cursor {
+            0 => 0,
+            k => self.buttons[k - 1].1,
         }
     }
 
@@ -713,6 +755,7 @@ impl HapticDevice for TouchXSim {
         if let Some(g) = self.gimbal.as_mut() {
             self.gimbal_rad = g.target(self.n as f64 * self.dt);
         }
+        let buttons = self.buttons_at(self.n as f64 * self.dt);
         let q = self.quantize(self.x);
         if first {
             self.last_q = q;
@@ -734,7 +777,7 @@ impl HapticDevice for TouchXSim {
         let mut sample = DeviceSample {
             position: q,
             velocity: self.v_filt,
-            buttons: 0,
+            buttons,
             time_s: now_s,
             seq: self.seq,
             gimbal_rad: self.reported_gimbal(),

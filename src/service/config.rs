@@ -56,6 +56,10 @@ pub struct ServiceConfig {
     /// `[wire]`).
     #[serde(default)]
     pub guidewire: Option<super::instrument::guidewire::GuidewireConfig>,
+    /// A catheter over the guidewire (`[catheter]`, needs `[wire]` and
+    /// `[guidewire]`; docs/INSTRUMENTS.md): the pair steps in one thread.
+    #[serde(default)]
+    pub catheter: Option<super::instrument::catheter::CatheterConfig>,
     /// A training task and its metrics (`[task]`, docs/DRIVING.md); None:
     /// no task.
     #[serde(default)]
@@ -446,6 +450,17 @@ impl ServiceConfig {
             }
             (None, Some(_)) => return Err(c.err("wire", "[guidewire] needs a [wire] table (docs/WIRE.md)")),
             (None, None) => {}
+        }
+        if let Some(cat) = &self.catheter {
+            match (&self.wire, &self.guidewire) {
+                (Some(w), Some(g)) => cat.validate(&self.path, w, g)?,
+                _ => {
+                    return Err(c.err(
+                        "catheter",
+                        "[catheter] runs over the guidewire: it needs [wire] and [guidewire] (docs/INSTRUMENTS.md)",
+                    ))
+                }
+            }
         }
         if let Some(t) = &self.task {
             if self.wire.is_none() {

@@ -110,6 +110,10 @@ pub struct WireReport {
     /// (`aorta`, `brachiocephalic`, `left_common_carotid`,
     /// `left_subclavian`; "unlabelled" on a mesh without segment labels).
     pub tip_segment: String,
+    /// How far the rod runs in `tip_segment` back from its tip (m, along
+    /// the rod, to the first node nearer another segment's wall): how deep
+    /// the tip is in its segment.
+    pub tip_depth_m: f64,
     /// Tip position at the end (m, scene frame).
     pub tip_m: [f64; 3],
     /// Most wall contacts in one step.

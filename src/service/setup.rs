@@ -181,6 +181,19 @@ pub fn make_device(
         Backend::TouchxSim => {
             use crate::haptics::touchx::{TouchXParams, TouchXSim, Waypoint};
             let params = TouchXParams::load(&cfg.resolve(&cfg.device.touchx))?;
+            if let (Some(wire), Some(g), Some(cat)) = (&cfg.wire, &cfg.guidewire, &cfg.catheter) {
+                // The pair's scripted hand: one stylus, the switch button
+                // between the guidewire and the catheter.
+                let hand = cat
+                    .hand(g, wire)
+                    .map_err(|e| ServiceError::Device(format!("catheter.script: {e}")))?;
+                let mut dev = TouchXSim::new(params, &hand.points).map_err(|e| ServiceError::Device(e.to_string()))?;
+                dev.set_gimbal_script(&hand.gimbal)
+                    .and_then(|()| dev.set_button_script(&hand.buttons))
+                    .map_err(|e| ServiceError::Device(e.to_string()))?;
+                dev.set_command_timeout(command_timeout_s);
+                return Ok(Box::new(dev));
+            }
             if let (Some(wire), Some(g)) = (&cfg.wire, &cfg.guidewire) {
                 // The guidewire's scripted hand: stylus along the drive's
                 // axis, roll on its gimbal joint.

@@ -44,6 +44,10 @@ pub struct HandMoves {
     /// Guidewire hand: pulls of the stylus off the insertion axis.
     #[serde(default)]
     pub off_axis: u32,
+    /// Presses of the switch button (a catheter over the wire: the hand
+    /// changes the instrument it works, at random, often mid-push).
+    #[serde(default)]
+    pub switches: u32,
 }
 
 /// A small reproducible generator (SplitMix64).
@@ -324,9 +328,47 @@ pub fn random_wire_hand(
     Some((pts, gim, moves))
 }
 
+/// The careless hand's switch button: presses of
+/// [`crate::service::instrument::SWITCH_BUTTON`] at random times, 0.3 to 4 s
+/// apart, each held 30 to 200 ms, over `seconds`, regardless of what the
+/// stylus is doing (so many land mid-push). Returns the button script
+/// ((time s, buttons from then on), for
+/// [`crate::haptics::touchx::TouchXSim::set_button_script`]) and the count.
+pub fn random_switches(seconds: f64, seed: u64) -> (Vec<(f64, u32)>, u32) {
+    let mut rng = Rng::new(seed ^ 0x5717C4);
+    let (mut t, mut rows, mut n) = (1.0, Vec::new(), 0);
+    while t < seconds {
+        t += rng.range(0.3, 4.0);
+        rows.push((t, crate::service::instrument::SWITCH_BUTTON));
+        t += rng.range(0.03, 0.2);
+        rows.push((t, 0));
+        n += 1;
+    }
+    (rows, n)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn the_switch_presses_are_reproducible_and_released_between() {
+        let (rows, n) = random_switches(60.0, 5);
+        assert!(n >= 10, "{n} presses in 60 s");
+        assert_eq!(rows.len(), 2 * n as usize);
+        for (k, w) in rows.windows(2).enumerate() {
+            assert!(w[1].0 > w[0].0);
+            assert_eq!(
+                w[0].1,
+                if k % 2 == 0 {
+                    crate::service::instrument::SWITCH_BUTTON
+                } else {
+                    0
+                }
+            );
+        }
+        assert_eq!(random_switches(60.0, 5).0, rows);
+    }
 
     #[test]
     fn the_hand_stays_in_the_workspace_and_under_the_top_speed() {

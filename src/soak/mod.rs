@@ -28,7 +28,7 @@ use crate::rt::clock;
 use crate::service::faults::FaultSwitches;
 use crate::service::{DeviceContext, DeviceFactory, FaultTicks, Service, ServiceError, StartOptions};
 use device::{CheckLimits, DeviceChecks, DeviceFault, DeviceFaultKind, SoakDevice};
-use hand::{random_hand, random_wire_hand, HandMoves, Rng};
+use hand::{random_hand, random_switches, random_wire_hand, HandMoves, Rng};
 use std::collections::BTreeMap;
 use std::net::UdpSocket;
 use std::path::{Path, PathBuf};
@@ -366,12 +366,13 @@ impl SoakReport {
             if let Some(w) = &l.wire {
                 let h = &l.hand;
                 s += &format!(
-                    "    wire hand: {} advances, {} pull-backs, {} jabs, {} rolls, {} off-axis; wire: {} steps, {} resets, {} stalls, inserted up to {:.1} mm, tip in {}, {} contacts at most, deepest {:.3} mm, axial force max {:.3} N, step p99.9 {:.0} µs, {} allocations\n",
+                    "    wire hand: {} advances, {} pull-backs, {} jabs, {} rolls, {} off-axis, {} switches of the instrument; wire: {} steps, {} resets, {} stalls, inserted up to {:.1} mm, tip in {}, {} contacts at most, deepest {:.3} mm, axial force max {:.3} N, step p99.9 {:.0} µs, {} allocations\n",
                     h.advances,
                     h.pullbacks,
                     h.jabs,
                     h.rolls,
                     h.off_axis,
+                    h.switches,
                     w.steps,
                     w.resets,
                     w.stalls,
@@ -982,7 +983,7 @@ fn run_leg(
             let origin = Vec3::from(cfg.device.origin_m);
             // A guidewire scene gets the hand on the wire's hub; any other
             // scene the hand over the wall.
-            let (pts, gimbal, moves) = match (&cfg.wire, &cfg.guidewire) {
+            let (pts, gimbal, mut moves) = match (&cfg.wire, &cfg.guidewire) {
                 (Some(wire), Some(g)) => random_wire_hand(g, wire, half, ctx.seconds + 5.0, strike_fraction, seed)
                     .ok_or_else(|| {
                         ServiceError::Device("soak: the wire's drive leaves the stylus no room in the workspace".into())
@@ -1001,6 +1002,14 @@ fn run_leg(
                     (pts, Vec::new(), moves)
                 }
             };
+            // With a catheter over the wire the hand also presses the
+            // switch button, at random: it works each instrument in turn.
+            let (buttons, switches) = if cfg.catheter.is_some() {
+                random_switches(ctx.seconds + 5.0, seed)
+            } else {
+                (Vec::new(), 0)
+            };
+            moves.switches = switches;
             if let Ok(mut m) = hand_moves.lock() {
                 *m = moves;
             }
@@ -1027,6 +1036,8 @@ fn run_leg(
                 sim.set_gimbal_script(&gimbal)
                     .map_err(|e| ServiceError::Device(e.to_string()))?;
             }
+            sim.set_button_script(&buttons)
+                .map_err(|e| ServiceError::Device(e.to_string()))?;
             Ok(Box::new(SoakDevice::new(
                 sim,
                 UdpDevice::new(udp),

@@ -147,6 +147,11 @@ struct Coax {
     point_loads: Vec<(Vec3, Vec3)>,
     /// Per node: the dead load of this step (N).
     node_load: Vec<Vec3>,
+    /// Stiffness (N/m) with which each point load resists this rod's
+    /// motion over the step along its own direction (0: dead loads only).
+    load_stiffness: f64,
+    /// Per node: that stiffness's share, k n nᵀ summed (N/m).
+    node_spring: Vec<Mat3>,
     /// The core's bending stiffness along this rod, if a core runs inside.
     core: Option<CoreStiffness>,
     /// Per node: the curvature binormal at the step's start, from which
@@ -185,6 +190,8 @@ impl Coax {
             sheath_contacts: Vec::with_capacity(cap),
             point_loads: Vec::with_capacity(MAX_POINT_LOADS),
             node_load: vec![Vec3::zeros(); cap],
+            load_stiffness: 0.0,
+            node_spring: vec![Mat3::zeros(); cap],
             core: None,
             kb0: vec![Vec3::zeros(); cap],
         }
@@ -2192,6 +2199,31 @@ impl Wire {
                 }
             }
         }
+        // The point loads' stiffness on the motion over the step along
+        // each load: ½ (x − x₀)ᵀ K (x − x₀), K = Σ k n nᵀ (a contact whose
+        // source holds still, linearised: without it the wire's penalty
+        // forces, dead loads on the catheter, swung it further each step).
+        if self.cx.load_stiffness > 0.0 {
+            for i in 2..n {
+                let k = self.cx.node_spring[i];
+                if k == Mat3::zeros() {
+                    continue;
+                }
+                let b = self.xt[i] - self.x0[i];
+                let kb = k * b;
+                energy += 0.5 * b.dot(&kb);
+                if assemble {
+                    for c in 0..3 {
+                        self.grad[4 * i + c] += kb[c];
+                        if hess {
+                            for d in 0..=c {
+                                self.h.add(4 * i + c, 4 * i + d, k[(c, d)]);
+                            }
+                        }
+                    }
+                }
+            }
+        }
         // A core's bending stiffness on the change of the curvature vector
         // over the step: ½ b |κb − κb₀|² (docs/CATHETER.md "The coupled
         // step"). κb = 2 e × f / (|e||f| + e·f) in space, so a core that
@@ -2491,6 +2523,15 @@ impl Wire {
         }
     }
 
+    /// The stiffness (N/m, ≥ 0; 0 by default) with which each point load
+    /// ([`Wire::set_point_loads`]) also resists this rod's motion over the
+    /// step along the load's own direction: a contact force whose source
+    /// holds still through the step, linearised (the wire's contact forces
+    /// on its catheter: docs/CATHETER.md "The coupled step").
+    pub fn set_point_load_stiffness(&mut self, k: f64) {
+        self.cx.load_stiffness = if k.is_finite() { k.max(0.0) } else { 0.0 };
+    }
+
     /// A core inside this rod from the same hub (a wire inside a
     /// catheter): `reach` metres of it inserted, with `core`'s bending
     /// stiffness by its own material coordinate. Within the overlap, each
@@ -2550,6 +2591,9 @@ impl Wire {
         for f in &mut cx.node_load[..n] {
             *f = Vec3::zeros();
         }
+        for k in &mut cx.node_spring[..n] {
+            *k = Mat3::zeros();
+        }
         if !cx.point_loads.is_empty() && n >= 3 {
             let poly = &self.s.x[..n];
             let mut seg = 0;
@@ -2558,6 +2602,13 @@ impl Wire {
                 let t = t.clamp(0.0, 1.0);
                 cx.node_load[k] += f * (1.0 - t);
                 cx.node_load[k + 1] += f * t;
+                if cx.load_stiffness > 0.0 {
+                    if let Some(d) = f.try_normalize(1e-12) {
+                        let nn = d * d.transpose() * cx.load_stiffness;
+                        cx.node_spring[k] += nn * (1.0 - t);
+                        cx.node_spring[k + 1] += nn * t;
+                    }
+                }
             }
             cx.point_loads.clear();
         }
@@ -2712,6 +2763,7 @@ mod tests {
         w.set_sheath(&sheath, &vel, 0.012, 0.46e-3, 0.2);
         let core = WireParams::default();
         w.set_core(Some((&core, 0.015)));
+        w.set_point_load_stiffness(2e3);
         w.set_hub(0.021, 0.3);
         for _ in 0..5 {
             w.set_point_loads([(Vec3::new(0.01, 0.0, 0.0), Vec3::new(0.0, 0.02, 0.01))]);

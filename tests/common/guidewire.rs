@@ -131,3 +131,62 @@ pub fn write_udp(dir: &Path, device: &str, stream: &str, hud: &str) -> PathBuf {
     std::fs::write(&path, text).unwrap();
     path
 }
+
+/// The cannulation scenarios' checks on `report`: two switches at least,
+/// the wire's tip at least 20 mm into `target` and the catheter's at least
+/// 10 mm (the report's `tip_segment` and `tip_depth_m` of each), no reset
+/// or stall, no penetration of either rod into the vessel's wall beyond
+/// 0.2 mm and no allocation after start.
+pub fn assert_cannulated(report: &nvtmm::service::Report, target: &str) {
+    let w = report.wire.as_ref().expect("wire.* keys");
+    let json = serde_json::to_value(report).unwrap();
+    let c = json["instruments"]
+        .as_array()
+        .and_then(|v| v.iter().find(|i| i["kind"] == "catheter"))
+        .expect("a catheter section")["keys"]
+        .clone();
+    let f = |k: &str| c[k].as_f64().unwrap_or_else(|| panic!("catheter.{k}: {}", c[k]));
+    println!(
+        "wire: tip {:.1} mm into {}; catheter: tip {:.1} mm into {}",
+        w.tip_depth_m * 1e3,
+        w.tip_segment,
+        f("tip_depth_m") * 1e3,
+        c["tip_segment"]
+    );
+    assert!(
+        report.instrument_switches >= 2,
+        "{} switches",
+        report.instrument_switches
+    );
+    assert_eq!(w.tip_segment, target, "the wire's tip at {:?} m", w.tip_m);
+    assert!(
+        w.tip_depth_m >= 0.020,
+        "the wire's tip {} m into {target}",
+        w.tip_depth_m
+    );
+    assert_eq!(c["tip_segment"], target, "the catheter's tip at {}", c["tip_m"]);
+    assert!(
+        f("tip_depth_m") >= 0.010,
+        "the catheter's tip {} m into {target}",
+        f("tip_depth_m")
+    );
+    assert!(
+        w.max_penetration_m <= 0.2e-3,
+        "wire penetration {} m",
+        w.max_penetration_m
+    );
+    assert!(
+        f("max_penetration_m") <= 0.2e-3,
+        "catheter penetration {} m",
+        f("max_penetration_m")
+    );
+    // The wire's deepest into the catheter's wall is printed, not bounded:
+    // the left subclavian run reached 0.28 and 0.43 mm there (an open defect of the
+    // pair's coupling, docs/CATHETER.md).
+    println!(
+        "the wire at most {:.3} mm into the catheter's wall",
+        f("sheath_penetration_max_m") * 1e3
+    );
+    assert_eq!((w.resets, w.stalls), (0, 0), "resets and stalls");
+    assert_eq!(report.allocations_after_start, 0, "loop + device + pair allocations");
+}

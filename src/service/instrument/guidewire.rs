@@ -274,6 +274,10 @@ impl WireShared {
     pub fn inserted_m(&self) -> f64 {
         Self::get(&self.inserted_bits)
     }
+    /// Takes a reset the loop asked for (true once per request).
+    pub(super) fn take_reset_request(&self) -> bool {
+        self.reset_request.swap(false, Ordering::AcqRel)
+    }
 }
 
 /// A hub command (loop → wire).
@@ -397,12 +401,8 @@ pub(super) struct WirePlan {
     pub wire: Wire,
     pub lumen: Box<TriangleLumen>,
     pub wall: Arc<InnerWall>,
-    pub hub: rtrb::Consumer<HubMsg>,
-    pub loads_out: rtrb::Producer<LoadMsg>,
-    pub walls_in: rtrb::Consumer<Box<TriangleLumen>>,
-    pub walls_back: rtrb::Producer<Box<TriangleLumen>>,
-    pub polyline: rtrb::Producer<PolylineMsg>,
-    pub shared: Arc<WireShared>,
+    pub end: RodEnd,
+    pub walls: WallEnds,
     pub stop: Arc<AtomicBool>,
     pub faults: Arc<FaultSwitches>,
     pub request: RtRequest,
@@ -436,6 +436,8 @@ pub(super) struct WireResult {
     pub loads_ring_full: u64,
     pub loads_dropped: u64,
     pub wall: Vec<Vec3>,
+    /// The rod's inserted polyline at the end (hub to tip).
+    pub line: Vec<Vec3>,
     pub load_wall: bool,
     pub compliance_p50: f64,
     pub compliance_max: f64,
@@ -535,27 +537,19 @@ impl PublisherWire {
     }
 }
 
-/// Everything the service needs to run the wire, built before the threads
-/// start.
-#[allow(clippy::too_many_arguments)]
-pub(super) fn build<const R: usize>(
-    params: &WireParams,
+/// The inner wall the rods touch and its lumen: with `g.load_wall`, the
+/// wall's compliance in series with the contact (the lumen without the
+/// rods' own dent, docs/WIRE.md).
+pub(super) fn wall_and_lumen<const R: usize>(
     g: &GuidewireConfig,
     mesh: &crate::mesh::TetMesh,
     vessel: &crate::haptics::servo::LoopModel<R>,
-    frame: DeviceFrame,
-    stop: Arc<AtomicBool>,
-    faults: Arc<FaultSwitches>,
-    start: Nanos,
-    stream_every: u64,
-) -> Result<WireParts, ServiceError> {
+) -> Result<(InnerWall, TriangleLumen), ServiceError> {
     let wall = InnerWall::from_mesh(mesh, &g.wall_set).map_err(|e| ServiceError::Solver(format!("guidewire: {e}")))?;
     let mut lumen = wall
         .lumen()
         .map_err(|e| ServiceError::Solver(format!("guidewire: {e}")))?;
     if g.load_wall {
-        // The wall gives under the wire: its compliance in series with the
-        // contact, the lumen without the wire's own dent (docs/WIRE.md).
         let c = wall
             .normal_compliance(&vessel.dynamics, vessel.compliance.as_deref())
             .ok_or_else(|| ServiceError::Solver("guidewire: the reduced stiffness is singular".into()))?;
@@ -563,33 +557,66 @@ pub(super) fn build<const R: usize>(
             .set_compliance(&c)
             .map_err(|e| ServiceError::Solver(format!("guidewire: {e}")))?;
     }
-    let (access_point, axis) = g
-        .hub_pose(mesh, &wall, &lumen)
-        .map_err(|e| ServiceError::Solver(format!("guidewire.access: {e}")))?;
-    let wire = Wire::new(params, access_point, axis, g.inserted_m)
-        .map_err(|e| ServiceError::Solver(format!("guidewire: {e}")))?;
-    let drive = HubDrive::new(params, wire.inserted(), wire.roll())?;
+    Ok((wall, lumen))
+}
+
+/// One rod's end of its rings in the thread that steps it: the hub
+/// commands in, its wall loads and polyline out, the shared figures.
+pub(super) struct RodEnd {
+    pub hub: rtrb::Consumer<HubMsg>,
+    pub loads_out: rtrb::Producer<LoadMsg>,
+    pub polyline: rtrb::Producer<PolylineMsg>,
+    pub shared: Arc<WireShared>,
+    /// The newest wall loads (sized once: pushing clones a fixed vector).
+    pub msg: LoadMsg,
+    /// The polyline being filled.
+    pub poly: PolylineMsg,
+}
+
+/// The publisher's rings of the walls it builds for a rod thread: the
+/// thread's ends.
+pub(super) struct WallEnds {
+    pub walls_in: rtrb::Consumer<Box<TriangleLumen>>,
+    pub walls_back: rtrb::Producer<Box<TriangleLumen>>,
+}
+
+/// The rings and sides of one rod driven by the stylus: its loop side
+/// (`drive` from `params`, starting at `inserted_m`, `roll_rad`), its
+/// publisher side and its thread's end. With `twins` > 0 the publisher
+/// side also builds the wall for the thread (that many twin lumens of
+/// `lumen` circulate; [`WallEnds`] returned); a second rod of the same
+/// thread takes 0.
+#[allow(clippy::too_many_arguments)]
+pub(super) fn rod_channels<const R: usize>(
+    params: &WireParams,
+    inserted_m: f64,
+    roll_rad: f64,
+    g: &GuidewireConfig,
+    wall: &InnerWall,
+    lumen: &TriangleLumen,
+    vessel: &crate::haptics::servo::LoopModel<R>,
+    frame: DeviceFrame,
+    twins: usize,
+) -> Result<(WireLink, PublisherWire, RodEnd, WallEnds), ServiceError> {
+    let drive = HubDrive::new(params, inserted_m, roll_rad)?;
     let shared = Arc::new(WireShared::default());
-    WireShared::set(&shared.inserted_bits, wire.inserted());
-    WireShared::set(&shared.roll_bits, wire.roll());
+    WireShared::set(&shared.inserted_bits, inserted_m);
+    WireShared::set(&shared.roll_bits, roll_rad);
     let (hub_tx, hub_rx) = rtrb::RingBuffer::<HubMsg>::new(HUB_RING);
     let (loads_tx, loads_rx) = rtrb::RingBuffer::<LoadMsg>::new(4);
-    let (walls_tx, walls_rx) = rtrb::RingBuffer::<Box<TriangleLumen>>::new(3);
-    let (free_tx, free_rx_fill) = rtrb::RingBuffer::<Box<TriangleLumen>>::new(3);
+    let (walls_tx, walls_rx) = rtrb::RingBuffer::<Box<TriangleLumen>>::new(twins.max(1));
+    let (mut free_tx, free_rx) = rtrb::RingBuffer::<Box<TriangleLumen>>::new(twins.max(1));
     let (poly_tx, poly_rx) = rtrb::RingBuffer::<PolylineMsg>::new(4);
-    // Three twin lumens circulate publisher → wire → publisher: the
-    // publisher rebuilds their grids, the wire thread swaps them in.
-    let mut free_tx = free_tx;
-    for _ in 0..3 {
+    // Twin lumens circulate publisher → thread → publisher: the publisher
+    // rebuilds their grids, the thread swaps them in.
+    for _ in 0..twins {
         let _ = free_tx.push(Box::new(lumen.twin()));
     }
-    let period = (params.dt_s * 1e9).round() as Nanos;
-    let wall = Arc::new(wall);
     let publisher = PublisherWire {
         nodes: wall.mesh_nodes().to_vec(),
         rest: wall.rest().to_vec(),
         walls_out: walls_tx,
-        walls_free: free_rx_fill,
+        walls_free: free_rx,
         polyline: poly_rx,
         points: Vec::with_capacity(MAX_POLYLINE),
         verts: wall.rest().to_vec(),
@@ -616,25 +643,69 @@ pub(super) fn build<const R: usize>(
         stalled: false,
         load_wall: g.load_wall,
     };
+    let end = RodEnd {
+        hub: hub_rx,
+        loads_out: loads_tx,
+        polyline: poly_tx,
+        shared,
+        msg: LoadMsg {
+            loads: heapless::Vec::new(),
+        },
+        poly: PolylineMsg {
+            points: heapless::Vec::new(),
+            loads: heapless::Vec::new(),
+            contact_force_max_n: 0.0,
+        },
+    };
+    let walls = WallEnds {
+        walls_in: walls_rx,
+        walls_back: free_tx,
+    };
+    Ok((link, publisher, end, walls))
+}
+
+/// The thread's request from `[guidewire]`: its priority and CPU.
+pub(super) fn rt_request(g: &GuidewireConfig) -> RtRequest {
+    RtRequest {
+        fifo_priority: (g.priority > 0).then_some(g.priority),
+        cpu: (g.cpu >= 0).then_some(g.cpu as usize),
+        prefault_stack_bytes: 256 * 1024,
+    }
+}
+
+/// Everything the service needs to run the wire, built before the threads
+/// start.
+#[allow(clippy::too_many_arguments)]
+pub(super) fn build<const R: usize>(
+    params: &WireParams,
+    g: &GuidewireConfig,
+    mesh: &crate::mesh::TetMesh,
+    vessel: &crate::haptics::servo::LoopModel<R>,
+    frame: DeviceFrame,
+    stop: Arc<AtomicBool>,
+    faults: Arc<FaultSwitches>,
+    start: Nanos,
+    stream_every: u64,
+) -> Result<WireParts, ServiceError> {
+    let (wall, lumen) = wall_and_lumen(g, mesh, vessel)?;
+    let (access_point, axis) = g
+        .hub_pose(mesh, &wall, &lumen)
+        .map_err(|e| ServiceError::Solver(format!("guidewire.access: {e}")))?;
+    let wire = Wire::new(params, access_point, axis, g.inserted_m)
+        .map_err(|e| ServiceError::Solver(format!("guidewire: {e}")))?;
+    let (link, publisher, end, walls) =
+        rod_channels(params, wire.inserted(), wire.roll(), g, &wall, &lumen, vessel, frame, 3)?;
     let plan = WirePlan {
         wire,
         lumen: Box::new(lumen),
-        wall,
-        hub: hub_rx,
-        loads_out: loads_tx,
-        walls_in: walls_rx,
-        walls_back: free_tx,
-        polyline: poly_tx,
-        shared,
+        wall: Arc::new(wall),
+        end,
+        walls,
         stop,
         faults,
-        request: RtRequest {
-            fifo_priority: (g.priority > 0).then_some(g.priority),
-            cpu: (g.cpu >= 0).then_some(g.cpu as usize),
-            prefault_stack_bytes: 256 * 1024,
-        },
+        request: rt_request(g),
         start,
-        period,
+        period: (params.dt_s * 1e9).round() as Nanos,
         pool_bytes: crate::service::running::RT_POOL_BYTES,
         good_every: g.good_state_every,
         polyline_every: stream_every.max(1),
@@ -677,39 +748,34 @@ impl PublisherSide for PublisherWire {
 }
 
 /// The guidewire's instrument when the configuration has `[wire]` and
-/// `[guidewire]`: the rings, the loop and publisher sides, and the wire
-/// thread, started half a period after the loop.
-pub fn build_instrument<const R: usize>(ctx: &BuildContext<'_, R>) -> Result<Option<Built>, ServiceError> {
-    let (Some(wp), Some(g)) = (&ctx.cfg.wire, &ctx.cfg.guidewire) else {
-        return Ok(None);
+/// `[guidewire]` (and no `[catheter]`: then the wire runs inside the
+/// catheter, in the catheter's thread, [`super::catheter`]): the rings, the
+/// loop and publisher sides, and the wire thread, started half a period
+/// after the loop.
+pub fn build_instrument<const R: usize>(ctx: &BuildContext<'_, R>) -> Result<Vec<Built>, ServiceError> {
+    let (Some(wp), Some(g), None) = (&ctx.cfg.wire, &ctx.cfg.guidewire, &ctx.cfg.catheter) else {
+        return Ok(Vec::new());
     };
-    let frame = ctx
-        .cfg
-        .device
-        .frame
-        .as_ref()
-        .map(DeviceFrame::new)
-        .unwrap_or_else(DeviceFrame::identity);
     let parts = build(
         wp,
         g,
         ctx.mesh,
         ctx.vessel,
-        frame,
+        device_frame(ctx),
         ctx.stop.clone(),
         ctx.faults.clone(),
         ctx.loop_start + WIRE_PHASE,
         ctx.state_every,
     )?;
     let wall = parts.plan.wall.clone();
-    let shared = parts.plan.shared.clone();
+    let shared = parts.plan.end.shared.clone();
     let plan = parts.plan;
     let handle = std::thread::Builder::new()
         .name("nvtmm-wire".into())
         .stack_size(1 << 20)
         .spawn(move || wire_thread(plan))
         .map_err(|e| ServiceError::Thread("wire", e.to_string()))?;
-    Ok(Some(Built {
+    Ok(vec![Built {
         id: "guidewire",
         kind: KIND,
         loop_side: Box::new(parts.link),
@@ -719,7 +785,17 @@ pub fn build_instrument<const R: usize>(ctx: &BuildContext<'_, R>) -> Result<Opt
             wall,
             shared,
         }),
-    }))
+    }])
+}
+
+/// The device frame of the configuration (identity without `[device.frame]`).
+pub(super) fn device_frame<const R: usize>(ctx: &BuildContext<'_, R>) -> DeviceFrame {
+    ctx.cfg
+        .device
+        .frame
+        .as_ref()
+        .map(DeviceFrame::new)
+        .unwrap_or_else(DeviceFrame::identity)
 }
 
 /// The guidewire's part the running service keeps: the wire thread.
@@ -736,183 +812,298 @@ impl ServiceSide for GuidewireService {
             .take()
             .ok_or_else(|| ServiceError::Thread("wire", "already stopped".into()))?;
         let w = h.join().map_err(|_| ServiceError::Thread("wire", "panicked".into()))?;
-        let tip_segment = self
-            .wall
-            .segment_at(&w.wall, w.tip)
-            .map(str::to_string)
-            .unwrap_or_else(|| "unlabelled".into());
-        let wr = WireReport {
-            nodes: w.nodes,
-            inserted_m: w.inserted_m,
-            inserted_max_m: w.max_inserted_m,
-            tip_segment,
-            tip_m: [w.tip.x, w.tip.y, w.tip.z],
-            contacts_max: w.contacts_max,
-            contacts_p50: w.contacts.quantile(0.5),
-            max_penetration_m: w.max_penetration_m,
-            axial_force_max_n: w.axial_force_max_n,
-            step_us: w.step_us.percentiles(),
-            steps: w.steps,
-            iterations_max: w.iterations_max,
-            evaluations_max: w.evaluations_max,
-            budget_spent_steps: w.budget_spent,
-            time_limited_steps: w.time_spent,
-            resets: w.resets,
-            stalls: self.shared.stalls.load(Ordering::Acquire),
-            wall_updates: w.wall_updates,
-            rt_policy_granted: w.grant.fifo,
-            cpu: w.grant.cpu,
-            allocations_after_start: w.allocations,
-            loads_ring_full: w.loads_ring_full,
-            load_wall: w.load_wall,
-            wall_compliance_p50_m_per_n: w.compliance_p50,
-            wall_compliance_max_m_per_n: w.compliance_max,
-            wall_deflection_max_m: w.deflection_max,
-            wall_dent_max_m: WireShared::get(&self.shared.dent_max_bits),
-        };
+        let (wr, out) = rod_report("guidewire", KIND, &w, &self.wall, &self.shared);
         report.allocations_after_start += wr.allocations_after_start;
-        let mut keys = serde_json::to_value(&wr).unwrap_or_default();
-        if let Some(k) = keys.as_object_mut() {
-            // Hub commands the loop could not send (ring of `HUB_RING`).
-            k.insert(
-                "hub_ring_full".into(),
-                self.shared.hub_ring_full.load(Ordering::Acquire).into(),
-            );
-        }
-        let out = InstrumentReport {
-            id: "guidewire".into(),
-            kind: KIND.name.into(),
-            faults: wr.resets + wr.stalls,
-            keys,
-            summary: format!(
-                "{:.1} mm inserted, tip in {}, {} resets, {} stalls (the wire.* keys)",
-                wr.inserted_m * 1e3,
-                wr.tip_segment,
-                wr.resets,
-                wr.stalls
-            ),
-        };
         report.wire = Some(wr);
         Ok(out)
     }
 }
 
+/// A rod's report section from its thread's result: its `wire.*`-shaped
+/// figures and its instrument section (`id`, `kind`, those figures as its
+/// keys with `hub_ring_full`).
+pub(super) fn rod_report(
+    id: &str,
+    kind: Kind,
+    w: &WireResult,
+    wall: &InnerWall,
+    shared: &WireShared,
+) -> (WireReport, InstrumentReport) {
+    let (tip_segment, tip_depth_m) = tip_segment_and_depth(wall, &w.wall, &w.line);
+    let wr = WireReport {
+        nodes: w.nodes,
+        inserted_m: w.inserted_m,
+        inserted_max_m: w.max_inserted_m,
+        tip_segment,
+        tip_depth_m,
+        tip_m: [w.tip.x, w.tip.y, w.tip.z],
+        contacts_max: w.contacts_max,
+        contacts_p50: w.contacts.quantile(0.5),
+        max_penetration_m: w.max_penetration_m,
+        axial_force_max_n: w.axial_force_max_n,
+        step_us: w.step_us.percentiles(),
+        steps: w.steps,
+        iterations_max: w.iterations_max,
+        evaluations_max: w.evaluations_max,
+        budget_spent_steps: w.budget_spent,
+        time_limited_steps: w.time_spent,
+        resets: w.resets,
+        stalls: shared.stalls.load(Ordering::Acquire),
+        wall_updates: w.wall_updates,
+        rt_policy_granted: w.grant.fifo,
+        cpu: w.grant.cpu,
+        allocations_after_start: w.allocations,
+        loads_ring_full: w.loads_ring_full,
+        load_wall: w.load_wall,
+        wall_compliance_p50_m_per_n: w.compliance_p50,
+        wall_compliance_max_m_per_n: w.compliance_max,
+        wall_deflection_max_m: w.deflection_max,
+        wall_dent_max_m: WireShared::get(&shared.dent_max_bits),
+    };
+    let mut keys = serde_json::to_value(&wr).unwrap_or_default();
+    if let Some(k) = keys.as_object_mut() {
+        // Hub commands the loop could not send (ring of `HUB_RING`).
+        k.insert(
+            "hub_ring_full".into(),
+            shared.hub_ring_full.load(Ordering::Acquire).into(),
+        );
+    }
+    let out = InstrumentReport {
+        id: id.into(),
+        kind: kind.name.into(),
+        faults: wr.resets + wr.stalls,
+        keys,
+        summary: format!(
+            "{:.1} mm inserted, tip {:.1} mm into {}, {} resets, {} stalls",
+            wr.inserted_m * 1e3,
+            wr.tip_depth_m * 1e3,
+            wr.tip_segment,
+            wr.resets,
+            wr.stalls
+        ),
+    };
+    (wr, out)
+}
+
+/// The segment of the wall nearest the rod's tip (`line`, hub to tip; the
+/// wall at `positions`) and how far the rod runs in it back from the tip
+/// (m, along the rod, up to the first node nearer another segment):
+/// "unlabelled" and 0 on a mesh without labels or an empty line.
+pub(super) fn tip_segment_and_depth(wall: &InnerWall, positions: &[Vec3], line: &[Vec3]) -> (String, f64) {
+    let Some(&tip) = line.last() else {
+        return ("unlabelled".into(), 0.0);
+    };
+    let Some(seg) = wall.segment_at(positions, tip) else {
+        return ("unlabelled".into(), 0.0);
+    };
+    let mut depth = 0.0;
+    for w in line.windows(2).rev() {
+        if wall.segment_at(positions, w[0]) != Some(seg) {
+            break;
+        }
+        depth += (w[1] - w[0]).norm();
+    }
+    (seg.to_string(), depth)
+}
+
 /// Capacity of the hub ring (loop → wire thread).
 const HUB_RING: usize = 64;
 
-/// The wire thread's body: one wire step per period until `stop`.
-pub(super) fn wire_thread(mut p: WirePlan) -> WireResult {
-    let grant = setup_current(&p.request);
-    let mut res = WireResult {
-        grant,
-        step_us: Histogram::new(),
-        contacts: Histogram::new(),
-        steps: 0,
-        resets: 0,
-        nodes: p.wire.num_nodes(),
-        inserted_m: p.wire.inserted(),
-        max_inserted_m: p.wire.inserted(),
-        tip: p.wire.tip(),
-        contacts_max: 0,
-        max_penetration_m: 0.0,
-        axial_force_max_n: 0.0,
-        iterations_max: 0,
-        evaluations_max: 0,
-        budget_spent: 0,
-        time_spent: 0,
-        allocations: 0,
-        wall_updates: 0,
-        loads_ring_full: 0,
-        loads_dropped: 0,
-        wall: Vec::new(),
-        load_wall: !p.lumen.compliance().is_empty(),
-        compliance_p50: 0.0,
-        compliance_max: 0.0,
-        deflection_max: 0.0,
-    };
-    {
-        let mut c = p.lumen.compliance().to_vec();
+impl WireResult {
+    /// The figures before the first step of a rod thread that got `grant`,
+    /// for `wire` against `lumen`.
+    pub(super) fn start(grant: RtGrant, wire: &Wire, lumen: &TriangleLumen) -> WireResult {
+        let mut res = WireResult {
+            grant,
+            step_us: Histogram::new(),
+            contacts: Histogram::new(),
+            steps: 0,
+            resets: 0,
+            nodes: wire.num_nodes(),
+            inserted_m: wire.inserted(),
+            max_inserted_m: wire.inserted(),
+            tip: wire.tip(),
+            contacts_max: 0,
+            max_penetration_m: 0.0,
+            axial_force_max_n: 0.0,
+            iterations_max: 0,
+            evaluations_max: 0,
+            budget_spent: 0,
+            time_spent: 0,
+            allocations: 0,
+            wall_updates: 0,
+            loads_ring_full: 0,
+            loads_dropped: 0,
+            wall: Vec::new(),
+            line: Vec::new(),
+            load_wall: !lumen.compliance().is_empty(),
+            compliance_p50: 0.0,
+            compliance_max: 0.0,
+            deflection_max: 0.0,
+        };
+        let mut c = lumen.compliance().to_vec();
         c.sort_by(f64::total_cmp);
         if let (Some(mid), Some(max)) = (c.get(c.len() / 2), c.last()) {
             res.compliance_p50 = *mid;
             res.compliance_max = *max;
         }
+        res
     }
+
+    /// Counts a good step `rep` of `wire` (its contacts, forces and
+    /// effort), the largest contact force into `end`'s polyline, publishes
+    /// its axial force and sends its wall loads (`wall`, `lumen`).
+    pub(super) fn good_step(
+        &mut self,
+        rep: &crate::wire::StepReport,
+        wire: &Wire,
+        end: &mut RodEnd,
+        wall: &InnerWall,
+        lumen: &TriangleLumen,
+    ) {
+        self.contacts.record(rep.contacts as f64);
+        self.contacts_max = self.contacts_max.max(rep.contacts);
+        self.max_penetration_m = self.max_penetration_m.max(rep.max_penetration_m);
+        self.axial_force_max_n = self.axial_force_max_n.max(rep.hub_axial_force_n.abs());
+        for c in wire.contacts() {
+            self.deflection_max = self.deflection_max.max(c.wall_deflection);
+            let f = (c.normal * c.normal_force + c.friction).norm();
+            if f.is_finite() {
+                end.poly.contact_force_max_n = end.poly.contact_force_max_n.max(f);
+            }
+        }
+        self.iterations_max = self.iterations_max.max(rep.iterations);
+        self.evaluations_max = self.evaluations_max.max(rep.evaluations);
+        self.budget_spent += rep.budget_spent as u64;
+        self.time_spent += rep.time_spent as u64;
+        WireShared::set(&end.shared.axial_bits, rep.hub_axial_force_n);
+        self.loads_dropped += wall_loads(wall, lumen, wire.contacts(), &mut end.msg.loads) as u64;
+        if end.loads_out.push(end.msg.clone()).is_err() {
+            self.loads_ring_full += 1;
+        }
+    }
+
+    /// After the step (good or not, `good`): publishes `wire`'s hub state
+    /// and the step count, and every `polyline_every` steps its polyline.
+    pub(super) fn after_step(&mut self, wire: &Wire, end: &mut RodEnd, good: bool, polyline_every: u64) {
+        if !good {
+            WireShared::set(&end.shared.axial_bits, 0.0);
+            end.msg.loads.clear();
+            let _ = end.loads_out.push(end.msg.clone());
+        }
+        WireShared::set(&end.shared.inserted_bits, wire.inserted());
+        WireShared::set(&end.shared.roll_bits, wire.roll());
+        if !good {
+            end.shared.resets.fetch_add(1, Ordering::AcqRel);
+        }
+        end.shared.steps.fetch_add(1, Ordering::AcqRel);
+        self.inserted_m = wire.inserted();
+        self.max_inserted_m = self.max_inserted_m.max(self.inserted_m);
+        if self.steps % polyline_every == 0 {
+            let line = wire.inserted_polyline();
+            let stride = line.len().div_ceil(MAX_POLYLINE - 1).max(1);
+            end.poly.points.clear();
+            for (k, x) in line.iter().enumerate() {
+                if k % stride == 0 || k + 1 == line.len() {
+                    let _ = end.poly.points.push([x.x as f32, x.y as f32, x.z as f32]);
+                }
+            }
+            end.poly.loads.clone_from(&end.msg.loads);
+            let _ = end.polyline.push(end.poly.clone());
+            end.poly.contact_force_max_n = 0.0;
+        }
+    }
+
+    /// At the thread's end (outside the RT section: allocates): the rod's
+    /// final figures.
+    pub(super) fn finish(&mut self, wire: &Wire, end: &RodEnd, lumen: &TriangleLumen) {
+        self.nodes = wire.num_nodes();
+        self.tip = wire.tip();
+        self.resets = end.shared.resets();
+        self.wall = lumen.vertices().to_vec();
+        self.line = wire.inserted_polyline().to_vec();
+    }
+}
+
+/// The newest hub command in `hub`, if any arrived.
+pub(super) fn newest_hub(hub: &mut rtrb::Consumer<HubMsg>) -> Option<(f64, f64)> {
+    let mut cmd = None;
+    while let Ok(c) = hub.pop() {
+        cmd = Some((c.inserted_m, c.roll_rad));
+    }
+    cmd
+}
+
+/// Swaps the newest wall the publisher built into `lumen`; the older ones
+/// go back. True if one came.
+pub(super) fn take_newest_wall(walls: &mut WallEnds, lumen: &mut Box<TriangleLumen>) -> bool {
+    let mut wall = None;
+    while let Ok(w) = walls.walls_in.pop() {
+        if let Some(old) = wall.replace(w) {
+            let _ = walls.walls_back.push(old);
+        }
+    }
+    match wall {
+        Some(w) => {
+            let old = std::mem::replace(lumen, w);
+            let _ = walls.walls_back.push(old);
+            true
+        }
+        None => false,
+    }
+}
+
+/// Sleeps until the next period, after an injected stall if one is asked.
+pub(super) fn wait_period(next: &mut Nanos, period: Nanos, faults: &FaultSwitches) {
+    clock::sleep_until(*next);
+    *next += period;
+    let stall = faults.stall_wire_ms.swap(0, Ordering::Relaxed);
+    if stall > 0 {
+        std::thread::sleep(std::time::Duration::from_millis(stall));
+    }
+}
+
+/// Re-phases after an overrun instead of bursting.
+pub(super) fn rephase(next: &mut Nanos, period: Nanos) {
+    let now = clock::now_ns();
+    if now > *next {
+        *next += ((now - *next) / period + 1) * period;
+    }
+}
+
+/// The wire thread's body: one wire step per period until `stop`.
+pub(super) fn wire_thread(mut p: WirePlan) -> WireResult {
+    let grant = setup_current(&p.request);
+    let mut res = WireResult::start(grant, &p.wire, &p.lumen);
     let _pool = crate::rt::alloc::enter_rt(p.pool_bytes);
-    let mut msg = LoadMsg {
-        loads: heapless::Vec::new(),
-    };
-    let mut poly = PolylineMsg {
-        points: heapless::Vec::new(),
-        loads: heapless::Vec::new(),
-        contact_force_max_n: 0.0,
-    };
     let radius = 0.5 * p.wire.params().diameter_m;
     let diameter = 2.0 * radius;
     let sys0 = crate::rt::alloc::thread_system_calls();
     let mut next = p.start;
     let mut since_good = 0u32;
     while !p.stop.load(Ordering::Relaxed) {
-        clock::sleep_until(next);
-        next += p.period;
-        let stall = p.faults.stall_wire_ms.swap(0, Ordering::Relaxed);
-        if stall > 0 {
-            std::thread::sleep(std::time::Duration::from_millis(stall));
+        wait_period(&mut next, p.period, &p.faults);
+        if let Some((ins, roll)) = newest_hub(&mut p.end.hub) {
+            p.wire.set_hub(ins, roll);
         }
-        let mut cmd = None;
-        while let Ok(c) = p.hub.pop() {
-            cmd = Some(c);
-        }
-        if let Some(c) = cmd {
-            p.wire.set_hub(c.inserted_m, c.roll_rad);
-        }
-        // The newest wall the publisher built; the older ones go back.
-        let mut wall = None;
-        while let Ok(w) = p.walls_in.pop() {
-            if let Some(old) = wall.replace(w) {
-                let _ = p.walls_back.push(old);
-            }
-        }
-        if let Some(w) = wall {
-            let old = std::mem::replace(&mut p.lumen, w);
-            let _ = p.walls_back.push(old);
+        if take_newest_wall(&mut p.walls, &mut p.lumen) {
             res.wall_updates += 1;
         }
-        let poison = FaultSwitches::take(&p.faults.poison_wire);
-        if poison {
+        if FaultSwitches::take(&p.faults.poison_wire) {
             p.wire.poison_for_tests();
         }
         let t0 = clock::now_ns();
         let step = p.wire.step(&*p.lumen);
         res.step_us.record((clock::now_ns() - t0) as f64 * 1e-3);
         res.steps += 1;
-        let reset_asked = p.shared.reset_request.swap(false, Ordering::AcqRel);
+        let reset_asked = p.end.shared.take_reset_request();
         let good = match step {
             Ok(rep) if rep.max_penetration_m <= diameter && !reset_asked => {
-                res.contacts.record(rep.contacts as f64);
-                res.contacts_max = res.contacts_max.max(rep.contacts);
-                res.max_penetration_m = res.max_penetration_m.max(rep.max_penetration_m);
-                res.axial_force_max_n = res.axial_force_max_n.max(rep.hub_axial_force_n.abs());
-                for c in p.wire.contacts() {
-                    res.deflection_max = res.deflection_max.max(c.wall_deflection);
-                    let f = (c.normal * c.normal_force + c.friction).norm();
-                    if f.is_finite() {
-                        poly.contact_force_max_n = poly.contact_force_max_n.max(f);
-                    }
-                }
-                res.iterations_max = res.iterations_max.max(rep.iterations);
-                res.evaluations_max = res.evaluations_max.max(rep.evaluations);
-                res.budget_spent += rep.budget_spent as u64;
-                res.time_spent += rep.time_spent as u64;
-                WireShared::set(&p.shared.axial_bits, rep.hub_axial_force_n);
+                res.good_step(&rep, &p.wire, &mut p.end, &p.wall, &p.lumen);
                 since_good += 1;
                 if since_good >= p.good_every && rep.max_penetration_m < 0.5 * radius {
                     p.wire.save_good_state();
                     since_good = 0;
-                }
-                res.loads_dropped += wall_loads(&p.wall, &p.lumen, p.wire.contacts(), &mut msg.loads) as u64;
-                if p.loads_out.push(msg.clone()).is_err() {
-                    res.loads_ring_full += 1;
                 }
                 true
             }
@@ -921,43 +1112,13 @@ pub(super) fn wire_thread(mut p: WirePlan) -> WireResult {
         if !good {
             p.wire.restore_good_state();
             since_good = 0;
-            WireShared::set(&p.shared.axial_bits, 0.0);
-            msg.loads.clear();
-            let _ = p.loads_out.push(msg.clone());
         }
-        WireShared::set(&p.shared.inserted_bits, p.wire.inserted());
-        WireShared::set(&p.shared.roll_bits, p.wire.roll());
-        if !good {
-            p.shared.resets.fetch_add(1, Ordering::AcqRel);
-        }
-        p.shared.steps.fetch_add(1, Ordering::AcqRel);
-        res.inserted_m = p.wire.inserted();
-        res.max_inserted_m = res.max_inserted_m.max(res.inserted_m);
-        if res.steps % p.polyline_every == 0 {
-            let line = p.wire.inserted_polyline();
-            let stride = line.len().div_ceil(MAX_POLYLINE - 1).max(1);
-            poly.points.clear();
-            for (k, x) in line.iter().enumerate() {
-                if k % stride == 0 || k + 1 == line.len() {
-                    let _ = poly.points.push([x.x as f32, x.y as f32, x.z as f32]);
-                }
-            }
-            poly.loads.clone_from(&msg.loads);
-            let _ = p.polyline.push(poly.clone());
-            poly.contact_force_max_n = 0.0;
-        }
-        // Re-phase after an overrun instead of bursting.
-        let now = clock::now_ns();
-        if now > next {
-            next += ((now - next) / p.period + 1) * p.period;
-        }
+        res.after_step(&p.wire, &mut p.end, good, p.polyline_every);
+        rephase(&mut next, p.period);
     }
     res.allocations = crate::rt::alloc::thread_system_calls() - sys0;
     crate::rt::alloc::leave_rt();
-    res.nodes = p.wire.num_nodes();
-    res.tip = p.wire.tip();
-    res.resets = p.shared.resets();
-    res.wall = p.lumen.vertices().to_vec();
+    res.finish(&p.wire, &p.end, &p.lumen);
     res
 }
 

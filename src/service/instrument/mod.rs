@@ -1,7 +1,7 @@
 //! The instruments the hand works, behind one seam (docs/INSTRUMENTS.md).
 //! The haptic loop, the publisher, the report, the stream and the C ABI
 //! iterate over one list of instruments and never name a kind. Each kind
-//! lives in its own module here ([`probe`], [`guidewire`]) and is built by
+//! lives in its own module here ([`probe`], [`guidewire`], [`catheter`]) and is built by
 //! one line of [`registry`] into three parts:
 //!
 //! - a [`LoopSide`], run on the haptic loop thread once per tick: it gives
@@ -17,6 +17,7 @@
 //! What does not live here: the loop's own stages (`crate::haptics::tick`)
 //! and the physics of an instrument (`crate::wire` for the rods).
 
+pub mod catheter;
 pub mod guidewire;
 pub mod probe;
 
@@ -231,14 +232,20 @@ pub struct BuildContext<'a, const R: usize> {
     pub state_every: u64,
 }
 
-/// Builds a kind's instrument when the configuration asks for it (None:
-/// not in this run).
-pub type Builder<const R: usize> = fn(&BuildContext<'_, R>) -> Result<Option<Built>, ServiceError>;
+/// Builds a kind's instruments when the configuration asks for them
+/// (empty: not in this run). Usually one; a builder whose instruments
+/// share one thread returns them together (the catheter and the wire
+/// inside it, stepped as one coupled pair).
+pub type Builder<const R: usize> = fn(&BuildContext<'_, R>) -> Result<Vec<Built>, ServiceError>;
 
 /// Every instrument kind, in the order the loop runs them. A new kind is
 /// its own module and one line here (docs/INSTRUMENTS.md).
-pub fn registry<const R: usize>() -> [Builder<R>; 2] {
-    [probe::build::<R>, guidewire::build_instrument::<R>]
+pub fn registry<const R: usize>() -> [Builder<R>; 3] {
+    [
+        probe::build::<R>,
+        guidewire::build_instrument::<R>,
+        catheter::build_instrument::<R>,
+    ]
 }
 
 /// Builds the instruments the configuration asks for, in registry order;
@@ -246,9 +253,7 @@ pub fn registry<const R: usize>() -> [Builder<R>; 2] {
 pub fn build_all<const R: usize>(ctx: &BuildContext<'_, R>) -> Result<Vec<Built>, ServiceError> {
     let mut out = Vec::new();
     for build in registry::<R>() {
-        if let Some(b) = build(ctx)? {
-            out.push(b);
-        }
+        out.extend(build(ctx)?);
     }
     if out.len() > MAX_INSTRUMENTS {
         return Err(ServiceError::Solver(format!(
@@ -264,7 +269,7 @@ pub fn build_all<const R: usize>(ctx: &BuildContext<'_, R>) -> Result<Vec<Built>
 pub struct InstrumentReport {
     /// Its id in the run.
     pub id: String,
-    /// Its kind (`probe`, `guidewire`).
+    /// Its kind (`probe`, `guidewire`, `catheter`).
     pub kind: String,
     /// Times it raised the watchdog (a stalled or reset thread).
     pub faults: u64,

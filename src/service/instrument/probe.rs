@@ -17,8 +17,8 @@ pub const KIND: Kind = Kind { name: "probe", code: 1 };
 
 /// Every run has the probe: the stylus tip touches the vessel wherever the
 /// hand takes it (with a guidewire too, as the hand's own sphere).
-pub fn build<const R: usize>(ctx: &BuildContext<'_, R>) -> Result<Option<Built>, ServiceError> {
-    Ok(Some(Built {
+pub fn build<const R: usize>(ctx: &BuildContext<'_, R>) -> Result<Vec<Built>, ServiceError> {
+    Ok(vec![Built {
         id: "probe",
         kind: KIND,
         loop_side: Box::new(ProbeLoop),
@@ -26,7 +26,7 @@ pub fn build<const R: usize>(ctx: &BuildContext<'_, R>) -> Result<Option<Built>,
         service_side: Box::new(ProbeService {
             radius_m: ctx.cfg.contact.tool_radius_m,
         }),
-    }))
+    }])
 }
 
 struct ProbeLoop;
