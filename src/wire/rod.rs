@@ -140,6 +140,13 @@ struct Coax {
     /// Per node, fixed through a step: inside the sheath (it touches the
     /// sheath's inner wall, not the lumen's).
     inside: Vec<bool>,
+    /// Per node inside the sheath: the radius of its lip's funnel (m),
+    /// at least the sheath's inner radius. A node that comes inside by its
+    /// arc length while it lies outside the lumen (a J-tip beside the
+    /// sheath's tip, a node pulled back in) starts with the funnel wide
+    /// enough that it does not overlap the wall; the funnel closes as the
+    /// node comes in, and by [`FUNNEL_CLOSING_M_PER_S`] at least.
+    funnel: Vec<f64>,
     /// The sheath contacts of the last step.
     sheath_contacts: Vec<WireContact>,
     /// Dead point loads for the next step (point, force), spread onto the
@@ -174,6 +181,49 @@ struct CoreStiffness {
 /// Point loads a rod takes at most per step ([`Wire::set_point_loads`]).
 pub const MAX_POINT_LOADS: usize = 4096;
 
+/// How fast a sheath's lip funnel closes on a node that entered it
+/// outside the lumen, at least (m/s): at the rod's contact stiffness
+/// (10⁶ N/m, 1 ms steps) a force of 2 N per step at most.
+pub const FUNNEL_CLOSING_M_PER_S: f64 = 2e-3;
+
+/// The point of the polyline `poly` (at least two points) nearest to `p`
+/// over all its segments (the same ends as [`nearest_on_polyline`]): for a
+/// node with no good hint, since a downhill search from a far segment
+/// stops at a local minimum (the other leg of a sheath bent back on
+/// itself).
+pub(crate) fn nearest_on_polyline_everywhere(poly: &[Vec3], p: Vec3, seg: &mut usize) -> (usize, f64, Vec3) {
+    let mut best = (0, 0.0, poly[0]);
+    let mut d_best = f64::INFINITY;
+    for k in 0..poly.len() - 1 {
+        let (t, q, d) = nearest_on_segment(poly, k, p);
+        if d < d_best {
+            d_best = d;
+            best = (k, t, q);
+        }
+    }
+    *seg = best.0;
+    best
+}
+
+/// The point of segment `k` of `poly` nearest to `p`: its parameter t, the
+/// point and the squared distance (t unclamped behind the first segment's
+/// start and beyond the last one's end).
+fn nearest_on_segment(poly: &[Vec3], k: usize, p: Vec3) -> (f64, Vec3, f64) {
+    let last = poly.len() - 2;
+    let (a, b) = (poly[k], poly[k + 1]);
+    let e = b - a;
+    let l2 = e.norm_squared().max(1e-300);
+    let mut t = (p - a).dot(&e) / l2;
+    if k > 0 {
+        t = t.max(0.0);
+    }
+    if k < last {
+        t = t.min(1.0);
+    }
+    let q = a + e * t;
+    (t, q, (p - q).norm_squared())
+}
+
 /// Sheath nodes at most ([`Wire::set_sheath`]).
 pub const MAX_SHEATH_NODES: usize = 4096;
 
@@ -187,6 +237,7 @@ impl Coax {
             sheath_mu: 0.0,
             sheath_seg: vec![0; cap],
             inside: vec![false; cap],
+            funnel: vec![0.0; cap],
             sheath_contacts: Vec::with_capacity(cap),
             point_loads: Vec::with_capacity(MAX_POINT_LOADS),
             node_load: vec![Vec3::zeros(); cap],
@@ -206,20 +257,7 @@ impl Coax {
 pub(crate) fn nearest_on_polyline(poly: &[Vec3], p: Vec3, seg: &mut usize) -> (usize, f64, Vec3) {
     let m = poly.len();
     let last = m - 2;
-    let at = |k: usize| {
-        let (a, b) = (poly[k], poly[k + 1]);
-        let e = b - a;
-        let l2 = e.norm_squared().max(1e-300);
-        let mut t = (p - a).dot(&e) / l2;
-        if k > 0 {
-            t = t.max(0.0);
-        }
-        if k < last {
-            t = t.min(1.0);
-        }
-        let q = a + e * t;
-        (t, q, (p - q).norm_squared())
-    };
+    let at = |k: usize| nearest_on_segment(poly, k, p);
     let mut k = (*seg).min(last);
     let mut best = at(k);
     for _ in 0..m {
@@ -2027,7 +2065,7 @@ impl Wire {
                 } else {
                     perpendicular(self.tan[Self::contact_edge(i, n)])
                 };
-                let a = self.cx.sheath_radius;
+                let a = self.cx.funnel[i].max(self.cx.sheath_radius);
                 Some(WallHit {
                     distance: a - rho,
                     normal: -out,
@@ -2557,14 +2595,20 @@ impl Wire {
     fn begin_coaxial(&mut self) {
         let n = self.s.n;
         let dt = self.p.dt_s;
+        let r_w = 0.5 * self.p.diameter_m;
         let cx = &mut self.cx;
         let has_sheath = cx.sheath.len() >= 2;
         for i in 0..n {
             let inside = has_sheath && i >= 2 && self.s.inserted - self.s.u[i] <= cx.sheath_reach;
             if inside && !cx.inside[i] {
-                // Entering: search the whole sheath once.
-                cx.sheath_seg[i] = 0;
-                let _ = nearest_on_polyline(&cx.sheath, self.s.x[i], &mut cx.sheath_seg[i]);
+                // Entering: search the whole sheath once (a downhill search
+                // from its hub stops on the wrong leg of a sheath bent back
+                // on itself, 100 mm from the node in a half turn).
+                let (_, _, q) = nearest_on_polyline_everywhere(&cx.sheath, self.s.x[i], &mut cx.sheath_seg[i]);
+                // A node outside the lumen (a J-tip beside the sheath's
+                // tip) enters through the lip's funnel, not deep in the
+                // wall with a kilonewton penalty.
+                cx.funnel[i] = (self.s.x[i] - q).norm() + r_w;
             }
             if inside && cx.inside[i] {
                 // The node starts the step carried with the sheath's last
@@ -2579,6 +2623,12 @@ impl Wire {
                 self.s.x[i] += d;
                 self.xt[i] = self.s.x[i];
                 self.s.anchor[i] += d;
+                // The funnel closes as the node comes in, and steadily.
+                if cx.funnel[i] > cx.sheath_radius {
+                    let (_, _, q) = nearest_on_polyline(&cx.sheath, self.s.x[i], &mut cx.sheath_seg[i]);
+                    let open = (self.s.x[i] - q).norm() + r_w;
+                    cx.funnel[i] = open.min(cx.funnel[i] - FUNNEL_CLOSING_M_PER_S * dt);
+                }
             }
             if inside != cx.inside[i] {
                 // A contact with another wall: friction starts afresh.
@@ -2597,8 +2647,15 @@ impl Wire {
         if !cx.point_loads.is_empty() && n >= 3 {
             let poly = &self.s.x[..n];
             let mut seg = 0;
-            for &(at, f) in &cx.point_loads {
-                let (k, t, _) = nearest_on_polyline(poly, at, &mut seg);
+            for (j, &(at, f)) in cx.point_loads.iter().enumerate() {
+                // The first over the whole rod (a downhill search from the
+                // hub stops on the wrong leg of a rod bent back on
+                // itself), the next ones from their predecessor's segment.
+                let (k, t, _) = if j == 0 {
+                    nearest_on_polyline_everywhere(poly, at, &mut seg)
+                } else {
+                    nearest_on_polyline(poly, at, &mut seg)
+                };
                 let t = t.clamp(0.0, 1.0);
                 cx.node_load[k] += f * (1.0 - t);
                 cx.node_load[k + 1] += f * t;
