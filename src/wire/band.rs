@@ -209,16 +209,7 @@ impl BandMatrix {
         let mut worst: Option<(usize, f64)> = None;
         for k in 0..n {
             let d = self.a[k * w + p];
-            if INDEFINITE {
-                if d == 0.0 || !d.is_finite() {
-                    return Err(BandError::NotPositive { row: k, pivot: d });
-                }
-                if d < 0.0 && worst.is_none_or(|(_, v)| d < v) {
-                    worst = Some((k, d));
-                }
-            } else if !(d > 0.0 && d.is_finite()) {
-                return Err(BandError::NotPositive { row: k, pivot: d });
-            }
+            pivot_check::<INDEFINITE>(k, d, &mut worst)?;
             let inv = 1.0 / d;
             self.dinv[k] = inv;
             let m = p.min(n - 1 - k);
@@ -253,16 +244,7 @@ impl BandMatrix {
         let mut worst: Option<(usize, f64)> = None;
         for k in 0..n {
             let d = self.a[k * W + P];
-            if INDEFINITE {
-                if d == 0.0 || !d.is_finite() {
-                    return Err(BandError::NotPositive { row: k, pivot: d });
-                }
-                if d < 0.0 && worst.is_none_or(|(_, v)| d < v) {
-                    worst = Some((k, d));
-                }
-            } else if !(d > 0.0 && d.is_finite()) {
-                return Err(BandError::NotPositive { row: k, pivot: d });
-            }
+            pivot_check::<INDEFINITE>(k, d, &mut worst)?;
             let inv = 1.0 / d;
             self.dinv[k] = inv;
             let base = k * W + P;
@@ -421,6 +403,24 @@ impl BandMatrix {
             }
         }
     }
+}
+
+/// The pivot rule of both factorisation loops: a positive finite pivot for
+/// the definite factorisation; for the indefinite one any nonzero finite
+/// pivot, keeping the most negative in `worst`.
+#[inline(always)]
+fn pivot_check<const INDEFINITE: bool>(k: usize, d: f64, worst: &mut Option<(usize, f64)>) -> Result<(), BandError> {
+    if INDEFINITE {
+        if d == 0.0 || !d.is_finite() {
+            return Err(BandError::NotPositive { row: k, pivot: d });
+        }
+        if d < 0.0 && worst.is_none_or(|(_, v)| d < v) {
+            *worst = Some((k, d));
+        }
+    } else if !(d > 0.0 && d.is_finite()) {
+        return Err(BandError::NotPositive { row: k, pivot: d });
+    }
+    Ok(())
 }
 
 #[cfg(test)]
