@@ -119,45 +119,7 @@ enum Command {
 #[derive(Subcommand)]
 enum ExperimentCmd {
     /// Contact anywhere: rendered vs full-model stiffness at random surface points (inner and outer wall), first tick and settled, with and without the residual compliance (docs/RESULTS.md).
-    Contact {
-        /// 1458 nodes, r = 16, 60 points (else 5832 nodes, r = 32, 120 points).
-        #[arg(long)]
-        quick: bool,
-        /// JSON on stdout (the ratio and settle-time keys), no table.
-        #[arg(long)]
-        json: bool,
-        /// Arch nodes (overrides the size --quick or the default picks).
-        #[arg(long)]
-        nodes: Option<usize>,
-        /// Surface points (half on the inner wall, half on the outer).
-        #[arg(long)]
-        points: Option<usize>,
-        /// The arch with its three supra-aortic branches (every vessel end
-        /// fixed) instead of the unbranched one.
-        #[arg(long)]
-        branched: bool,
-        /// Random seed of the surface points.
-        #[arg(long, default_value_t = 7)]
-        seed: u64,
-        /// How far the probe is held into the undeformed wall (mm), one run
-        /// per value, comma-separated, each in (0, 3] (at most the probe's radius).
-        #[arg(long, value_delimiter = ',', default_value = "0.5")]
-        push_mm: Vec<f64>,
-        /// The wall: `paper` (NVTMM StVK 65 kPa) or `human` (the human aorta
-        /// scene's Neo-Hookean 0.7 MPa, which holds arterial pressure).
-        #[arg(long, default_value = "paper")]
-        wall: String,
-        /// Steady luminal pressure (Pa) the wall is inflated to before the
-        /// probe pushes; needs --wall human.
-        #[arg(long, default_value_t = 0.0)]
-        pressure_pa: f64,
-        /// Push the loop's probe in from where it touches the wall at this
-        /// speed (mm/s, in (0, 1000]), as the reference is pushed in, instead
-        /// of placing it at its depth on the first tick; the first tick and
-        /// the settle time then count from its arrival.
-        #[arg(long)]
-        push_speed_mm_s: Option<f64>,
-    },
+    Contact(cli::reduced::ContactArgs),
     /// Linear vs exact cubic reduced StVK: precompute, µs per step, accuracy against the full NVTMM under a large load (docs/RESULTS.md).
     Cubic {
         /// Output directory.
@@ -560,29 +522,7 @@ fn main() -> ExitCode {
             }
         },
         Command::Experiment(e) => match e {
-            ExperimentCmd::Contact {
-                quick,
-                json,
-                nodes,
-                points,
-                branched,
-                seed,
-                push_mm,
-                wall,
-                pressure_pa,
-                push_speed_mm_s,
-            } => cli::reduced::experiment_contact(&cli::reduced::ContactArgs {
-                quick,
-                json,
-                nodes,
-                points,
-                branched,
-                seed,
-                push_mm,
-                wall,
-                pressure_pa,
-                push_speed_mm_s,
-            }),
+            ExperimentCmd::Contact(a) => cli::reduced::experiment_contact(&a),
             ExperimentCmd::Cubic { out, quick } => cli::cubic::experiment_cubic(&out, quick),
             ExperimentCmd::Reduced { out, quick } => cli::reduced::experiment_reduced(&out, quick),
             ExperimentCmd::Fig5 { out, quick } => cli::sim::experiment_fig5(&out, quick),

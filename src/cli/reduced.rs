@@ -94,26 +94,44 @@ pub fn experiment_reduced(out: &Path, quick: bool) -> Result<()> {
 }
 
 /// The options of `nvtmm experiment contact`.
+#[derive(clap::Args)]
 pub struct ContactArgs {
-    /// Small size.
+    /// 1458 nodes, r = 16, 60 points (else 5832 nodes, r = 32, 120 points).
+    #[arg(long)]
     pub quick: bool,
-    /// JSON out.
+    /// JSON on stdout (the ratio and settle-time keys), no table.
+    #[arg(long)]
     pub json: bool,
-    /// Arch nodes.
+    /// Arch nodes (overrides the size --quick or the default picks).
+    #[arg(long)]
     pub nodes: Option<usize>,
-    /// Surface points.
+    /// Surface points (half on the inner wall, half on the outer).
+    #[arg(long)]
     pub points: Option<usize>,
-    /// The branched arch.
+    /// The arch with its three supra-aortic branches (every vessel end
+    /// fixed) instead of the unbranched one.
+    #[arg(long)]
     pub branched: bool,
-    /// Seed of the points.
+    /// Random seed of the surface points.
+    #[arg(long, default_value_t = 7)]
     pub seed: u64,
-    /// Push depths (mm).
+    /// How far the probe is held into the undeformed wall (mm), one run
+    /// per value, comma-separated, each in (0, 3] (at most the probe's radius).
+    #[arg(long, value_delimiter = ',', default_value = "0.5")]
     pub push_mm: Vec<f64>,
-    /// `paper` or `human`.
+    /// The wall: `paper` (NVTMM StVK 65 kPa) or `human` (the human aorta
+    /// scene's Neo-Hookean 0.7 MPa, which holds arterial pressure).
+    #[arg(long, default_value = "paper")]
     pub wall: String,
-    /// Steady luminal pressure (Pa).
+    /// Steady luminal pressure (Pa) the wall is inflated to before the
+    /// probe pushes; needs --wall human.
+    #[arg(long, default_value_t = 0.0)]
     pub pressure_pa: f64,
-    /// Push-in speed (mm/s); None: the probe placed at its depth at once.
+    /// Push the loop's probe in from where it touches the wall at this
+    /// speed (mm/s, in (0, 1000]), as the reference is pushed in, instead
+    /// of placing it at its depth on the first tick; the first tick and
+    /// the settle time then count from its arrival.
+    #[arg(long)]
     pub push_speed_mm_s: Option<f64>,
 }
 
