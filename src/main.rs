@@ -281,8 +281,8 @@ enum BenchCmd {
         /// With --tick: run the ticks as the service's wire thread does, on this CPU at SCHED_FIFO priority 80 with memory locked, one tick a period (the wire's `dt_s`) instead of back to back; where the OS refuses, the output says so.
         #[arg(long, value_name = "CPU")]
         rt: Option<usize>,
-        /// Time the coupled step of a wire inside a catheter instead: both of --nodes nodes (default 128) in a curved tube, the hubs moving in and out out of phase and rolling; per-step percentiles and each rod's Newton iterations (docs/CATHETER.md).
-        #[arg(long, conflicts_with = "tick")]
+        /// Time the coupled step of a wire inside a catheter instead: both of --nodes nodes (default 128) in a curved tube, the hubs moving in and out out of phase and rolling; per-step percentiles and each rod's Newton iterations (docs/CATHETER.md). With --tick: the whole tick with the pair in the branched arch (default config: rt-config/cannulate_left_subclavian.toml), both rods' wall loads on the reduced model.
+        #[arg(long)]
         coaxial: bool,
         /// Print JSON.
         #[arg(long)]
@@ -500,7 +500,19 @@ fn main() -> ExitCode {
                 coaxial,
                 json,
             } => {
-                if coaxial {
+                if coaxial && tick {
+                    cli::wire::bench_coaxial_tick_cmd(
+                        &config.unwrap_or_else(cli::wire::default_coaxial_config),
+                        &nvtmm::bench::coaxial_tick::CoaxialTickOptions {
+                            nodes: nodes.unwrap_or(128),
+                            ticks: steps,
+                            line_load,
+                            follow_wall,
+                            rt_cpu: rt,
+                        },
+                        json,
+                    )
+                } else if coaxial {
                     cli::wire::bench_coaxial_cmd(nodes.unwrap_or(128), steps, json)
                 } else if tick {
                     cli::wire::bench_wire_tick_cmd(

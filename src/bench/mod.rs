@@ -6,7 +6,8 @@
 //! ([`wire`], `nvtmm bench wire`), and the whole guidewire tick in the
 //! branched arch ([`wire_tick`], `nvtmm bench wire --tick`), and the
 //! coupled step of a wire inside a catheter ([`coaxial`], `nvtmm bench
-//! wire --coaxial`). The scripts in `tools/` call these commands.
+//! wire --coaxial`), and the whole tick with that pair in the branched
+//! arch ([`coaxial_tick`], `nvtmm bench wire --tick --coaxial`). The scripts in `tools/` call these commands.
 //!
 //! The *standard load* is what every timing here uses: the built-in arch with
 //! both ends fixed (`inlet`, `outlet_descending`) and a 0.15 N force pressing
@@ -15,6 +16,7 @@
 //! step), block IC(0)-preconditioned CG to 1e-6.
 
 pub mod coaxial;
+pub mod coaxial_tick;
 pub mod contact;
 pub mod extremes;
 pub mod reduced;

@@ -38,7 +38,7 @@ use std::time::Instant;
 
 /// The reduced model's capacity the benchmark runs at (the service picks
 /// 32 for r ≤ 32, which the guidewire scene's r = 32 is).
-const R: usize = 32;
+pub(super) const R: usize = 32;
 
 /// What `nvtmm bench wire --tick` measured (JSON keys are a scripting
 /// contract). Times in µs.
@@ -140,10 +140,11 @@ pub struct WireTickOptions {
 /// Undoes what `--rt` set up for the ticks: stops the keep-awake thread,
 /// unlocks memory.
 #[derive(Default)]
-struct RtGuard {
+pub(super) struct RtGuard {
     stop: std::sync::Arc<std::sync::atomic::AtomicBool>,
     awake: Option<std::thread::JoinHandle<()>>,
-    locked: bool,
+    /// Whether memory was locked (unlocked when the guard drops).
+    pub locked: bool,
 }
 
 impl Drop for RtGuard {
@@ -191,63 +192,16 @@ pub fn bench_wire_tick(config: &Path, o: &WireTickOptions) -> Result<WireTickBen
     if !(line_load.is_finite() && (0.0..=100.0).contains(&line_load)) {
         return Err(arg(format!("--line-load {line_load}: must be in [0, 100] N/m")));
     }
-    let p = prepare(&StartOptions {
-        config: ConfigSource::File(config.to_path_buf()),
-        seconds: None,
-        observer: crate::observe::Observe::none(),
-        record: None,
-        device: None,
-    })
-    .map_err(|e| arg(e.to_string()))?;
+    let TickScene {
+        p,
+        mut tick,
+        wall,
+        lumen,
+    } = tick_scene(config)?;
     let (Some(wp), Some(g)) = (&p.cfg.wire, &p.cfg.guidewire) else {
         return Err(arg(format!("{}: no [wire] and [guidewire] tables", config.display())));
     };
-    let mesh = &p.mesh;
-    let n = mesh.num_nodes();
-
-    // The haptic loop as the service builds it (running.rs).
-    let rows = basis_rows::<R>(&p.basis).map_err(|e| arg(e.to_string()))?;
-    let mut refresher = Refresher::new(mesh, &p.basis, &p.mass);
-    let zeros = vec![Vec3::zeros(); n];
-    let k0 = refresher.reduced_stiffness(p.model.as_ref(), &zeros);
-    let mut first =
-        crate::service::background::rest_model::<R>(rows, &k0, &p.dynamics, n).map_err(|e| arg(e.to_string()))?;
-    first.compliance = p.compliance.as_ref().map(|c| c.0.clone());
-    let wall = InnerWall::from_mesh(mesh, &g.wall_set).map_err(|e| arg(e.to_string()))?;
-    // As the service: with `load_wall` the wire's contact has the wall's
-    // compliance in series.
-    let wall_compliance = if g.load_wall {
-        Some(
-            wall.normal_compliance(&first.dynamics, first.compliance.as_deref())
-                .ok_or_else(|| arg("the reduced stiffness is singular".into()))?,
-        )
-    } else {
-        None
-    };
-    let index = std::sync::Arc::new(SurfaceIndex::new(mesh, &p.cfg.contact));
-    let origin = match &p.cfg.device.frame {
-        Some(f) => Vec3::from(f.offset_m),
-        None => Vec3::from(p.cfg.device.origin_m),
-    };
-    let w = &p.cfg.watchdog;
-    let sp = ServoParams {
-        dt: 1.0 / p.cfg.servo.rate_hz,
-        contact: p.cfg.contact,
-        device_origin: origin,
-        device_timeout_s: w.device_timeout_ms * 1e-3,
-        model_timeout_s: f64::INFINITY,
-        model_max_age_s: f64::INFINITY,
-        max_speed_m_s: w.max_speed_m_s,
-        max_reach_m: w.max_reach_m,
-        overrun_streak: w.overrun_streak,
-        ramp_down_s: w.ramp_down_ms * 1e-3,
-        ramp_in_s: w.ramp_in_s,
-        swap_blend_s: p.cfg.servo.swap_blend_ms * 1e-3,
-        command_timeout_s: w.command_timeout_ms * 1e-3,
-    };
-    let filter = PassivityFilter::new(&p.passivity).map_err(|e| arg(e.to_string()))?;
-    let mut tick = HapticTick::new(Servo::new(first, index, sp, 0.0), filter);
-    tick.prime();
+    let mut lumen = lumen;
 
     // The wire: `nodes` nodes holding the script's last insertion.
     let end_ins = g.script.last().map(|r| r[1]).unwrap_or(g.inserted_m).max(g.inserted_m);
@@ -262,10 +216,6 @@ pub fn bench_wire_tick(config: &Path, o: &WireTickOptions) -> Result<WireTickBen
     params
         .validate(Path::new("(bench wire --tick)"))
         .map_err(|e| arg(e.to_string()))?;
-    let mut lumen = wall.lumen().map_err(|e| arg(e.to_string()))?;
-    if let Some(c) = &wall_compliance {
-        lumen.set_compliance(c).map_err(|e| arg(e.to_string()))?;
-    }
     let axis = Vec3::from(g.axis);
     let mut wire =
         Wire::new(&params, Vec3::from(g.access_point_m), axis, g.inserted_m).map_err(|e| arg(e.to_string()))?;
@@ -310,26 +260,9 @@ pub fn bench_wire_tick(config: &Path, o: &WireTickOptions) -> Result<WireTickBen
     let r_w = 0.5 * params.diameter_m;
     // As the service's wire thread: pinned, SCHED_FIFO, memory locked, one
     // tick a period (back to back, a FIFO thread would also run into the
-    // kernel's RT throttling).
-    let mut grant = crate::rt::thread::RtGrant::default();
-    // Stops the keep-awake thread and unlocks memory however the loop ends
-    // (a failed step returns early).
-    let mut rt_guard = RtGuard::default();
-    if let Some(cpu) = rt_cpu {
-        let locked = crate::rt::thread::lock_memory();
-        rt_guard.locked = locked.is_ok();
-        grant = crate::rt::thread::setup_current(&crate::rt::thread::RtRequest {
-            fifo_priority: Some(RT_PRIORITY),
-            cpu: Some(cpu),
-            prefault_stack_bytes: 256 * 1024,
-        });
-        if let Err(e) = locked {
-            grant.refusals.push(format!("mlockall refused ({e})"));
-        }
-        // And its CPU kept awake, as the service's `loop.keep_cpu_awake`
-        // does for the loop's: a halted virtual CPU wakes late and cold.
-        rt_guard.awake = crate::rt::thread::spawn_keep_awake_noting(cpu, rt_guard.stop.clone(), &mut grant.refusals);
-    }
+    // kernel's RT throttling). The guard stops the keep-awake thread and
+    // unlocks memory however the loop ends (a failed step returns early).
+    let (grant, rt_guard) = rt_ticks(rt_cpu);
     let period_ns = (dt * 1e9).round() as i64;
     let mut next = crate::rt::clock::now_ns();
     for k in 0..cap {
@@ -471,4 +404,110 @@ pub fn bench_wire_tick(config: &Path, o: &WireTickOptions) -> Result<WireTickBen
         qp_us: Percentiles::of(&t_qp),
         lumen_us: Percentiles::of(&t_lumen),
     })
+}
+
+/// What both whole-tick benchmarks run on: the service's configuration
+/// prepared (scene, basis, keys), the haptic tick as the service builds it
+/// (`service::running`), and the inner wall with its lumen (with
+/// `guidewire.load_wall` the wall's compliance in series with the rods'
+/// contacts, as in the service).
+pub(super) struct TickScene {
+    /// The prepared configuration.
+    pub p: crate::service::setup::Prepared,
+    /// The haptic tick, primed.
+    pub tick: HapticTick<R>,
+    /// The inner wall the rods touch.
+    pub wall: InnerWall,
+    /// Its lumen.
+    pub lumen: crate::wire::TriangleLumen,
+}
+
+/// Prepares `config` (it must have `[wire]` and `[guidewire]`) for a
+/// whole-tick benchmark.
+pub(super) fn tick_scene(config: &Path) -> Result<TickScene, super::BenchError> {
+    let arg = super::BenchError::Arg;
+    let p = prepare(&StartOptions {
+        config: ConfigSource::File(config.to_path_buf()),
+        seconds: None,
+        observer: crate::observe::Observe::none(),
+        record: None,
+        device: None,
+    })
+    .map_err(|e| arg(e.to_string()))?;
+    let Some(g) = &p.cfg.guidewire else {
+        return Err(arg(format!("{}: no [wire] and [guidewire] tables", config.display())));
+    };
+    if p.cfg.wire.is_none() {
+        return Err(arg(format!("{}: no [wire] and [guidewire] tables", config.display())));
+    }
+    let mesh = &p.mesh;
+    let n = mesh.num_nodes();
+
+    // The haptic loop as the service builds it (running.rs).
+    let rows = basis_rows::<R>(&p.basis).map_err(|e| arg(e.to_string()))?;
+    let mut refresher = Refresher::new(mesh, &p.basis, &p.mass);
+    let zeros = vec![Vec3::zeros(); n];
+    let k0 = refresher.reduced_stiffness(p.model.as_ref(), &zeros);
+    let mut first =
+        crate::service::background::rest_model::<R>(rows, &k0, &p.dynamics, n).map_err(|e| arg(e.to_string()))?;
+    first.compliance = p.compliance.as_ref().map(|c| c.0.clone());
+    let wall = InnerWall::from_mesh(mesh, &g.wall_set).map_err(|e| arg(e.to_string()))?;
+    let mut lumen = wall.lumen().map_err(|e| arg(e.to_string()))?;
+    // As the service: with `load_wall` the rods' contact has the wall's
+    // compliance in series.
+    if g.load_wall {
+        let c = wall
+            .normal_compliance(&first.dynamics, first.compliance.as_deref())
+            .ok_or_else(|| arg("the reduced stiffness is singular".into()))?;
+        lumen.set_compliance(&c).map_err(|e| arg(e.to_string()))?;
+    }
+    let index = std::sync::Arc::new(SurfaceIndex::new(mesh, &p.cfg.contact));
+    let origin = match &p.cfg.device.frame {
+        Some(f) => Vec3::from(f.offset_m),
+        None => Vec3::from(p.cfg.device.origin_m),
+    };
+    let w = &p.cfg.watchdog;
+    let sp = ServoParams {
+        dt: 1.0 / p.cfg.servo.rate_hz,
+        contact: p.cfg.contact,
+        device_origin: origin,
+        device_timeout_s: w.device_timeout_ms * 1e-3,
+        model_timeout_s: f64::INFINITY,
+        model_max_age_s: f64::INFINITY,
+        max_speed_m_s: w.max_speed_m_s,
+        max_reach_m: w.max_reach_m,
+        overrun_streak: w.overrun_streak,
+        ramp_down_s: w.ramp_down_ms * 1e-3,
+        ramp_in_s: w.ramp_in_s,
+        swap_blend_s: p.cfg.servo.swap_blend_ms * 1e-3,
+        command_timeout_s: w.command_timeout_ms * 1e-3,
+    };
+    let filter = PassivityFilter::new(&p.passivity).map_err(|e| arg(e.to_string()))?;
+    let mut tick = HapticTick::new(Servo::new(first, index, sp, 0.0), filter);
+    tick.prime();
+    Ok(TickScene { p, tick, wall, lumen })
+}
+
+/// With `Some(cpu)`, sets the calling thread up as the service's rod
+/// thread (pinned to `cpu`, SCHED_FIFO [`RT_PRIORITY`], memory locked, the
+/// CPU kept awake by a `SCHED_IDLE` spinner, as `loop.keep_cpu_awake`
+/// does for the loop's: a halted virtual CPU wakes late and cold); what
+/// the OS granted, and the guard that undoes it when dropped.
+pub(super) fn rt_ticks(rt_cpu: Option<usize>) -> (crate::rt::thread::RtGrant, RtGuard) {
+    let mut grant = crate::rt::thread::RtGrant::default();
+    let mut rt_guard = RtGuard::default();
+    if let Some(cpu) = rt_cpu {
+        let locked = crate::rt::thread::lock_memory();
+        rt_guard.locked = locked.is_ok();
+        grant = crate::rt::thread::setup_current(&crate::rt::thread::RtRequest {
+            fifo_priority: Some(RT_PRIORITY),
+            cpu: Some(cpu),
+            prefault_stack_bytes: 256 * 1024,
+        });
+        if let Err(e) = locked {
+            grant.refusals.push(format!("mlockall refused ({e})"));
+        }
+        rt_guard.awake = crate::rt::thread::spawn_keep_awake_noting(cpu, rt_guard.stop.clone(), &mut grant.refusals);
+    }
+    (grant, rt_guard)
 }

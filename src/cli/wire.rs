@@ -1,5 +1,6 @@
 //! `nvtmm bench wire …`: the guidewire's step time against its node count.
 
+use nvtmm::bench::coaxial_tick::{bench_coaxial_tick, CoaxialTickOptions};
 use nvtmm::bench::wire::bench_wire;
 use nvtmm::bench::wire_tick::{bench_wire_tick, WireTickOptions};
 use std::path::{Path, PathBuf};
@@ -7,13 +8,23 @@ use std::path::{Path, PathBuf};
 /// `rt-config/guidewire.toml` in the working directory if it is there,
 /// else the one in the source tree this binary was built from.
 pub fn default_guidewire_config() -> PathBuf {
-    let local = Path::new("rt-config").join("guidewire.toml");
+    shipped_config("guidewire.toml")
+}
+
+/// `rt-config/cannulate_left_subclavian.toml` (a wire inside a catheter),
+/// found as [`default_guidewire_config`] finds its file.
+pub fn default_coaxial_config() -> PathBuf {
+    shipped_config("cannulate_left_subclavian.toml")
+}
+
+/// `rt-config/<name>` in the working directory if it is there, else the
+/// one in the source tree this binary was built from.
+fn shipped_config(name: &str) -> PathBuf {
+    let local = Path::new("rt-config").join(name);
     if local.is_file() {
         return local;
     }
-    let built = Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("rt-config")
-        .join("guidewire.toml");
+    let built = Path::new(env!("CARGO_MANIFEST_DIR")).join("rt-config").join(name);
     if built.is_file() {
         built
     } else {
@@ -122,28 +133,8 @@ pub fn bench_wire_tick_cmd(config: &Path, o: &WireTickOptions, json: bool) -> Re
         b.resets,
         b.max_penetration_mm
     );
-    if b.paced {
-        println!(
-            "ticks one a period on CPU {}, {}, memory {}{}",
-            b.rt.cpu.map_or("(not pinned)".to_string(), |c| c.to_string()),
-            if b.rt.fifo {
-                format!("SCHED_FIFO {}", b.rt.priority)
-            } else {
-                "ordinary policy".to_string()
-            },
-            if b.memory_locked { "locked" } else { "not locked" },
-            if b.rt.refusals.is_empty() {
-                String::new()
-            } else {
-                format!(" (refused: {})", b.rt.refusals.join("; "))
-            }
-        );
-    } else {
-        println!("ticks back to back in an ordinary thread (--rt CPU: as the service's wire thread)");
-    }
-    println!("| part | p50 µs | p99 µs | p99.9 µs | max µs |");
-    println!("|:---|---:|---:|---:|---:|");
-    for (name, p) in [
+    print_paced(b.paced, &b.rt, b.memory_locked);
+    print_parts(&[
         ("whole tick", &b.tick_us),
         ("wire step", &b.wire_us),
         ("wall loads → reduced model", &b.loads_us),
@@ -153,11 +144,116 @@ pub fn bench_wire_tick_cmd(config: &Path, o: &WireTickOptions, json: bool) -> Re
             "lumen rebuild (60 Hz ticks only; the publisher's thread, not in the whole tick)",
             &b.lumen_us,
         ),
-    ] {
+    ]);
+    Ok(())
+}
+
+/// `nvtmm bench wire --tick --coaxial [--config C] [--nodes N] [--steps S]
+/// [--line-load F] [--follow-wall] [--rt CPU] [--json]`: the whole tick
+/// with a wire inside a catheter in the branched arch, and its parts.
+pub fn bench_coaxial_tick_cmd(config: &Path, o: &CoaxialTickOptions, json: bool) -> Result<()> {
+    let b = bench_coaxial_tick(config, o)?;
+    if json {
+        println!("{}", serde_json::to_string_pretty(&b)?);
+        return Ok(());
+    }
+    println!(
+        "wire {} nodes ({:.2} mm segments, {:.1} mm inserted) inside catheter {} nodes ({:.2} mm, {:.1} mm), line load {} N/m: \
+         wall contacts {:.1} mean, {} max; the wire on the catheter {:.1} mean; {} point loads at most; QP solved on {} of {} ticks; \
+         {} lumen rebuilds ({})",
+        b.wire_nodes,
+        b.segment_mm[0],
+        b.inserted_mm[0],
+        b.catheter_nodes,
+        b.segment_mm[1],
+        b.inserted_mm[1],
+        b.line_load_n_per_m,
+        b.contacts_mean,
+        b.contacts_max,
+        b.sheath_contacts_mean,
+        b.loads_max,
+        b.qp_solved,
+        b.ticks,
+        b.lumen_updates,
+        if b.follow_wall { "deformed wall" } else { "rest wall" },
+    );
+    println!(
+        "Newton iterations ({} before the residual's extra ones): wire {:.2} mean, {} most; catheter {:.2} mean, {} most; \
+         evaluations {:.1} mean, {} most; {} of {} steps ended off equilibrium, {} stopped at the time limit; \
+         resets {} in the set-up, {} timed; deepest {:.3} mm into the wall, {:.3} mm into the catheter",
+        b.iterations_max,
+        b.iterations_mean[0],
+        b.iterations_most[0],
+        b.iterations_mean[1],
+        b.iterations_most[1],
+        b.evaluations_mean,
+        b.evaluations_max,
+        b.unsettled_steps,
+        b.ticks,
+        b.time_limited,
+        b.resets_setup,
+        b.resets,
+        b.max_penetration_mm,
+        b.max_sheath_penetration_mm,
+    );
+    println!(
+        "allocations in the timed ticks: {} from the RT pool in the rods' part, {} in the haptic tick (the QP's), {} system calls{}",
+        b.pool_allocations_rods,
+        b.pool_allocations_haptic,
+        b.system_allocations,
+        if b.allocator_installed {
+            ""
+        } else {
+            " (the RT allocator is not installed: not counted)"
+        }
+    );
+    print_paced(b.paced, &b.rt, b.memory_locked);
+    print_parts(&[
+        ("whole tick", &b.tick_us),
+        ("coupled step (wire, then catheter)", &b.pair_us),
+        ("wall loads → reduced model (both rods)", &b.loads_us),
+        ("haptic tick (contact, reduced step, QP)", &b.haptic_us),
+        ("  of which the passivity filter", &b.qp_us),
+        (
+            "lumen rebuild (60 Hz ticks only; the publisher's thread, not in the whole tick)",
+            &b.lumen_us,
+        ),
+    ]);
+    Ok(())
+}
+
+/// How the ticks ran: paced on a CPU with what the OS granted, or back to
+/// back.
+fn print_paced(paced: bool, rt: &nvtmm::rt::thread::RtGrant, memory_locked: bool) {
+    if paced {
+        println!(
+            "ticks one a period on CPU {}, {}, memory {}{}",
+            rt.cpu.map_or("(not pinned)".to_string(), |c| c.to_string()),
+            if rt.fifo {
+                format!("SCHED_FIFO {}", rt.priority)
+            } else {
+                "ordinary policy".to_string()
+            },
+            if memory_locked { "locked" } else { "not locked" },
+            if rt.refusals.is_empty() {
+                String::new()
+            } else {
+                format!(" (refused: {})", rt.refusals.join("; "))
+            }
+        );
+    } else {
+        println!("ticks back to back in an ordinary thread (--rt CPU: as the service's wire thread)");
+    }
+}
+
+/// The parts' percentiles as a Markdown table.
+fn print_parts(parts: &[(&str, &nvtmm::rt::stats::Percentiles)]) {
+    println!("| part | p50 µs | p99 µs | p99.9 µs | max µs |");
+    println!("|:---|---:|---:|---:|---:|");
+    for (name, p) in parts {
         println!(
             "| {name} | {:.1} | {:.1} | {:.1} | {:.1} |",
             p.p50, p.p99, p.p999, p.max
         );
     }
-    Ok(())
 }

@@ -9,5 +9,6 @@
 pub mod alloc;
 pub mod check;
 pub mod clock;
+pub mod reserved;
 pub mod stats;
 pub mod thread;

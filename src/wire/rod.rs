@@ -18,6 +18,7 @@ use super::lumen::{perpendicular, Lumen, ProbeCache, WallHit, WallOverlap, WallO
 use super::WireParams;
 use crate::config::ConfigError;
 use crate::math::{Mat3, Vec3};
+use crate::rt::reserved::Reserved;
 use std::path::Path;
 
 /// Half-bandwidth of the Hessian: a node's bend/twist stencil spans
@@ -124,10 +125,10 @@ pub struct StepReport {
 #[derive(Debug, Clone)]
 struct Coax {
     /// The sheath's centreline, its ghost node first (empty: no sheath).
-    sheath: Vec<Vec3>,
+    sheath: Reserved<Vec3>,
     /// Its nodes' velocities (m/s): friction's slip is measured against
     /// the sheath's motion.
-    sheath_v: Vec<Vec3>,
+    sheath_v: Reserved<Vec3>,
     /// Nodes whose arc length from the hub is at most this are inside the
     /// sheath (m): the sheath's inserted length.
     sheath_reach: f64,
@@ -148,10 +149,10 @@ struct Coax {
     /// node comes in, and by [`FUNNEL_CLOSING_M_PER_S`] at least.
     funnel: Vec<f64>,
     /// The sheath contacts of the last step.
-    sheath_contacts: Vec<WireContact>,
+    sheath_contacts: Reserved<WireContact>,
     /// Dead point loads for the next step (point, force), spread onto the
     /// nearest segment's two nodes when the step begins.
-    point_loads: Vec<(Vec3, Vec3)>,
+    point_loads: Reserved<(Vec3, Vec3)>,
     /// Per node: the dead load of this step (N).
     node_load: Vec<Vec3>,
     /// Stiffness (N/m) with which each point load resists this rod's
@@ -230,16 +231,16 @@ pub const MAX_SHEATH_NODES: usize = 4096;
 impl Coax {
     fn new(cap: usize) -> Coax {
         Coax {
-            sheath: Vec::with_capacity(MAX_SHEATH_NODES),
-            sheath_v: Vec::with_capacity(MAX_SHEATH_NODES),
+            sheath: Reserved::with_capacity(MAX_SHEATH_NODES),
+            sheath_v: Reserved::with_capacity(MAX_SHEATH_NODES),
             sheath_reach: 0.0,
             sheath_radius: 0.0,
             sheath_mu: 0.0,
             sheath_seg: vec![0; cap],
             inside: vec![false; cap],
             funnel: vec![0.0; cap],
-            sheath_contacts: Vec::with_capacity(cap),
-            point_loads: Vec::with_capacity(MAX_POINT_LOADS),
+            sheath_contacts: Reserved::with_capacity(cap),
+            point_loads: Reserved::with_capacity(MAX_POINT_LOADS),
             node_load: vec![Vec3::zeros(); cap],
             load_stiffness: 0.0,
             node_spring: vec![Mat3::zeros(); cap],
@@ -425,7 +426,7 @@ pub struct Wire {
     /// the first step and after a restore): whether the next push slides.
     last_residual: f64,
     eval_pen: f64,
-    contacts: Vec<WireContact>,
+    contacts: Reserved<WireContact>,
     /// Per node: what the lumen keeps near it between probes (moves with
     /// the node when nodes enter or leave at the hub).
     probe_cache: Vec<ProbeCache>,
@@ -743,7 +744,7 @@ impl Wire {
             last_axial: 0.0,
             last_residual: f64::INFINITY,
             eval_pen: 0.0,
-            contacts: Vec::with_capacity(cap),
+            contacts: Reserved::with_capacity(cap),
             probe_cache: vec![ProbeCache::default(); cap],
             hits: vec![None; cap],
             wall_force: vec![Vec3::zeros(); cap],
