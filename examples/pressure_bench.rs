@@ -16,6 +16,16 @@
 //! reduced step (R = 32, with contact) with and without the heartbeat's
 //! modal load.
 //!
+//! `cargo run --release --example pressure_bench -- give [SCENE]` — the
+//! wall's static normal compliance under a point load (n·K⁻¹n at inner-wall
+//! nodes of the aorta at least 15 mm from every fixed node) in the
+//! guidewire scene (`rt-config/scenes/guidewire_arch_living.toml`), with
+//! its pressure (the wall inflated to the mean as the service starts it)
+//! and without (the image at rest), and the paper's 65 kPa wall at rest
+//! (`rt-config/scenes/guidewire_arch.toml`); the give under 0.3 N is the
+//! compliance times 0.3 N (docs/PRESSURE.md, "The wall's give under the
+//! wire").
+//!
 //! `cargo run --release --example pressure_bench -- step [NODES] [SECONDS]` —
 //! the service scene's full solve (NVTMM + Prony, 10 ms linearized steps,
 //! Cholesky-preconditioned CG) on a 1 MPa wall with and without a 12 kPa
@@ -290,6 +300,139 @@ fn tick() {
     );
 }
 
+/// n·K⁻¹n at `nodes` (unit normals `normals`) for the tangent `k` with the
+/// `fixed` nodes held.
+fn normal_compliance(
+    mesh: &nvtmm::mesh::TetMesh,
+    k: &mut nvtmm::model::BlockTangent,
+    fixed: &[u32],
+    nodes: &[u32],
+    normals: &[Vec3],
+) -> Vec<f64> {
+    use nvtmm::solver::linear::CholeskySolver;
+    use nvtmm::solver::statics::project_dofs;
+    let n = mesh.num_nodes();
+    project_dofs(k, &mask_of_fixed(n, fixed));
+    let mut chol = CholeskySolver::new(k).expect("symbolic");
+    chol.factor(k).expect("the tangent is positive definite");
+    let mut out = Vec::with_capacity(nodes.len());
+    for (chunk, nrm) in nodes.chunks(48).zip(normals.chunks(48)) {
+        let mut b = vec![0.0; 3 * n * chunk.len()];
+        for (c, (&i, v)) in chunk.iter().zip(nrm).enumerate() {
+            for d in 0..3 {
+                b[c * 3 * n + 3 * i as usize + d] = v[d];
+            }
+        }
+        chol.solve_factored_columns(&mut b).expect("solve");
+        for (c, (&i, v)) in chunk.iter().zip(nrm).enumerate() {
+            let x = &b[c * 3 * n + 3 * i as usize..c * 3 * n + 3 * i as usize + 3];
+            out.push(x[0] * v[0] + x[1] * v[1] + x[2] * v[2]);
+        }
+    }
+    out
+}
+
+fn give(scene: Option<&str>) {
+    use nvtmm::scene::Scene;
+    use nvtmm::wire::coupling::InnerWall;
+    let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
+    let living = scene
+        .map(std::path::PathBuf::from)
+        .unwrap_or_else(|| root.join("rt-config/scenes/guidewire_arch_living.toml"));
+    let paper = root.join("rt-config/scenes/guidewire_arch.toml");
+    let on = Scene::load(&living).expect("scene");
+    let mut off = on.clone();
+    off.pressure = None;
+    // The sample: inner-wall nodes of the aorta, 15 mm or more from every
+    // fixed node, on the image; normals into the lumen there (the
+    // reference keeps the image's node order).
+    let image = off.build().expect("scene without pressure");
+    let wall = InnerWall::from_mesh(&image.mesh, "inner_wall").expect("inner_wall");
+    let aorta: std::collections::HashSet<u32> = image
+        .mesh
+        .node_set("segment_aorta")
+        .expect("segment_aorta")
+        .iter()
+        .copied()
+        .collect();
+    let x = image.mesh.rest();
+    let normals_all = wall.vertex_normals();
+    let (mut nodes, mut normals) = (Vec::new(), Vec::new());
+    for (&i, nrm) in wall.mesh_nodes().iter().zip(&normals_all) {
+        let far = image
+            .fixed
+            .iter()
+            .all(|&f| (x[f as usize] - x[i as usize]).norm() >= 0.015);
+        if aorta.contains(&i) && far {
+            nodes.push(i);
+            // Pushed outward, against the lumen normal.
+            normals.push(-nrm);
+        }
+    }
+    println!(
+        "{} inner-wall nodes of the aorta at least 15 mm from the fixed openings (of {} on the inner wall)",
+        nodes.len(),
+        wall.mesh_nodes().len()
+    );
+    let report = |name: &str, c: &[f64]| {
+        let mut s = c.to_vec();
+        s.sort_by(f64::total_cmp);
+        let q = |f: f64| s[((s.len() - 1) as f64 * f).round() as usize];
+        println!(
+            "| {name} | {:.2} | {:.2} | {:.2} | {:.2} | {:.2} | {:.2} |",
+            q(0.05) * 1e3,
+            q(0.5) * 1e3,
+            q(0.95) * 1e3,
+            s[s.len() - 1] * 1e3,
+            q(0.5) * 0.3 * 1e3,
+            q(0.95) * 0.3 * 1e3
+        );
+        s
+    };
+    println!("| wall | c p05 (mm/N) | p50 | p95 | max | give at 0.3 N p50 (mm) | p95 |");
+    println!("|---|---:|---:|---:|---:|---:|---:|");
+    let rest_compliance = |scene: &Scene| {
+        let b = scene.build().expect("scene");
+        let mut k = nvtmm::model::BlockTangent::zeros(&b.mesh);
+        let zeros = vec![Vec3::zeros(); b.mesh.num_nodes()];
+        b.model.add_stiffness(&zeros, &mut k);
+        normal_compliance(&b.mesh, &mut k, &b.fixed, &nodes, &normals)
+    };
+    let paper_scene = Scene::load(&paper).expect("paper scene");
+    report("65 kPa (paper), no pressure", &rest_compliance(&paper_scene));
+    let c_off = rest_compliance(&off);
+    report(
+        &format!("{:.2} MPa, no pressure", off.material.youngs_pa * 1e-6),
+        &c_off,
+    );
+    let t0 = Instant::now();
+    let mut b = on.build().expect("scene with pressure");
+    let mut load = b.loads.pressure.take().expect("the scene has a [pressure]");
+    let inflated = on.inflate(&mut b, &mut load, on.integrator.dt).expect("inflation");
+    let mut k = inflated.tangent.clone();
+    let c_on = normal_compliance(&b.mesh, &mut k, &b.fixed, &nodes, &normals);
+    report(
+        &format!(
+            "{:.2} MPa, {:.1} kPa",
+            on.material.youngs_pa * 1e-6,
+            load.schedule.mean_pa * 1e-3
+        ),
+        &c_on,
+    );
+    let ratio: Vec<f64> = {
+        let mut r: Vec<f64> = c_off.iter().zip(&c_on).map(|(a, b)| b / a).collect();
+        r.sort_by(f64::total_cmp);
+        r
+    };
+    println!(
+        "(sorted separately; per node, pressure on / off: p50 {:.2}; inflation by up to {:.2} mm, {} Newton iterations; {:.1} s with the build)",
+        ratio[ratio.len() / 2],
+        inflated.max_u_m * 1e3,
+        inflated.newton_iters,
+        t0.elapsed().as_secs_f64()
+    );
+}
+
 fn main() {
     let args: Vec<String> = std::env::args().skip(1).collect();
     let num = |i: usize, d: f64| args.get(i).and_then(|s| s.parse().ok()).unwrap_or(d);
@@ -298,6 +441,7 @@ fn main() {
         Some("unload") => unload(num(1, 5832.0) as usize),
         Some("step") => step(num(1, 5832.0) as usize, num(2, 5.0)),
         Some("tick") => tick(),
-        _ => eprintln!("usage: pressure_bench newton | unload [NODES] | step [NODES] [SECONDS] | tick"),
+        Some("give") => give(args.get(1).map(String::as_str)),
+        _ => eprintln!("usage: pressure_bench newton | unload [NODES] | step [NODES] [SECONDS] | tick | give [SCENE]"),
     }
 }

@@ -4,6 +4,7 @@
 
 use super::*;
 use crate::model::factory::build_model;
+use crate::model::BlockTangent;
 use crate::solver::pressure::LuminalPressure;
 
 /// What [`Scene::build`] produces.
@@ -43,6 +44,30 @@ pub struct UnloadBuild {
     pub max_error_m: f64,
     /// Why a computed reference could not be cached (it is still used).
     pub cache_error: Option<String>,
+    /// The mesh's positions as given (the image), in the reference's node
+    /// order.
+    pub image: Vec<Vec3>,
+}
+
+/// The wall in static equilibrium at the scene's mean pressure
+/// ([`Scene::inflate`]): where the haptic service starts when the scene has
+/// a `[pressure]`, so that the instruments meet the inflated lumen (the
+/// image, with `unload_reference`) and the wall's compliance under them is
+/// the pressurized wall's from the first tick (docs/PRESSURE.md, "Pressure
+/// in the service").
+#[derive(Debug, Clone)]
+pub struct Inflated {
+    /// Displacement from the mesh's rest positions (m).
+    pub u: Vec<Vec3>,
+    /// The full model's tangent there with the pressure's load stiffness
+    /// (its symmetric part), as the next step of length `dt` assembles it.
+    pub tangent: BlockTangent,
+    /// Largest displacement of the inflation (m).
+    pub max_u_m: f64,
+    /// Newton iterations of the static solve.
+    pub newton_iters: usize,
+    /// Wall time of the static solve (s).
+    pub solve_s: f64,
 }
 
 /// The wall of `[mesh] vessel` and where it came from.
@@ -375,7 +400,8 @@ impl Scene {
 
         let mut unloaded = None;
         if let Some(p) = self.pressure.as_ref().filter(|p| p.unload_reference) {
-            let (reference, build) = self.zero_pressure_mesh(&mesh, &fixed, p)?;
+            let (reference, mut build) = self.zero_pressure_mesh(&mesh, &fixed, p)?;
+            build.image = mesh.rest().to_vec();
             mesh = reference;
             unloaded = Some(build);
         }
@@ -487,6 +513,7 @@ impl Scene {
                             iters: 0,
                             max_error_m: 0.0,
                             cache_error: None,
+                            image: Vec::new(),
                         },
                     ));
                 }
@@ -508,7 +535,64 @@ impl Scene {
             iters: out.iters,
             max_error_m: out.history.last().copied().unwrap_or(0.0),
             cache_error,
+            image: Vec::new(),
         };
         Ok((out.mesh, build))
+    }
+
+    /// Inflates the wall of `built` statically to the mean of `load` and
+    /// relaxes the model's viscoelastic history there, ready for implicit
+    /// steps of length `dt`. The equilibrium is that of the relaxed modulus
+    /// (1 − Σα_i) E, where a steady pressure leaves a viscoelastic wall (the
+    /// zero-pressure reference is computed for the same modulus, so with
+    /// `unload_reference` the inflated wall is the image, and the static
+    /// solve starts from it); the history is then set to its steady state
+    /// at that displacement, γ_i = α_i S, so that a full solve started there
+    /// is in equilibrium. The load's ramp is dropped: the pressure is on
+    /// from the start. An error names `pressure.mean_pa`: a pressure the
+    /// material cannot hold.
+    pub fn inflate(&self, built: &mut Built, load: &mut LuminalPressure, dt: f64) -> Result<Inflated, SceneError> {
+        use crate::solver::statics::{mask_of_fixed, solve_pressurized, StaticParams};
+        let t0 = std::time::Instant::now();
+        let mean = load.schedule.mean_pa;
+        let mut relaxed = self.material();
+        relaxed.youngs_pa *= 1.0 - self.prony.iter().map(|t| t.alpha).sum::<f64>();
+        let elastic = build_model(self.model, &built.mesh, &relaxed, self.material.law, &[]);
+        let n = built.mesh.num_nodes();
+        let mask = mask_of_fixed(n, &built.fixed);
+        // From the image when there is one (within the reference's
+        // tolerance of the equilibrium), else from rest in increments.
+        let image = built.unloaded.as_ref().map(|b| b.image.as_slice()).unwrap_or(&[]);
+        let mut u: Vec<Vec3> = if image.len() == n {
+            image.iter().zip(built.mesh.rest()).map(|(x, x0)| x - x0).collect()
+        } else {
+            vec![Vec3::zeros(); n]
+        };
+        let params = StaticParams {
+            load_steps: if image.len() == n { 1 } else { 8 },
+            ..StaticParams::default()
+        };
+        let report =
+            solve_pressurized(&built.mesh, elastic.as_ref(), load, mean, &mask, &params, &mut u).map_err(|e| {
+                self.err(
+                    "pressure.mean_pa",
+                    format!("the wall cannot be inflated to {mean} Pa (a pressure the material cannot hold): {e}"),
+                )
+            })?;
+        // A step as long as the ages makes γ_i = α_i S(u) (A_i → α_i, B_i → 0).
+        built.model.begin_step(1e12);
+        built.model.end_step(&u);
+        built.model.begin_step(dt);
+        let mut tangent = BlockTangent::zeros(&built.mesh);
+        built.model.add_stiffness(&u, &mut tangent);
+        load.add_stiffness(mean, &u, &mut tangent);
+        load.schedule.ramp_s = 0.0;
+        Ok(Inflated {
+            max_u_m: u.iter().map(|v| v.norm()).fold(0.0, f64::max),
+            u,
+            tangent,
+            newton_iters: report.total_iters(),
+            solve_s: t0.elapsed().as_secs_f64(),
+        })
     }
 }

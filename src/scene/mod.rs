@@ -29,7 +29,7 @@ use std::path::{Path, PathBuf};
 mod build;
 mod validate;
 
-pub use build::{ArchBuild, Built, UnloadBuild};
+pub use build::{ArchBuild, Built, Inflated, UnloadBuild};
 
 /// A scene error: the same type as every configuration error (the file,
 /// the dotted key and what is allowed).

@@ -87,6 +87,9 @@ pub struct BackgroundPressure {
     pub t_s: f64,
     /// Work memory: the pressure force per pascal at ū.
     unit: Vec<Vec3>,
+    /// The displacement the full solve starts from (the wall inflated to
+    /// the mean; None: rest), taken by [`run`].
+    start: Option<Vec<Vec3>>,
 }
 
 impl BackgroundPressure {
@@ -99,7 +102,15 @@ impl BackgroundPressure {
             waveform,
             t_s: 0.0,
             unit: vec![Vec3::zeros(); n],
+            start: None,
         }
+    }
+
+    /// The full solve starts from displacement `u` (the wall in equilibrium
+    /// at the mean pressure, its ramp dropped) instead of rest.
+    pub fn starting_at(mut self, u: Option<Vec<Vec3>>) -> BackgroundPressure {
+        self.start = u;
+        self
     }
 
     /// The loop's modal pulse for a model linearized at `u`, once the ramp is
@@ -492,11 +503,32 @@ pub fn rest_model<const R: usize>(
     }))
 }
 
+/// The loop's first model with a pressure: linearized at the inflated wall
+/// (offset ū = its displacement, K_r from its tangent with the load
+/// stiffness), and its Φᵀ M ū.
+pub fn inflated_model<const R: usize>(
+    rows: BasisRows<R>,
+    refresher: &mut Refresher,
+    inflated: &crate::scene::Inflated,
+    params: &DynamicsParams,
+) -> Result<(Box<LoopModel<R>>, SVector<f64, R>), crate::reduced::ReducedError> {
+    let kr = refresher.project_tangent(&inflated.tangent);
+    let mut model = rest_model::<R>(rows, &kr, params, inflated.u.len())?;
+    model.offset = Arc::new(inflated.u.clone());
+    let r = refresher.len();
+    Ok((model, to_s::<R>(&refresher.project_mass(&inflated.u).as_slice()[..r])))
+}
+
 /// Runs the background loop until `io.stop` is set. Returns its statistics.
 pub fn run<const R: usize>(mut bg: Background<R>, mut io: BackgroundIo<R>) -> BackgroundStats {
     let mut stats = BackgroundStats::default();
     let n = bg.refresher.phi().nrows() / 3;
     let mut state = TissueState::at_rest(n);
+    if let Some(u) = bg.pressure.as_mut().and_then(|p| p.start.take()) {
+        if u.len() == n {
+            state.u = u;
+        }
+    }
     let mut sum = vec![Vec3::zeros(); n];
     let mut touched: Vec<u32> = Vec::new();
     let mut fbar = vec![Vec3::zeros(); n];

@@ -360,13 +360,22 @@ pub(super) fn start_with<const R: usize>(p: Prepared) -> Result<Running<R>, Serv
         max_static,
         compliance,
         pressure,
+        inflated,
     } = p;
     let n = mesh.num_nodes();
     let rows = basis_rows::<R>(&basis)?;
     let mut refresher = Refresher::new(&mesh, &basis, &mass);
-    let zeros = vec![Vec3::zeros(); n];
-    let k0 = refresher.reduced_stiffness(model.as_ref(), &zeros);
-    let mut first = background::rest_model::<R>(rows.clone(), &k0, &dynamics, n)?;
+    // The first model: at rest, or with a pressure at the inflated wall.
+    let (mut first, first_qbar) = match &inflated {
+        Some(s) => background::inflated_model::<R>(rows.clone(), &mut refresher, s, &dynamics)?,
+        None => {
+            let k0 = refresher.reduced_stiffness(model.as_ref(), &vec![Vec3::zeros(); n]);
+            (
+                background::rest_model::<R>(rows.clone(), &k0, &dynamics, n)?,
+                SVector::zeros(),
+            )
+        }
+    };
     first.compliance = compliance.as_ref().map(|c| c.0.clone());
     let index = Arc::new(SurfaceIndex::new(&mesh, &cfg.contact));
     let period = (1e9 / cfg.servo.rate_hz).round() as Nanos;
@@ -463,11 +472,12 @@ pub(super) fn start_with<const R: usize>(p: Prepared) -> Result<Running<R>, Serv
             refresher,
             rows: rows.clone(),
             dynamics,
-            last_sent: (first.offset.clone(), SVector::zeros(), 0),
+            last_sent: (first.offset.clone(), first_qbar, 0),
             dt_max: cfg.background.dt_max,
             basis_policy,
             compliance: first.compliance.clone(),
-            pressure: pressure.map(background::BackgroundPressure::new),
+            pressure: pressure
+                .map(|p| background::BackgroundPressure::new(p).starting_at(inflated.as_ref().map(|s| s.u.clone()))),
         };
         let bg_cpu = cpu(cfg.background.cpu);
         // The basis thread, when the basis refresh is on.

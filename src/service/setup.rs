@@ -13,7 +13,7 @@ use crate::model::BlockTangent;
 use crate::reduced::cache::{load_or_compute, BasisRequest, CacheStatus};
 use crate::reduced::compliance::{ComplianceParams, ComplianceStats, LocalCompliance};
 use crate::reduced::{BasisParams, DynamicsParams, ModalBasis};
-use crate::scene::Scene;
+use crate::scene::{Inflated, Scene};
 use std::path::PathBuf;
 use std::sync::Arc;
 
@@ -56,6 +56,9 @@ pub struct Prepared {
     pub compliance: Option<(Arc<LocalCompliance>, ComplianceParams, ComplianceStats)>,
     /// The scene's luminal pressure (None: off), for the background solve.
     pub pressure: Option<crate::solver::pressure::LuminalPressure>,
+    /// With a pressure: the wall inflated to its mean, where the service
+    /// starts (None: at rest; docs/PRESSURE.md "Pressure in the service").
+    pub inflated: Option<Inflated>,
 }
 
 /// Loads the configuration and the scene, computes (or loads) the basis and
@@ -73,8 +76,10 @@ pub fn prepare(opts: &StartOptions) -> Result<Prepared, ServiceError> {
         scene: cfg.scene.clone(),
         source: e,
     })?;
+    let t_build = std::time::Instant::now();
     let mut built = scene.build()?;
-    let pressure = built.loads.pressure.take();
+    let build_s = t_build.elapsed().as_secs_f64();
+    let mut pressure = built.loads.pressure.take();
     let red = scene.reduced.clone().ok_or_else(|| {
         crate::config::Checker::new(&scene_path).err(
             "reduced",
@@ -124,15 +129,50 @@ pub fn prepare(opts: &StartOptions) -> Result<Prepared, ServiceError> {
         alpha: red.alpha,
         beta: red.beta,
     };
+    let inflated = match pressure.as_mut() {
+        Some(load) => {
+            if let Some(u) = &built.unloaded {
+                opts.observer.message(&if u.cache_hit {
+                    format!("nvtmm run: zero-pressure reference read from {}", u.path.display())
+                } else {
+                    format!(
+                        "nvtmm run: zero-pressure reference computed ({} iterations, {:.3} mm from the image; scene built in {:.1} s), cached in {}",
+                        u.iters,
+                        u.max_error_m * 1e3,
+                        build_s,
+                        u.path.display()
+                    )
+                });
+            }
+            opts.observer.message(&format!(
+                "nvtmm run: inflating the wall to {:.0} Pa...",
+                load.schedule.mean_pa
+            ));
+            let s = scene.inflate(&mut built, load, cfg.background.dt)?;
+            opts.observer.message(&format!(
+                "nvtmm run: inflated by up to {:.2} mm ({} Newton iterations, {:.1} s)",
+                s.max_u_m * 1e3,
+                s.newton_iters,
+                s.solve_s
+            ));
+            Some(s)
+        }
+        None => None,
+    };
     let compliance = match scene.compliance_params() {
         Some(cp) => {
             opts.observer
                 .message("nvtmm run: residual compliance for contact anywhere...");
-            let mut k = BlockTangent::zeros(&built.mesh);
-            let zeros = vec![Vec3::zeros(); built.mesh.num_nodes()];
-            built.model.add_stiffness(&zeros, &mut k);
-            let (table, stats) =
-                LocalCompliance::compute(&built.mesh, &k, &basis, &cp).map_err(ServiceError::Solver)?;
+            let (table, stats) = match &inflated {
+                Some(s) => LocalCompliance::compute(&built.mesh, &s.tangent, &basis, &cp),
+                None => {
+                    let mut k = BlockTangent::zeros(&built.mesh);
+                    let zeros = vec![Vec3::zeros(); built.mesh.num_nodes()];
+                    built.model.add_stiffness(&zeros, &mut k);
+                    LocalCompliance::compute(&built.mesh, &k, &basis, &cp)
+                }
+            }
+            .map_err(ServiceError::Solver)?;
             Some((Arc::new(table), cp, stats))
         }
         None => None,
@@ -165,6 +205,7 @@ pub fn prepare(opts: &StartOptions) -> Result<Prepared, ServiceError> {
         scene,
         cfg,
         pressure,
+        inflated,
     })
 }
 
