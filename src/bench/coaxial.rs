@@ -14,12 +14,14 @@
 //! every step solves a changing problem with contacts between the wire and
 //! the catheter and between both and the wall. Each coupled step is one
 //! block Gauss–Seidel pass (the wire's implicit step, then the catheter's:
-//! docs/CATHETER.md); the bench reports each rod's Newton iterations and
-//! evaluations of its potential.
+//! docs/CATHETER.md), coupled as the service couples the pair, with the
+//! stabilising spring at [`LOAD_STIFFNESS_SHARE`] of the wire's penalty;
+//! the bench reports each rod's Newton iterations and evaluations of its
+//! potential.
 
 use crate::math::Vec3;
 use crate::wire::catheter::{catheter_params, TipShape};
-use crate::wire::coaxial::Coaxial;
+use crate::wire::coaxial::{Coaxial, LOAD_STIFFNESS_SHARE};
 use crate::wire::{CurvedTube, CurvedTubeShape, WireParams};
 use std::time::Instant;
 
@@ -100,6 +102,10 @@ pub fn bench_coaxial(nodes: usize, steps: usize) -> Result<CoaxialBench, super::
         ..WireParams::default()
     };
     let mut p = Coaxial::new(&w, &c, Vec3::zeros(), Vec3::x(), 0.03, 0.01).map_err(|e| arg(e.to_string()))?;
+    // Coupled as the service couples the pair: without the stabilising
+    // spring, the hubs' roll set the pair swinging and every step ended
+    // off equilibrium (docs/CATHETER.md "The cost of a coupled step").
+    p.set_load_stiffness_share(LOAD_STIFFNESS_SHARE);
     // Room for both at their furthest (the wire 20 mm ahead, 2 mm more).
     let reach = p.wire().max_inserted().min(p.catheter().max_inserted() + 0.02) - 0.025;
     let cath = (0.2 + bend_r * angle + 0.06).min(reach - 0.02);

