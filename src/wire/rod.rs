@@ -14,7 +14,7 @@
 //! tip stays with the material as nodes enter and leave at the hub.
 
 use super::band::BandMatrix;
-use super::lumen::{perpendicular, Lumen, ProbeCache, WallHit, WallOverlap, WallOverlaps, NO_TRIANGLE};
+use super::lumen::{perpendicular, Lumen, ProbeCache, WallHit, WallOverlap, WallOverlaps, NO_TRIANGLE, OPENING_TAG};
 use super::WireParams;
 use crate::config::ConfigError;
 use crate::math::{Mat3, Vec3};
@@ -445,6 +445,11 @@ pub struct Wire {
     probe_cache: Vec<ProbeCache>,
     /// Per node: the wall probe of the last evaluation.
     hits: Vec<Option<WallHit>>,
+    /// Per node: where it was when the lumen was last probed for it in
+    /// this step, and how far the wall was from there at least (m;
+    /// −∞ before its first probe of the step). See `Wire::eval_at`.
+    probe_at: Vec<Vec3>,
+    probe_clear: Vec<f64>,
     /// Per node: the wall's penalty force on it at the last evaluation
     /// (summed over the pieces of wall its sphere overlaps; zero out of
     /// contact).
@@ -654,6 +659,160 @@ fn sin_cos_near(theta: f64, near: &mut (f64, f64, f64)) -> (f64, f64) {
     (s, c)
 }
 
+/// Lanes of `Wire::geometry`'s vectorised loops:
+/// that many edges or nodes at once, one per lane, in arrays the compiler
+/// keeps in vector registers. Each lane does the scalar code's operations
+/// in its order, so the results are the same bits.
+const LANES: usize = 8;
+
+/// `L` vectors, one per lane, by coordinate.
+#[derive(Clone, Copy)]
+struct Lv<const L: usize> {
+    x: [f64; L],
+    y: [f64; L],
+    z: [f64; L],
+}
+
+#[inline(always)]
+fn lmap<const L: usize>(f: impl Fn(usize) -> f64) -> [f64; L] {
+    std::array::from_fn(f)
+}
+
+impl<const L: usize> Lv<L> {
+    /// Lanes `v[at..at + L]`.
+    #[inline(always)]
+    fn load(v: &[Vec3], at: usize) -> Lv<L> {
+        let v = &v[at..at + L];
+        Lv {
+            x: lmap(|l| v[l].x),
+            y: lmap(|l| v[l].y),
+            z: lmap(|l| v[l].z),
+        }
+    }
+
+    #[inline(always)]
+    fn store(&self, v: &mut [Vec3], at: usize) {
+        for (l, o) in v[at..at + L].iter_mut().enumerate() {
+            *o = Vec3::new(self.x[l], self.y[l], self.z[l]);
+        }
+    }
+
+    #[inline(always)]
+    fn get(&self, l: usize) -> Vec3 {
+        Vec3::new(self.x[l], self.y[l], self.z[l])
+    }
+
+    #[inline(always)]
+    fn set(&mut self, l: usize, v: Vec3) {
+        (self.x[l], self.y[l], self.z[l]) = (v.x, v.y, v.z);
+    }
+
+    // As nalgebra's for `Vec3`, operation for operation: a − b, a + b,
+    // a s, −a, a × b, a · b ((x x' + y y') + z z').
+    #[inline(always)]
+    fn sub(&self, b: &Lv<L>) -> Lv<L> {
+        Lv {
+            x: lmap(|l| self.x[l] - b.x[l]),
+            y: lmap(|l| self.y[l] - b.y[l]),
+            z: lmap(|l| self.z[l] - b.z[l]),
+        }
+    }
+
+    #[inline(always)]
+    fn add(&self, b: &Lv<L>) -> Lv<L> {
+        Lv {
+            x: lmap(|l| self.x[l] + b.x[l]),
+            y: lmap(|l| self.y[l] + b.y[l]),
+            z: lmap(|l| self.z[l] + b.z[l]),
+        }
+    }
+
+    #[inline(always)]
+    fn scale(&self, s: &[f64; L]) -> Lv<L> {
+        Lv {
+            x: lmap(|l| self.x[l] * s[l]),
+            y: lmap(|l| self.y[l] * s[l]),
+            z: lmap(|l| self.z[l] * s[l]),
+        }
+    }
+
+    #[inline(always)]
+    fn neg(&self) -> Lv<L> {
+        Lv {
+            x: lmap(|l| -self.x[l]),
+            y: lmap(|l| -self.y[l]),
+            z: lmap(|l| -self.z[l]),
+        }
+    }
+
+    #[inline(always)]
+    fn cross(&self, b: &Lv<L>) -> Lv<L> {
+        Lv {
+            x: lmap(|l| self.y[l] * b.z[l] - self.z[l] * b.y[l]),
+            y: lmap(|l| self.z[l] * b.x[l] - self.x[l] * b.z[l]),
+            z: lmap(|l| self.x[l] * b.y[l] - self.y[l] * b.x[l]),
+        }
+    }
+
+    #[inline(always)]
+    fn dot(&self, b: &Lv<L>) -> [f64; L] {
+        lmap(|l| self.x[l] * b.x[l] + self.y[l] * b.y[l] + self.z[l] * b.z[l])
+    }
+}
+
+/// [`transport`] in every lane; a lane off its fast path (a turn beyond
+/// 90°, or none) takes the scalar function.
+#[inline(always)]
+fn transport_lanes<const L: usize>(d: &Lv<L>, a: &Lv<L>, b: &Lv<L>) -> Lv<L> {
+    let k = a.cross(b);
+    let c = a.dot(b);
+    let s2 = k.dot(&k);
+    let q = k.dot(d);
+    let q = lmap(|l| q[l] / (1.0 + c[l]));
+    let mut r = d.scale(&c).add(&k.cross(d)).add(&k.scale(&q));
+    for l in 0..L {
+        if !(c[l] >= 0.0 && s2[l] >= 1e-28) {
+            r.set(l, transport(d.get(l), a.get(l), b.get(l)));
+        }
+    }
+    r
+}
+
+/// [`sin_cos_near`] in every lane (`theta`, `near`: `L` long).
+#[inline(always)]
+fn sin_cos_near_lanes<const L: usize>(theta: &[f64], near: &mut [(f64, f64, f64)]) -> ([f64; L], [f64; L]) {
+    let d: [f64; L] = lmap(|k| theta[k] - near[k].0);
+    let d2: [f64; L] = lmap(|k| d[k] * d[k]);
+    let sd: [f64; L] =
+        lmap(|k| d[k] * (1.0 - d2[k] / 6.0 * (1.0 - d2[k] / 20.0 * (1.0 - d2[k] / 42.0 * (1.0 - d2[k] / 72.0)))));
+    let cd: [f64; L] = lmap(|k| 1.0 - d2[k] / 2.0 * (1.0 - d2[k] / 12.0 * (1.0 - d2[k] / 30.0 * (1.0 - d2[k] / 56.0))));
+    let mut sn: [f64; L] = lmap(|k| near[k].1 * cd[k] + near[k].2 * sd[k]);
+    let mut cs: [f64; L] = lmap(|k| near[k].2 * cd[k] - near[k].1 * sd[k]);
+    for k in 0..L {
+        if d[k].abs() < 1e-2 {
+            continue;
+        }
+        (sn[k], cs[k]) = sin_cos_near(theta[k], &mut near[k]);
+    }
+    (sn, cs)
+}
+
+/// [`signed_angle`] in every lane.
+#[inline(always)]
+fn signed_angle_lanes<const L: usize>(u: &Lv<L>, v: &Lv<L>, axis: &Lv<L>) -> [f64; L] {
+    let y = u.cross(v).dot(axis);
+    let x = u.dot(v);
+    let t: [f64; L] = lmap(|k| y[k] / x[k]);
+    lmap(|k| {
+        if x[k] > 0.0 && y[k].abs() < 1e-2 * x[k] {
+            let (t, t2) = (t[k], t[k] * t[k]);
+            t * (1.0 - t2 * (1.0 / 3.0 - t2 * (1.0 / 5.0 - t2 * (1.0 / 7.0 - t2 * (1.0 / 9.0)))))
+        } else {
+            y[k].atan2(x[k])
+        }
+    })
+}
+
 /// The contact penalty at penetration `pen` (m; negative: a gap) with
 /// stiffness `k` and onset `onset` (m): energy, force and stiffness. Zero
 /// below −onset; cubic from there to contact, its stiffness rising
@@ -760,6 +919,8 @@ impl Wire {
             contacts: Reserved::with_capacity(cap),
             probe_cache: vec![ProbeCache::default(); cap],
             hits: vec![None; cap],
+            probe_at: vec![Vec3::zeros(); cap],
+            probe_clear: vec![f64::NEG_INFINITY; cap],
             wall_force: vec![Vec3::zeros(); cap],
             overlaps: WallOverlaps::new(),
             coef: vec![Coef::default(); cap],
@@ -1164,6 +1325,7 @@ impl Wire {
         self.feed();
         self.begin_step();
         let fed = self.s.inserted - before;
+        self.forget_probes();
         self.slide(fed, lumen);
         let n = self.s.n;
         let r_w = 0.5 * self.p.diameter_m;
@@ -1513,6 +1675,8 @@ impl Wire {
             let k2 = -0.5 * kb.dot(&(w.m1[i - 1] + w.m1[i]));
             ((k1 - w.coef[i].kb_rest).powi(2) + k2 * k2).sqrt()
         };
+        // Node j + 1's, kept for edge j + 1 (whose node j + 1 it is).
+        let mut next_off: Option<(usize, f64)> = None;
         for j in 1..n - 1 {
             let k = self.coef[j].stretch;
             let st = self.len[j] - self.s.rest[j];
@@ -1521,7 +1685,16 @@ impl Wire {
             } else {
                 k * st
             };
-            if force >= 0.0 || bend_off(self, j).max(bend_off(self, j + 1)) > BUCKLING_BEND_OFF {
+            if force >= 0.0 {
+                continue;
+            }
+            let off_j = match next_off {
+                Some((i, v)) if i == j => v,
+                _ => bend_off(self, j),
+            };
+            let off_next = bend_off(self, j + 1);
+            next_off = Some((j + 1, off_next));
+            if off_j.max(off_next) > BUCKLING_BEND_OFF {
                 continue;
             }
             compressed = true;
@@ -1872,9 +2045,35 @@ impl Wire {
     }
 
     /// Frames, curvature and twist at the trial state.
+    ///
+    /// `LANES` edges (then nodes) at a time, each lane the scalar code's
+    /// operations in its order (the same bits; a lane off the fast path of
+    /// `transport`, `sin_cos_near` or `signed_angle` takes the scalar
+    /// function), the rest one by one: the scalar loop is bound by its
+    /// arithmetic (about 230 operations a node), which vector registers
+    /// do `LANES` at once.
     fn geometry(&mut self) {
         let n = self.s.n;
-        for j in 0..n - 1 {
+        let edges = n - 1;
+        let mut j = 0;
+        while j + LANES <= edges {
+            let e = Lv::<LANES>::load(&self.xt, j + 1).sub(&Lv::<LANES>::load(&self.xt, j));
+            let ee = e.dot(&e);
+            let l: [f64; LANES] = lmap(|k| ee[k].sqrt());
+            let il: [f64; LANES] = lmap(|k| 1.0 / l[k]);
+            self.len[j..j + LANES].copy_from_slice(&l);
+            self.inv_len[j..j + LANES].copy_from_slice(&il);
+            let t = e.scale(&il);
+            t.store(&mut self.tan, j);
+            let d1 = transport_lanes(&Lv::<LANES>::load(&self.d10, j), &Lv::<LANES>::load(&self.t0, j), &t);
+            d1.store(&mut self.d1c, j);
+            let d2 = t.cross(&d1);
+            let (sn, cs) = sin_cos_near_lanes::<LANES>(&self.tht[j..j + LANES], &mut self.th_near[j..j + LANES]);
+            d1.scale(&cs).add(&d2.scale(&sn)).store(&mut self.m1, j);
+            d1.neg().scale(&sn).add(&d2.scale(&cs)).store(&mut self.m2, j);
+            j += LANES;
+        }
+        for j in j..edges {
             let e = self.xt[j + 1] - self.xt[j];
             let l = e.norm();
             let il = 1.0 / l;
@@ -1887,12 +2086,50 @@ impl Wire {
             self.m1[j] = self.d1c[j] * cs + d2 * sn;
             self.m2[j] = -self.d1c[j] * sn + d2 * cs;
         }
-        for i in 1..n - 1 {
+        let mut i = 1;
+        while i + LANES < n {
+            let (te, tf) = (Lv::<LANES>::load(&self.tan, i - 1), Lv::<LANES>::load(&self.tan, i));
+            let ut = transport_lanes(&Lv::<LANES>::load(&self.d1c, i - 1), &te, &tf);
+            let sc = &self.rt0_sc[i..i + LANES];
+            let (sn, cs): ([f64; LANES], [f64; LANES]) = (lmap(|k| sc[k].0), lmap(|k| sc[k].1));
+            // rotate_sc(ut, tf, sn, cs).
+            let ad = tf.dot(&ut);
+            let omc: [f64; LANES] = lmap(|k| 1.0 - cs[k]);
+            let ut = ut
+                .scale(&cs)
+                .add(&tf.cross(&ut).scale(&sn))
+                .add(&tf.scale(&ad).scale(&omc));
+            let ang = signed_angle_lanes(&ut, &Lv::<LANES>::load(&self.d1c, i), &tf);
+            for ((rt, rt0), a) in self.rt[i..i + LANES].iter_mut().zip(&self.rt0[i..i + LANES]).zip(&ang) {
+                *rt = rt0 + a;
+            }
+            i += LANES;
+        }
+        for i in i..n - 1 {
             let ut = transport(self.d1c[i - 1], self.tan[i - 1], self.tan[i]);
             let (sn, cs) = self.rt0_sc[i];
             let ut = rotate_sc(ut, self.tan[i], sn, cs);
             self.rt[i] = self.rt0[i] + signed_angle(ut, self.d1c[i], self.tan[i]);
         }
+    }
+
+    /// Makes the next evaluation probe the lumen at every node.
+    ///
+    /// Why: the wall's distance changes by at most as much as the point
+    /// it is seen from moves (a distance to a fixed set), so a node that
+    /// an earlier evaluation of this step found at least D from the wall
+    /// (D: the probe's range when nothing was within it) and that has
+    /// moved by δ since is at least D − δ from it now. Where that is
+    /// beyond the penalty's reach (the radius plus the onset) the probe
+    /// cannot change the evaluation, and the later evaluations of a step
+    /// (its line searches' trials, micrometres apart) skip it; a third
+    /// of a step's time went to probes, most of them for nodes clear of
+    /// the wall. The bound holds for one lumen only: a step (whose lumen
+    /// is fixed) starts by forgetting it. The continuation of a wall's
+    /// opening, whose distance jumps where its plane is crossed, is
+    /// always probed again.
+    fn forget_probes(&mut self) {
+        self.probe_clear.fill(f64::NEG_INFINITY);
     }
 
     /// The incremental potential at the trial state (`xt`, `tht`); with
@@ -1928,6 +2165,7 @@ impl Wire {
         let eps_v = p.friction_smoothing_m;
         let s = &self.s;
         let coef = &self.coef[..n];
+        let onset = p.contact_onset_m;
         let mut energy = 0.0;
         let mut max_pen: f64 = 0.0;
 
@@ -2088,15 +2326,28 @@ impl Wire {
                     compliance: 0.0,
                     triangle: NO_TRIANGLE,
                 })
+            } else if self.probe_clear[i] - (self.xt[i] - self.probe_at[i]).norm() > r_w + onset + 1e-6 * r_w {
+                // Farther from the wall than the penalty reaches (see
+                // `Wire::forget_probes`): no contact, whatever the probe.
+                None
             } else {
-                lumen.probe_cached(self.xt[i], 3.0 * r_w, &mut self.probe_cache[i])
+                let hit = lumen.probe_cached(self.xt[i], 3.0 * r_w, &mut self.probe_cache[i]);
+                self.probe_at[i] = self.xt[i];
+                self.probe_clear[i] = match hit {
+                    None => 3.0 * r_w,
+                    // A mesh's triangle (fewer than 2³¹) or an analytic
+                    // wall; an opening's continuation is tagged from
+                    // `OPENING_TAG` down.
+                    Some(h) if h.triangle == NO_TRIANGLE || h.triangle < OPENING_TAG / 2 => h.distance,
+                    Some(_) => f64::NEG_INFINITY,
+                };
+                hit
             };
             self.hits[i] = hit;
             let mut g = Vec3::zeros();
             let mut hm = Mat3::zeros();
             let mut touched = false;
             self.wall_force[i] = Vec3::zeros();
-            let onset = p.contact_onset_m;
             if let Some(hit) = hit.filter(|h| h.distance < r_w + onset) {
                 // The penalty over every piece of wall the node's sphere
                 // overlaps (`Lumen::overlaps_cached`: smooth where pieces
@@ -2474,6 +2725,7 @@ impl Wire {
                 self.rt0_sc[i] = sin_cos_near(self.rt0[i], &mut self.rt_near[i]);
             }
         }
+        self.forget_probes();
         let e = self.eval(lumen, true);
         (e, self.grad[..4 * n].to_vec())
     }
@@ -2725,6 +2977,64 @@ mod tests {
                 (got - want).abs() <= 4e-16 * want.abs().max(1e-300),
                 "{got} against {want}"
             );
+        }
+    }
+
+    /// The geometry's lanes give the scalar functions' bits, lane by lane,
+    /// on their fast paths and through every fall-back: turns beyond 90°,
+    /// none, and reversed; twists far from the kept angle; reference
+    /// twists beyond the series' range.
+    #[test]
+    #[allow(clippy::needless_range_loop)] // lanes against the scalar code
+    fn geometry_lanes_give_the_scalar_bits() {
+        const L: usize = 8;
+        let mut seed = 0x2545_f491_4f6c_dd1du64;
+        let mut rnd = || {
+            seed ^= seed << 13;
+            seed ^= seed >> 7;
+            seed ^= seed << 17;
+            (seed >> 11) as f64 / (1u64 << 53) as f64 - 0.5
+        };
+        for round in 0..400 {
+            let mut unit = |spread: f64, base: Vec3| (base + Vec3::new(rnd(), rnd(), rnd()) * spread).normalize();
+            let base = unit(1.0, Vec3::zeros());
+            let a: Vec<Vec3> = (0..L).map(|_| unit(0.02, base)).collect();
+            let mut b: Vec<Vec3> = (0..L)
+                .map(|k| unit(if k % 3 == 0 { 2.0 } else { 0.02 }, a[k]))
+                .collect();
+            b[round % L] = a[round % L];
+            b[(round + 3) % L] = -a[(round + 3) % L];
+            let d: Vec<Vec3> = a.iter().map(|&t| perpendicular(t)).collect();
+            let (la, lb, ld) = (Lv::<L>::load(&a, 0), Lv::<L>::load(&b, 0), Lv::<L>::load(&d, 0));
+            let got = transport_lanes(&ld, &la, &lb);
+            let axis = Lv::<L>::load(&b, 0);
+            let angle = signed_angle_lanes(&got, &ld, &axis);
+            let dot = la.dot(&lb);
+            let cross = la.cross(&lb).sub(&ld).add(&la).scale(&dot).neg();
+            for k in 0..L {
+                let want = transport(d[k], a[k], b[k]);
+                assert_eq!(got.get(k), want, "transport, round {round} lane {k}");
+                assert_eq!(angle[k].to_bits(), signed_angle(want, d[k], b[k]).to_bits(), "angle");
+                assert_eq!(dot[k].to_bits(), a[k].dot(&b[k]).to_bits(), "dot");
+                assert_eq!(
+                    cross.get(k),
+                    -((a[k].cross(&b[k]) - d[k] + a[k]) * a[k].dot(&b[k])),
+                    "ops"
+                );
+            }
+            let theta: Vec<f64> = (0..L).map(|k| rnd() * if k % 4 == 0 { 0.1 } else { 1e-4 }).collect();
+            let mut near: Vec<(f64, f64, f64)> = (0..L).map(|_| (0.0, 0.0, 1.0)).collect();
+            let mut near_scalar = near.clone();
+            let (sn, cs) = sin_cos_near_lanes::<L>(&theta, &mut near);
+            for k in 0..L {
+                let (s1, c1) = sin_cos_near(theta[k], &mut near_scalar[k]);
+                assert_eq!(
+                    (sn[k].to_bits(), cs[k].to_bits()),
+                    (s1.to_bits(), c1.to_bits()),
+                    "sin, cos"
+                );
+                assert_eq!(near[k], near_scalar[k]);
+            }
         }
     }
 
