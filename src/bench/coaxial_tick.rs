@@ -4,7 +4,8 @@
 //! ([`Coaxial::step`]) in the arch's lumen, both rods' wall loads on the
 //! reduced vessel model (two contributions, summed by the tick as the
 //! service sums its instruments'), the haptic tick (contact, reduced
-//! implicit step, passivity QP, [`HapticTick::run_with`]) and, at the
+//! implicit step, passivity QP,
+//! [`crate::haptics::tick::HapticTick::run_with`]) and, at the
 //! stream's 60 Hz, the lumen's grid rebuilt (timed apart: the service's
 //! publisher does it in its own thread).
 //!

@@ -152,6 +152,35 @@ pub struct DeviceConfig {
     /// `[device.frame]`, see `haptics::frame`); when given it replaces
     /// `origin_m`.
     pub frame: Option<crate::haptics::frame::DeviceFrameParams>,
+    /// A second device (`[device.second]`): a second UDP peer that drives
+    /// one hub-driven instrument on its own and feels that instrument's
+    /// force, while this device drives the others (docs/DRIVING.md "Two
+    /// devices, one instrument each").
+    pub second: Option<SecondDevice>,
+}
+
+/// `[device.second]`: a second UDP peer for one hub-driven instrument. Its
+/// I/O thread runs at `device.rate_hz` with `device.priority` and
+/// `device.cpu`; its poses are read in the same device frame
+/// (`[device.frame]`) and mapped to its instrument's hub by the same drive
+/// (`[wire.drive]`) as the first device's.
+#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct SecondDevice {
+    /// The UDP bridge parameter file of the second peer (its own `bind`
+    /// address), relative to this file.
+    pub udp: PathBuf,
+    /// The id of the instrument it drives: `guidewire` or `catheter`.
+    pub instrument: String,
+}
+
+impl Default for SecondDevice {
+    fn default() -> Self {
+        SecondDevice {
+            udp: PathBuf::from("udp_second.toml"),
+            instrument: "catheter".into(),
+        }
+    }
 }
 
 impl Default for DeviceConfig {
@@ -165,6 +194,7 @@ impl Default for DeviceConfig {
             cpu: 1,
             origin_m: [0.0; 3],
             frame: None,
+            second: None,
         }
     }
 }
@@ -379,6 +409,24 @@ impl ServiceConfig {
         c.int_in("device.cpu", d.cpu, -1, 1023)?;
         for (k, v) in d.origin_m.iter().enumerate() {
             c.f64_in(&format!("device.origin_m[{k}]"), *v, -10.0, 10.0, "m")?;
+        }
+        if let Some(second) = &d.second {
+            if second.instrument != "guidewire" && second.instrument != "catheter" {
+                return Err(c.err(
+                    "device.second.instrument",
+                    format!(
+                        "\"{}\": must be \"guidewire\" or \"catheter\" (a hub-driven instrument)",
+                        second.instrument
+                    ),
+                ));
+            }
+            if self.catheter.is_none() {
+                return Err(c.err(
+                    "device.second",
+                    "a second device drives one of two hub-driven instruments: it needs [catheter] \
+                     (with [wire] and [guidewire]); with the guidewire alone the first device drives it",
+                ));
+            }
         }
         let i = &self.interaction;
         c.f64_in("interaction.clearance_m", i.clearance_m, 0.0, 0.05, "m")?;

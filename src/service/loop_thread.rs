@@ -9,7 +9,7 @@
 
 use super::background::{ContactMsg, CONTACT_MSG_NODES};
 use super::device_io::ForceCmd;
-use super::instrument::{LoopSide, Selector};
+use super::instrument::{Hand, LoopSide, Selector};
 use super::live::LiveStats;
 use super::publisher::StateSnapshot;
 use crate::haptics::device::DeviceSample;
@@ -18,6 +18,7 @@ use crate::haptics::passivity::PassivityStats;
 use crate::haptics::phases::{Phase, TickPhases, TickSplit};
 use crate::haptics::servo::{LoopModel, ServoCounters};
 use crate::haptics::tick::{Contribution, HapticTick, TickInput, MAX_INSTRUMENTS};
+use crate::math::Vec3;
 use crate::rt::clock::{self, Nanos};
 use crate::rt::stats::Histogram;
 use crate::rt::thread::{setup_current, RtGrant, RtRequest};
@@ -52,6 +53,39 @@ pub(super) struct LoopResult {
     pub swaps_deferred: u64,
     /// Presses of the switch button that changed the active instrument.
     pub instrument_switches: u64,
+    /// The second device's port (None without `[device.second]`).
+    pub second: Option<SecondResult>,
+}
+
+/// What the loop gathered of the second device's port.
+pub(super) struct SecondResult {
+    /// Largest force commanded to it (N).
+    pub max_force: f64,
+    /// Ticks without a fresh pose from it (its instrument held, its force
+    /// ramped to zero).
+    pub silent_ticks: u64,
+    /// Force commands its ring had no room for.
+    pub force_ring_full: u64,
+    /// Its passivity filter's counters.
+    pub qp: PassivityStats,
+}
+
+/// The second device's rings and port on the loop (`[device.second]`): it
+/// drives one hub-driven instrument on its own and feels that instrument's
+/// force, through its own passivity filter.
+pub(super) struct SecondIo {
+    /// Its poses (device frame).
+    pub pose: rtrb::Consumer<DeviceSample>,
+    /// Its force commands (device frame).
+    pub force: rtrb::Producer<ForceCmd>,
+    /// The instrument it drives (index in the loop's list).
+    pub instrument: usize,
+    /// The passivity filter of its port (the same parameters as the first
+    /// device's).
+    pub filter: crate::haptics::passivity::PassivityFilter,
+    /// A pose older than this (ns, by arrival) is no pose: its instrument
+    /// holds its hub and the force ramps to zero (`watchdog.device_timeout_ms`).
+    pub timeout: Nanos,
 }
 
 /// Loop-side rings.
@@ -68,6 +102,8 @@ pub(super) struct LoopIo<const R: usize> {
     /// The instruments' loop sides, in registry order (at most
     /// [`MAX_INSTRUMENTS`]).
     pub instruments: Vec<Box<dyn LoopSide>>,
+    /// The second device, if any.
+    pub second: Option<SecondIo>,
 }
 
 /// When and how the loop runs.
@@ -115,7 +151,12 @@ pub(super) fn loop_thread<const R: usize>(mut tick: HapticTick<R>, mut io: LoopI
         state_ring_full: 0,
         swaps_deferred: 0,
         instrument_switches: 0,
+        second: None,
     };
+    if let Some(sec) = io.second.as_mut() {
+        sec.filter.prime();
+    }
+    let mut second = SecondPort::default();
     let period = plan.period;
     // The jitter baseline: a bare absolute-deadline sleep loop, same thread,
     // same CPU, same policy, same run.
@@ -131,7 +172,15 @@ pub(super) fn loop_thread<const R: usize>(mut tick: HapticTick<R>, mut io: LoopI
     let faults0 = crate::rt::thread::thread_page_faults();
     let t_begin = clock::now_ns();
     let mut streak = 0u32;
-    let mut selector = Selector::new(io.instruments.iter().map(|i| i.hub_driven()));
+    // The second device's instrument is its own: the switch button does
+    // not select it.
+    let own = io.second.as_ref().map(|s| s.instrument);
+    let mut selector = Selector::new(
+        io.instruments
+            .iter()
+            .enumerate()
+            .map(|(k, i)| i.hub_driven() && Some(k) != own),
+    );
     let mut last: Option<DeviceSample> = None;
     let mut last_pose_time: Nanos = 0;
     let mut n: u64 = 0;
@@ -155,6 +204,9 @@ pub(super) fn loop_thread<const R: usize>(mut tick: HapticTick<R>, mut io: LoopI
         while let Ok(s) = io.pose.pop() {
             last_pose_time = (s.time_s * 1e9) as Nanos + clock::epoch();
             last = Some(s);
+        }
+        if let Some(sec) = io.second.as_mut() {
+            second.drain(sec, wake);
         }
         split.lap(Phase::Drain);
         // The model taken and warmed on an earlier tick swaps in between
@@ -182,8 +234,16 @@ pub(super) fn loop_thread<const R: usize>(mut tick: HapticTick<R>, mut io: LoopI
         // Each instrument's contribution, in one shape (docs/INSTRUMENTS.md).
         selector.update(last.as_ref());
         let mut parts: heapless::Vec<Contribution<'_>, MAX_INSTRUMENTS> = heapless::Vec::new();
+        let mut second_force = Vec3::zeros();
         for (k, inst) in io.instruments.iter_mut().enumerate() {
-            let _ = parts.push(inst.contribute(&selector.hand(k, last.as_ref(), now_s)));
+            if own == Some(k) {
+                // Driven by the second device, whose hand feels its force.
+                let mut c = inst.contribute(&second.hand(now_s));
+                second_force = std::mem::replace(&mut c.force, Vec3::zeros());
+                let _ = parts.push(c);
+            } else {
+                let _ = parts.push(inst.contribute(&selector.hand(k, last.as_ref(), now_s)));
+            }
         }
         split.lap(Phase::Instruments);
         let out = tick.run_with(
@@ -214,6 +274,13 @@ pub(super) fn loop_thread<const R: usize>(mut tick: HapticTick<R>, mut io: LoopI
             .is_err()
         {
             res.force_ring_full += 1;
+        }
+        if let Some(sec) = io.second.as_mut() {
+            let f = match &plan.frame {
+                Some(fr) => fr.force_to_device(second_force),
+                None => second_force,
+            };
+            second.output(sec, f, tick.servo().gain());
         }
         let c = tick.servo().contact();
         if !c.nodes.is_empty() {
@@ -299,10 +366,109 @@ pub(super) fn loop_thread<const R: usize>(mut tick: HapticTick<R>, mut io: LoopI
     drop(incoming);
     res.seconds = (clock::now_ns() - t_begin) as f64 * 1e-9;
     res.instrument_switches = selector.switches();
+    res.second = io.second.as_ref().map(|sec| SecondResult {
+        max_force: second.max_force,
+        silent_ticks: second.silent_ticks,
+        force_ring_full: second.force_ring_full,
+        qp: *sec.filter.stats(),
+    });
     res.counters = *tick.counters();
     res.contact =
         crate::service::report::ContactReport::from_loop(tick.contact_events(), tick.counters(), period as f64 * 1e-9);
     res.qp = *tick.qp_stats();
     crate::rt::alloc::leave_rt();
     res
+}
+
+/// The second device's port on the loop thread: its newest pose, and its
+/// force through its own passivity filter. Plain data; allocates nothing.
+#[derive(Default)]
+struct SecondPort {
+    /// The newest pose and when it arrived (ns).
+    last: Option<(DeviceSample, Nanos)>,
+    /// Whether the newest pose is fresh this tick (within the timeout).
+    fresh: bool,
+    /// The pose became fresh this tick (the first, or the first after a
+    /// silence): the instrument takes the stylus up where it is.
+    engaged: bool,
+    /// The sequence number the filter saw last.
+    last_seq: Option<u64>,
+    /// The pose time of the newest pose (ns, service clock): the force
+    /// command answers it.
+    pose_time: Nanos,
+    max_force: f64,
+    silent_ticks: u64,
+    force_ring_full: u64,
+}
+
+impl SecondPort {
+    /// Takes the second device's newest pose.
+    fn drain(&mut self, sec: &mut SecondIo, wake: Nanos) {
+        while let Ok(s) = sec.pose.pop() {
+            self.pose_time = (s.time_s * 1e9) as Nanos + clock::epoch();
+            self.last = Some((s, wake));
+        }
+        let was = self.fresh;
+        self.fresh = matches!(self.last, Some((_, at)) if wake - at <= sec.timeout);
+        self.engaged = self.fresh && !was;
+        if !self.fresh {
+            self.silent_ticks += 1;
+        }
+    }
+
+    /// What its instrument is given: the newest pose while it is fresh
+    /// (without one the instrument holds its hub and gives no force); it is
+    /// always the active instrument of its own device, and takes the
+    /// stylus up where it is when the device comes (back): a second hand
+    /// picks the instrument up where it lies, it does not jump to where
+    /// the stylus's absolute position would put it.
+    fn hand(&self, now_s: f64) -> Hand<'_> {
+        Hand {
+            sample: self.last.as_ref().filter(|_| self.fresh).map(|(s, _)| s),
+            now_s,
+            active: true,
+            engaged: self.engaged,
+        }
+    }
+
+    /// Filters its instrument's force `f` (N, device frame) for its port,
+    /// applies the loop's watchdog gain and pushes it to its device.
+    fn output(&mut self, sec: &mut SecondIo, f: Vec3, gain: f64) {
+        let sample = self.last.as_ref().filter(|_| self.fresh).map(|(s, _)| *s);
+        let seq = sample.map(|s| s.seq);
+        let repeated = seq.is_some() && seq == self.last_seq;
+        if seq.is_some() {
+            self.last_seq = seq;
+        }
+        if sample.is_none() || repeated {
+            // No motion of the port measured this tick (as the first
+            // port's `HapticTick::run_with`).
+            sec.filter.skip_sample();
+        }
+        let (x, v) = sample.map_or((Vec3::zeros(), Vec3::zeros()), |s| (s.position, s.velocity));
+        let desired = if f.iter().all(|c| c.is_finite()) {
+            f
+        } else {
+            Vec3::zeros()
+        };
+        let filtered = sec.filter.filter(desired, x, v).force;
+        let mut force = filtered * gain.clamp(0.0, 1.0);
+        if !force.iter().all(|c| c.is_finite()) {
+            sec.filter.reset();
+            force = Vec3::zeros();
+        } else {
+            sec.filter.set_commanded(force);
+        }
+        self.max_force = self.max_force.max(force.norm());
+        if sec
+            .force
+            .push(ForceCmd {
+                force,
+                pose_time: self.pose_time,
+            })
+            .is_err()
+        {
+            self.force_ring_full += 1;
+        }
+    }
 }

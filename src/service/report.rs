@@ -286,6 +286,33 @@ pub struct Report {
     /// Presses of the switch button that changed the active hub-driven
     /// instrument (docs/INSTRUMENTS.md, "Two instruments, one hand").
     pub instrument_switches: u64,
+    /// The second device (`[device.second]`; None without one).
+    pub second_device: Option<SecondDeviceReport>,
+}
+
+/// The second device's keys of the report (`second_device.*`).
+#[derive(Debug, Clone, Default, PartialEq, serde::Serialize)]
+pub struct SecondDeviceReport {
+    /// The id of the instrument it drove.
+    pub instrument: String,
+    /// Its I/O thread's periods.
+    pub device_ticks: u64,
+    /// Its read and write errors (a stale pose counts).
+    pub device_errors: u64,
+    /// Loop ticks without a fresh pose from it (its instrument held).
+    pub silent_ticks: u64,
+    /// Largest force commanded to it (N).
+    pub max_force_n: f64,
+    /// Ticks its passivity filter solved its QP.
+    pub qp_solves: u64,
+    /// Ticks its force was at the rate bound or beyond it.
+    pub qp_active_rate: u64,
+    /// Pose and force commands its rings had no room for.
+    pub pose_ring_full: u64,
+    /// See `pose_ring_full`.
+    pub force_ring_full: u64,
+    /// Its pose → force latency (µs).
+    pub pose_to_force_latency_us: Percentiles,
 }
 
 /// Contact anywhere in the run (the `contact` keys of the report).
@@ -391,6 +418,17 @@ impl Report {
             "  deadline misses: {} ({} from compute)\n",
             self.deadline_misses, self.deadline_misses_compute
         );
+        if let Some(d) = &self.second_device {
+            s += &format!(
+                "  second device: drives the {}, {} periods, {} errors, {} ticks without a fresh pose, force max {:.3} N, pose→force {}\n",
+                d.instrument,
+                d.device_ticks,
+                d.device_errors,
+                d.silent_ticks,
+                d.max_force_n,
+                p(&d.pose_to_force_latency_us)
+            );
+        }
         s += &format!("  period jitter (µs):   {}\n", p(&self.period_jitter_us));
         s += &format!("  baseline jitter (µs): {}\n", p(&self.baseline_jitter_us));
         s += &format!("  tick compute (µs):    {}\n", p(&self.tick_compute_us));

@@ -11,7 +11,7 @@ use super::config::Backend;
 use super::device_io::{device_thread, DeviceIo, DeviceResult, ForceCmd};
 use super::faults::FaultSwitches;
 use super::live::{LiveStats, Snapshot};
-use super::loop_thread::{loop_thread, LoopIo, LoopPlan, LoopResult, LOOP_PHASE};
+use super::loop_thread::{loop_thread, LoopIo, LoopPlan, LoopResult, SecondIo, LOOP_PHASE};
 use super::publisher::{publisher_thread, PublisherPlan, StateSnapshot};
 use super::report::{BackgroundReport, LostThread, QpReport, Report, RingReport};
 use super::setup::Prepared;
@@ -42,6 +42,9 @@ use std::thread::JoinHandle;
 /// system allocator.
 pub(crate) const RT_POOL_BYTES: usize = 8 << 20;
 
+/// A device I/O thread: its figures and its device when it ends.
+type DeviceHandle = JoinHandle<(DeviceResult, Box<dyn HapticDevice>)>;
+
 /// A running service at reduced capacity R (type-erased by [`Service`]).
 pub(super) struct Running<const R: usize> {
     stop: Arc<AtomicBool>,
@@ -49,7 +52,10 @@ pub(super) struct Running<const R: usize> {
     started: std::time::Instant,
     planned_s: f64,
     loop_handle: Option<JoinHandle<LoopResult>>,
-    dev_handle: Option<JoinHandle<(DeviceResult, Box<dyn HapticDevice>)>>,
+    dev_handle: Option<DeviceHandle>,
+    /// The second device's I/O thread and the id of the instrument it
+    /// drives (`[device.second]`).
+    second_handle: Option<(DeviceHandle, String)>,
     bg_handle: Option<JoinHandle<BackgroundStats>>,
     basis_handle: Option<JoinHandle<BasisStats>>,
     pub_handle: Option<JoinHandle<super::publisher::PublisherResult>>,
@@ -153,6 +159,14 @@ impl<const R: usize> RunningService for Running<R> {
         let lr = join(self.loop_handle.take(), "haptic loop")?;
         let (dr, mut dev) = join(self.dev_handle.take(), "device")?;
         dev.stop();
+        let second = match self.second_handle.take() {
+            Some((h, id)) => {
+                let (d2, mut dev2) = join(Some(h), "second device")?;
+                dev2.stop();
+                Some((d2, id))
+            }
+            None => None,
+        };
         // A lost helper thread does not lose the report: the loop ran on
         // with its last model, and the report names the thread.
         let mut threads_lost = Vec::new();
@@ -236,7 +250,9 @@ impl<const R: usize> RunningService for Running<R> {
             tick_phases: lr.phases.report(),
             pose_to_force_latency_us: dr.latency.percentiles(),
             baseline_jitter_us: lr.baseline.percentiles(),
-            allocations_after_start: lr.allocations + dr.allocations,
+            allocations_after_start: lr.allocations
+                + dr.allocations
+                + second.as_ref().map_or(0, |(d2, _)| d2.allocations),
             loop_page_faults_after_start: lr.page_faults.0 + lr.page_faults.1,
             allocator_installed: lr.allocator_installed,
             max_force_n: lr.max_force,
@@ -290,6 +306,21 @@ impl<const R: usize> RunningService for Running<R> {
             task: pr.task,
             instruments: Vec::new(),
             instrument_switches: lr.instrument_switches,
+            second_device: match (&second, &lr.second) {
+                (Some((d2, id)), Some(l2)) => Some(super::report::SecondDeviceReport {
+                    instrument: id.clone(),
+                    device_ticks: d2.ticks,
+                    device_errors: d2.errors,
+                    silent_ticks: l2.silent_ticks,
+                    max_force_n: l2.max_force,
+                    qp_solves: l2.qp.solves,
+                    qp_active_rate: l2.qp.active_rate,
+                    pose_ring_full: d2.pose_ring_full,
+                    force_ring_full: l2.force_ring_full,
+                    pose_to_force_latency_us: d2.latency.percentiles(),
+                }),
+                _ => None,
+            },
         };
         // Each instrument joins its thread and adds its section (and the
         // guidewire its `wire.*` keys and its thread's allocations).
@@ -572,6 +603,20 @@ pub(super) fn start_with<const R: usize>(p: Prepared) -> Result<Running<R>, Serv
         loop_start,
         state_every,
     })?;
+    let second_index = match &cfg.device.second {
+        Some(sd) => Some(
+            built
+                .iter()
+                .position(|b| b.id == sd.instrument && b.loop_side.hub_driven())
+                .ok_or_else(|| {
+                    ServiceError::Device(format!(
+                        "device.second.instrument = \"{}\": no hub-driven instrument of that id in this run",
+                        sd.instrument
+                    ))
+                })?,
+        ),
+        None => None,
+    };
     let mut loop_sides = Vec::with_capacity(built.len());
     let mut published = Vec::with_capacity(built.len());
     let mut service_sides = Vec::with_capacity(built.len());
@@ -651,6 +696,50 @@ pub(super) fn start_with<const R: usize>(p: Prepared) -> Result<Running<R>, Serv
         })
         .map_err(|e| ServiceError::Thread("device", e.to_string()))?;
 
+    // The second device (`[device.second]`): its own UDP peer, rings and
+    // I/O thread, in phase with the first's.
+    let (second_io, second_handle) = match (&cfg.device.second, second_index) {
+        (Some(sd), Some(k)) => {
+            let params = crate::haptics::udp::UdpParams::load(&cfg.resolve(&sd.udp))?;
+            let mut dev2: Box<dyn HapticDevice> = Box::new(crate::haptics::udp::UdpDevice::new(params));
+            dev2.start()
+                .map_err(|e| ServiceError::Device(format!("device.second: {e}")))?;
+            let (pose2_tx, pose2_rx) = rtrb::RingBuffer::<DeviceSample>::new(rings.pose);
+            let (force2_tx, force2_rx) = rtrb::RingBuffer::<ForceCmd>::new(rings.force);
+            let dio2 = DeviceIo {
+                pose: pose2_tx,
+                force: force2_rx,
+                stop: stop.clone(),
+                buttons: Arc::new(std::sync::atomic::AtomicU32::new(0)),
+            };
+            let req2 = dev_req;
+            let h = std::thread::Builder::new()
+                .name("nvtmm-device2".into())
+                .stack_size(1 << 20)
+                .spawn(move || {
+                    device_thread(
+                        dev2,
+                        dio2,
+                        req2,
+                        loop_start - LOOP_PHASE,
+                        dev_period,
+                        dev_period / 2,
+                        pool_bytes,
+                    )
+                })
+                .map_err(|e| ServiceError::Thread("second device", e.to_string()))?;
+            let io = SecondIo {
+                pose: pose2_rx,
+                force: force2_tx,
+                instrument: k,
+                filter: PassivityFilter::new(&passivity)?,
+                timeout: (cfg.watchdog.device_timeout_ms * 1e6) as Nanos,
+            };
+            (Some(io), Some((h, sd.instrument.clone())))
+        }
+        _ => (None, None),
+    };
+
     // The haptic loop, phased 200 µs after the device read.
     let tick = HapticTick::new(Servo::new(first, index, servo_params, clock::now_s()), filter);
     let lio = LoopIo {
@@ -664,6 +753,7 @@ pub(super) fn start_with<const R: usize>(p: Prepared) -> Result<Running<R>, Serv
         live: live.clone(),
         faults: faults.clone(),
         instruments: loop_sides,
+        second: second_io,
     };
     let plan = LoopPlan {
         request: RtRequest {
@@ -703,6 +793,7 @@ pub(super) fn start_with<const R: usize>(p: Prepared) -> Result<Running<R>, Serv
         planned_s: cfg.servo.baseline_s + seconds,
         loop_handle: Some(loop_handle),
         dev_handle: Some(dev_handle),
+        second_handle,
         bg_handle,
         basis_handle,
         pub_handle: Some(pub_handle),
