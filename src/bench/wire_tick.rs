@@ -447,9 +447,18 @@ pub(super) fn tick_scene(config: &Path) -> Result<TickScene, super::BenchError> 
     let rows = basis_rows::<R>(&p.basis).map_err(|e| arg(e.to_string()))?;
     let mut refresher = Refresher::new(mesh, &p.basis, &p.mass);
     let zeros = vec![Vec3::zeros(); n];
-    let k0 = refresher.reduced_stiffness(p.model.as_ref(), &zeros);
-    let mut first =
-        crate::service::background::rest_model::<R>(rows, &k0, &p.dynamics, n).map_err(|e| arg(e.to_string()))?;
+    // At rest, or with a pressure at the inflated wall, as the service.
+    let mut first = match &p.inflated {
+        Some(s) => {
+            crate::service::background::inflated_model::<R>(rows, &mut refresher, s, &p.dynamics)
+                .map_err(|e| arg(e.to_string()))?
+                .0
+        }
+        None => {
+            let k0 = refresher.reduced_stiffness(p.model.as_ref(), &zeros);
+            crate::service::background::rest_model::<R>(rows, &k0, &p.dynamics, n).map_err(|e| arg(e.to_string()))?
+        }
+    };
     first.compliance = p.compliance.as_ref().map(|c| c.0.clone());
     let wall = InnerWall::from_mesh(mesh, &g.wall_set).map_err(|e| arg(e.to_string()))?;
     let mut lumen = wall.lumen().map_err(|e| arg(e.to_string()))?;
