@@ -35,7 +35,7 @@
 //! allocations in the rods' part and in the haptic tick, and the system
 //! allocator's calls, apart.
 
-use super::wire_tick::{rt_ticks, tick_scene, TickScene};
+use super::wire_tick::{check_steps_and_line_load, rt_ticks, tick_scene, TickScene};
 use crate::haptics::device::DeviceSample;
 use crate::haptics::tick::{Contribution, TickInput};
 use crate::math::Vec3;
@@ -200,12 +200,7 @@ pub fn bench_coaxial_tick(config: &Path, o: &CoaxialTickOptions) -> Result<Coaxi
     if !(16..=1024).contains(&nodes) {
         return Err(arg(format!("--nodes {nodes}: must be in 16..=1024 with --coaxial")));
     }
-    if ticks == 0 {
-        return Err(arg("--steps must be at least 1".into()));
-    }
-    if !(line_load.is_finite() && (0.0..=100.0).contains(&line_load)) {
-        return Err(arg(format!("--line-load {line_load}: must be in [0, 100] N/m")));
-    }
+    check_steps_and_line_load(ticks, line_load)?;
     let TickScene {
         p,
         mut tick,

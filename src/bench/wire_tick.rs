@@ -186,12 +186,7 @@ pub fn bench_wire_tick(config: &Path, o: &WireTickOptions) -> Result<WireTickBen
     if !(16..=4096).contains(&nodes) {
         return Err(arg(format!("--nodes {nodes}: must be in 16..=4096")));
     }
-    if ticks == 0 {
-        return Err(arg("--steps must be at least 1".into()));
-    }
-    if !(line_load.is_finite() && (0.0..=100.0).contains(&line_load)) {
-        return Err(arg(format!("--line-load {line_load}: must be in [0, 100] N/m")));
-    }
+    check_steps_and_line_load(ticks, line_load)?;
     let TickScene {
         p,
         mut tick,
@@ -420,6 +415,18 @@ pub(super) struct TickScene {
     pub wall: InnerWall,
     /// Its lumen.
     pub lumen: crate::wire::TriangleLumen,
+}
+
+/// The tick benches' `--steps` (at least 1) and `--line-load` (0–100 N/m).
+pub(super) fn check_steps_and_line_load(ticks: usize, line_load: f64) -> Result<(), super::BenchError> {
+    let arg = super::BenchError::Arg;
+    if ticks == 0 {
+        return Err(arg("--steps must be at least 1".into()));
+    }
+    if !(line_load.is_finite() && (0.0..=100.0).contains(&line_load)) {
+        return Err(arg(format!("--line-load {line_load}: must be in [0, 100] N/m")));
+    }
+    Ok(())
 }
 
 /// Prepares `config` (it must have `[wire]` and `[guidewire]`) for a
