@@ -35,7 +35,7 @@
 //! allocations in the rods' part and in the haptic tick, and the system
 //! allocator's calls, apart.
 
-use super::wire_tick::{check_steps_and_line_load, rt_ticks, tick_scene, TickScene};
+use super::wire_tick::{check_steps_and_line_load, rt_ticks, tick_scene, TickScene, WallFollow};
 use crate::haptics::device::DeviceSample;
 use crate::haptics::tick::{Contribution, TickInput};
 use crate::math::Vec3;
@@ -278,10 +278,7 @@ pub fn bench_coaxial_tick(config: &Path, o: &CoaxialTickOptions) -> Result<Coaxi
     let mut loads: heapless::Vec<WallLoad, MAX_WALL_LOADS> = heapless::Vec::new();
     let mut wire_loads: heapless::Vec<(u32, Vec3), MAX_WALL_LOADS> = heapless::Vec::new();
     let mut cat_loads: heapless::Vec<(u32, Vec3), MAX_WALL_LOADS> = heapless::Vec::new();
-    let mut verts = wall.rest().to_vec();
-    let mut twin = lumen.twin();
-    let mut last_verts = lumen.vertices().to_vec();
-    let mut moved = lumen.moved();
+    let mut follow = WallFollow::new(&wall, &lumen);
     let settle = 1000;
     let cap = settle + ticks;
     let mut times: [Vec<f64>; 6] = std::array::from_fn(|_| Vec::with_capacity(cap));
@@ -318,27 +315,17 @@ pub fn bench_coaxial_tick(config: &Path, o: &CoaxialTickOptions) -> Result<Coaxi
             hubs0[1].1 + 0.3 * c,
         );
         let update = k % stream_every == 0;
-        if update && follow_wall {
-            // The publisher's part (another thread in the service).
-            let servo = tick.servo();
-            for (v, &node) in verts.iter_mut().zip(wall.mesh_nodes()) {
-                *v = servo.node_position_without_point_loads(node);
-            }
-        }
-        let mut rebuild_us = 0.0;
-        if update {
-            let step = crate::math::max_distance(&verts, &last_verts);
-            let tr = Instant::now();
-            twin.update_twin(&verts, moved + step)
-                .map_err(|e| fail(k, e.to_string()))?;
-            rebuild_us = tr.elapsed().as_secs_f64() * 1e6;
-            moved += step;
-            last_verts.copy_from_slice(&verts);
-        }
+        let rebuild_us = if update {
+            follow
+                .publish(&tick, &wall, follow_wall)
+                .map_err(|e| fail(k, e.to_string()))?
+        } else {
+            0.0
+        };
         let a0 = pool_allocs();
         let t0 = Instant::now();
         if update {
-            std::mem::swap(&mut lumen, &mut twin);
+            follow.swap_into(&mut lumen);
         }
         let t1 = Instant::now();
         let rep = pair.step(&lumen);

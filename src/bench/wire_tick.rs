@@ -32,7 +32,7 @@ use crate::rt::stats::Percentiles;
 use crate::service::setup::prepare;
 use crate::service::{ConfigSource, StartOptions};
 use crate::wire::coupling::{wall_loads, InnerWall, WallLoad, MAX_WALL_LOADS};
-use crate::wire::{Wire, WireParams};
+use crate::wire::{LumenError, TriangleLumen, Wire, WireParams};
 use std::path::Path;
 use std::time::Instant;
 
@@ -231,10 +231,7 @@ pub fn bench_wire_tick(config: &Path, o: &WireTickOptions) -> Result<WireTickBen
     wire.save_good_state();
     let mut loads: heapless::Vec<WallLoad, MAX_WALL_LOADS> = heapless::Vec::new();
     let mut point_loads: heapless::Vec<(u32, Vec3), MAX_WALL_LOADS> = heapless::Vec::new();
-    let mut verts = wall.rest().to_vec();
-    let mut twin = lumen.twin();
-    let mut last_verts = lumen.vertices().to_vec();
-    let mut moved = lumen.moved();
+    let mut follow = WallFollow::new(&wall, &lumen);
     let settle = 1000;
     let cap = settle + ticks;
     let (mut t_tick, mut t_wire, mut t_loads, mut t_haptic, mut t_qp, mut t_lumen) = (
@@ -269,31 +266,16 @@ pub fn bench_wire_tick(config: &Path, o: &WireTickOptions) -> Result<WireTickBen
         let phase = (std::f64::consts::TAU * t).sin();
         wire.set_hub(ins0 - 1.5e-3 + 1.5e-3 * phase, roll0 + 0.3 * phase);
         let update = k % stream_every == 0;
-        if update && follow_wall {
-            // The publisher's part (another thread in the service): the
-            // deformed wall at the reduced model's state, without the dent
-            // of the wire's own loads (the wire's contact has the wall's
-            // compliance in series instead).
-            let servo = tick.servo();
-            for (v, &node) in verts.iter_mut().zip(wall.mesh_nodes()) {
-                *v = servo.node_position_without_point_loads(node);
-            }
-        }
-        // The publisher also rebuilds the lumen's grid, in a twin (timed
-        // apart: it is not the RT threads' work); the wire swaps it in.
-        let mut rebuild_us = 0.0;
-        if update {
-            let step = crate::math::max_distance(&verts, &last_verts);
-            let tr = Instant::now();
-            twin.update_twin(&verts, moved + step)
-                .map_err(|e| fail(k, e.to_string()))?;
-            rebuild_us = tr.elapsed().as_secs_f64() * 1e6;
-            moved += step;
-            last_verts.copy_from_slice(&verts);
-        }
+        let rebuild_us = if update {
+            follow
+                .publish(&tick, &wall, follow_wall)
+                .map_err(|e| fail(k, e.to_string()))?
+        } else {
+            0.0
+        };
         let t0 = Instant::now();
         if update {
-            std::mem::swap(&mut lumen, &mut twin);
+            follow.swap_into(&mut lumen);
         }
         let t1 = Instant::now();
         let rep = wire.step(&lumen);
@@ -415,6 +397,60 @@ pub(super) struct TickScene {
     pub wall: InnerWall,
     /// Its lumen.
     pub lumen: crate::wire::TriangleLumen,
+}
+
+/// The publisher's part of a tick bench (another thread in the service),
+/// on the ticks that stream: the deformed wall at the reduced model's
+/// state, without the dent of the instruments' own loads (their contact
+/// has the wall's compliance in series instead), and the lumen's grid
+/// rebuilt in a twin (timed apart: it is not the RT threads' work) that
+/// the rods then swap in.
+pub(super) struct WallFollow {
+    verts: Vec<Vec3>,
+    twin: TriangleLumen,
+    last_verts: Vec<Vec3>,
+    moved: f64,
+}
+
+impl WallFollow {
+    /// Starts from the rest wall and the rods' `lumen`.
+    pub(super) fn new(wall: &InnerWall, lumen: &TriangleLumen) -> WallFollow {
+        WallFollow {
+            verts: wall.rest().to_vec(),
+            twin: lumen.twin(),
+            last_verts: lumen.vertices().to_vec(),
+            moved: lumen.moved(),
+        }
+    }
+
+    /// With `follow_wall` the wall read from `tick`'s model (otherwise the
+    /// rest wall again), then the twin rebuilt; returns the rebuild's time
+    /// (µs).
+    pub(super) fn publish(
+        &mut self,
+        tick: &HapticTick<R>,
+        wall: &InnerWall,
+        follow_wall: bool,
+    ) -> Result<f64, LumenError> {
+        if follow_wall {
+            let servo = tick.servo();
+            for (v, &node) in self.verts.iter_mut().zip(wall.mesh_nodes()) {
+                *v = servo.node_position_without_point_loads(node);
+            }
+        }
+        let step = crate::math::max_distance(&self.verts, &self.last_verts);
+        let tr = Instant::now();
+        self.twin.update_twin(&self.verts, self.moved + step)?;
+        let us = tr.elapsed().as_secs_f64() * 1e6;
+        self.moved += step;
+        self.last_verts.copy_from_slice(&self.verts);
+        Ok(us)
+    }
+
+    /// Swaps the rebuilt twin in as the rods' `lumen`.
+    pub(super) fn swap_into(&mut self, lumen: &mut TriangleLumen) {
+        std::mem::swap(lumen, &mut self.twin);
+    }
 }
 
 /// The tick benches' `--steps` (at least 1) and `--line-load` (0–100 N/m).
