@@ -124,6 +124,8 @@ struct Kept<const R: usize> {
 
 /// Candidate capacity of one query (a larger patch is truncated and counted).
 pub const MAX_CANDIDATES: usize = 4096;
+// `ContactOutput::searched` holds one bit per sphere.
+const _: () = assert!(MAX_SPHERES <= 32);
 /// Capacity of the touched-node list of one tick.
 pub const MAX_CONTACT_NODES: usize = 256;
 /// Tool spheres one contact evaluation takes ([`evaluate_spheres`]).
@@ -444,6 +446,9 @@ pub struct ContactOutput<const R: usize> {
     /// Time the residual-compliance series solve took this evaluation (ns;
     /// 0 without one), for the loop's phase timing.
     pub series_ns: i64,
+    /// Time the triangle searches took this evaluation (ns; 0 without one),
+    /// for the loop's phase timing.
+    pub search_ns: i64,
     /// Patches whose node-pair blocks of the residual compliance were read
     /// from the table this evaluation (their touched nodes or the table
     /// changed); the other patches of the series solve reused the blocks
@@ -468,6 +473,9 @@ pub struct ContactOutput<const R: usize> {
     /// ([`ContactOutput::for_index`]; empty: no cache).
     cache: Vec<(u32, Vec3)>,
     tick: u32,
+    /// Bit `s` set: sphere `s` searched on this evaluation (and kept what it
+    /// found, if it could).
+    searched: u32,
     /// Per sphere, its kept triangles (`kept_tris[s * KEPT_TRIANGLES..]`);
     /// empty: nothing is kept ([`Default`] output).
     kept: Vec<Kept<R>>,
@@ -570,6 +578,52 @@ impl<const R: usize> ContactOutput<R> {
             self.pair_keys[s] = *key;
         }
         carried_spheres
+    }
+
+    /// During a cross-fade, takes over the triangles `from` found on this
+    /// evaluation for each sphere whose own kept triangles no longer hold
+    /// at `centers` under `motion` (this output's model and state), so that
+    /// the old model does not search the same surface again on the tick the
+    /// new one did. `from` follows a model on the same Φ rows whose
+    /// positions at q + `shift` are within `moved` (m) of this output's
+    /// model's positions at q at every node (the swap's bound, read the
+    /// other way: [`ContactOutput::carry_from`]). Returns how many spheres
+    /// took them over. Allocates nothing.
+    pub fn adopt_searches(
+        &mut self,
+        from: &ContactOutput<R>,
+        moved: f64,
+        shift: &SVector<f64, R>,
+        centers: &[Vec3],
+        motion: &Motion<R>,
+    ) -> usize {
+        if !(moved.is_finite() && moved >= 0.0 && shift.iter().all(|v| v.is_finite()))
+            || self.kept.len() != from.kept.len()
+            || self.kept_tris.len() != from.kept_tris.len()
+        {
+            return 0;
+        }
+        let mut adopted = 0;
+        for (s, center) in centers.iter().enumerate().take(self.kept.len().min(MAX_SPHERES)) {
+            let k = from.kept[s];
+            if from.searched & (1 << s) == 0 || !k.valid || self.may_reuse(s, center, motion).is_some() {
+                continue;
+            }
+            let carried = k.carried + moved;
+            if !at_most(carried, COHERENCE_SLACK_M) {
+                continue;
+            }
+            let (base, len) = (s * KEPT_TRIANGLES, k.len as usize);
+            self.kept_tris[base..base + len].copy_from_slice(&from.kept_tris[base..base + len]);
+            self.kept_dist[base..base + len].copy_from_slice(&from.kept_dist[base..base + len]);
+            self.kept[s] = Kept {
+                carried,
+                q: k.q - shift,
+                ..k
+            };
+            adopted += 1;
+        }
+        adopted
     }
 
     /// Calls `f` with each node of every triangle a sphere keeps (a node
@@ -779,6 +833,7 @@ impl<const R: usize> Default for ContactOutput<R> {
             iterations: 0,
             searches: 0,
             series_ns: 0,
+            search_ns: 0,
             pair_lookups: 0,
             sphere_forces: heapless::Vec::new(),
             active: heapless::Vec::new(),
@@ -790,6 +845,7 @@ impl<const R: usize> Default for ContactOutput<R> {
             samples_at: Vec::with_capacity(MAX_SAMPLES),
             cache: Vec::new(),
             tick: 0,
+            searched: 0,
             kept: Vec::new(),
             kept_tris: Vec::new(),
             kept_dist: Vec::new(),
@@ -874,6 +930,7 @@ pub fn evaluate_spheres<'r, const R: usize>(
     out.samples_buf.clear();
     out.samples_at.clear();
     out.tick = out.tick.wrapping_add(1);
+    out.searched = 0;
     if out.tick == 0 {
         out.cache.iter_mut().for_each(|c| c.0 = 0);
         out.tick = 1;
@@ -891,6 +948,7 @@ pub fn evaluate_spheres<'r, const R: usize>(
     out.positions = 0;
     out.searches = 0;
     out.series_ns = 0;
+    out.search_ns = 0;
     out.pair_lookups = 0;
     for (s, center) in centers.iter().take(MAX_SPHERES).enumerate() {
         let _ = out.sphere_forces.push(Vec3::zeros());
@@ -900,6 +958,7 @@ pub fn evaluate_spheres<'r, const R: usize>(
             s as u16,
             center,
             &position,
+            &rows,
             motion.as_ref(),
             scratch,
             out,
@@ -931,12 +990,13 @@ pub fn evaluate_spheres<'r, const R: usize>(
 /// position), lumped to the triangles' nodes with the barycentric weights.
 /// Appends the patch (if it presses) to `out`.
 #[allow(clippy::too_many_arguments)]
-fn press_sphere<const R: usize>(
+fn press_sphere<'r, const R: usize>(
     index: &SurfaceIndex,
     params: &ContactParams,
     s: u16,
     center: &Vec3,
     position: &impl Fn(u32) -> Vec3,
+    rows: &impl Fn(u32) -> Option<&'r SMatrix<f64, 3, R>>,
     motion: Option<&Motion<R>>,
     scratch: &mut Candidates,
     out: &mut ContactOutput<R>,
@@ -946,7 +1006,7 @@ fn press_sphere<const R: usize>(
     out.tris.clear();
     match motion.and_then(|m| out.may_reuse(s as usize, center, m)) {
         Some(moved) => out.take_kept(s as usize, rho, moved),
-        None => search_triangles(index, rho, s, center, position, motion, scratch, out),
+        None => search_triangles(index, rho, s, center, position, rows, motion, scratch, out),
     }
     let first = out.active.len();
     let sample_first = out.samples_buf.len();
@@ -1124,17 +1184,36 @@ fn press_sphere<const R: usize>(
 /// `out.tris`) on the grid; with `motion`, also within the slack, and keeps
 /// them for the next evaluations.
 #[allow(clippy::too_many_arguments)]
-fn search_triangles<const R: usize>(
+fn search_triangles<'r, const R: usize>(
     index: &SurfaceIndex,
     rho: f64,
     s: u16,
     center: &Vec3,
     position: &impl Fn(u32) -> Vec3,
+    rows: &impl Fn(u32) -> Option<&'r SMatrix<f64, 3, R>>,
     motion: Option<&Motion<R>>,
     scratch: &mut Candidates,
     out: &mut ContactOutput<R>,
 ) {
     out.searches += 1;
+    let t0 = crate::rt::clock::now_ns();
+    search_triangles_timed(index, rho, s, center, position, rows, motion, scratch, out);
+    out.search_ns += crate::rt::clock::now_ns() - t0;
+}
+
+/// [`search_triangles`]' work (timed there).
+#[allow(clippy::too_many_arguments)]
+fn search_triangles_timed<'r, const R: usize>(
+    index: &SurfaceIndex,
+    rho: f64,
+    s: u16,
+    center: &Vec3,
+    position: &impl Fn(u32) -> Vec3,
+    rows: &impl Fn(u32) -> Option<&'r SMatrix<f64, 3, R>>,
+    motion: Option<&Motion<R>>,
+    scratch: &mut Candidates,
+    out: &mut ContactOutput<R>,
+) {
     // With the triangles kept, every triangle that can come within the
     // tool radius while the motion stays under the slack.
     let slack = if motion.is_some() { COHERENCE_SLACK_M } else { 0.0 };
@@ -1150,7 +1229,20 @@ fn search_triangles<const R: usize>(
     }
     // How far Φ q can move a node from rest + ū (NaN: none is skipped by it).
     let base = motion.and_then(|m| m.offset.map(|o| (o, m.row_bound * m.q.norm())));
-    for &i in scratch.iter() {
+    // The candidates are scattered over the mesh's arrays, so the search
+    // waits on memory more than it computes: each pass asks for the lines
+    // a few candidates ahead while it works on the current one. First the
+    // candidates whose deformed position can reach the sphere, compacted in
+    // place.
+    let mut kept_n = 0;
+    for k in 0..scratch.len() {
+        if let Some(&j) = scratch.get(k + PREFETCH_AHEAD) {
+            prefetch(index.reach_of.get(j as usize));
+            if let Some((offset, _)) = base {
+                prefetch(offset.get(j as usize));
+            }
+        }
+        let i = scratch[k];
         let far = reach + index.margin + index.reach_of[i as usize];
         if !at_most((index.rest[i as usize] - center).norm_squared(), far * far) {
             continue;
@@ -1163,6 +1255,20 @@ fn search_triangles<const R: usize>(
                 }
             }
         }
+        scratch[kept_n] = i;
+        kept_n += 1;
+    }
+    scratch.truncate(kept_n);
+    // Then their deformed positions and triangles.
+    for k in 0..scratch.len() {
+        if let Some(&j) = scratch.get(k + PREFETCH_AHEAD) {
+            if let Some(r) = rows(j) {
+                prefetch_all(r);
+            }
+            prefetch(out.cache.get(j as usize));
+            prefetch(index.node_tri_start.get(j as usize));
+        }
+        let i = scratch[k];
         let x = out.position_of(i, position);
         let near = reach + index.reach_of[i as usize];
         if !at_most((x - center).norm_squared(), near * near) {
@@ -1185,6 +1291,9 @@ fn search_triangles<const R: usize>(
     let base = s * KEPT_TRIANGLES;
     let mut len = 0usize;
     for ti in 0..out.tris.len() {
+        if let Some(&u) = out.tris.get(ti + PREFETCH_AHEAD) {
+            prefetch(index.tris.get(u as usize));
+        }
         let t = out.tris[ti];
         let x = index.tris[t as usize].map(|v| out.position_of(v, position));
         if !within_bounding_sphere(&x, center, reach) {
@@ -1201,6 +1310,7 @@ fn search_triangles<const R: usize>(
         out.kept_dist[base + len] = dist;
         len += 1;
     }
+    out.searched |= 1 << s;
     out.kept[s] = Kept {
         valid: true,
         center: *center,
@@ -1212,6 +1322,39 @@ fn search_triangles<const R: usize>(
     // others cannot press).
     out.tris.clear();
     out.take_kept(s, rho, 0.0);
+}
+
+/// How many candidates ahead the search asks for memory ([`prefetch`]).
+const PREFETCH_AHEAD: usize = 6;
+
+/// Asks the CPU to bring the cache line holding `*p` in ahead of its use:
+/// a hint only, with no effect on any result (and none off x86-64).
+#[inline(always)]
+fn prefetch<T>(p: Option<&T>) {
+    #[cfg(target_arch = "x86_64")]
+    if let Some(p) = p {
+        // SAFETY: a prefetch never faults nor reads into the program,
+        // whatever the address; this one is a live reference anyway.
+        unsafe { std::arch::x86_64::_mm_prefetch::<{ std::arch::x86_64::_MM_HINT_T0 }>((p as *const T).cast::<i8>()) }
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    let _ = p;
+}
+
+/// [`prefetch`] for every cache line of `*p` (a node's basis rows span
+/// several).
+#[inline(always)]
+fn prefetch_all<T>(p: &T) {
+    #[cfg(target_arch = "x86_64")]
+    {
+        let base = (p as *const T).cast::<i8>();
+        for off in (0..std::mem::size_of::<T>()).step_by(64) {
+            // SAFETY: as in `prefetch`; the address stays inside `*p`.
+            unsafe { std::arch::x86_64::_mm_prefetch::<{ std::arch::x86_64::_MM_HINT_T0 }>(base.wrapping_add(off)) }
+        }
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    let _ = p;
 }
 
 /// Whether the sphere about the triangle `x`'s centroid through its
@@ -1782,5 +1925,110 @@ mod tests {
         assert!(out.reduced_stiffness[(0, 0)] > 0.0);
         let k = out.reduced_stiffness;
         assert!((k - k.transpose()).norm() <= 1e-12 * k.norm());
+    }
+
+    #[test]
+    fn a_fading_model_takes_over_the_new_models_search_and_renders_the_same() {
+        // Two models on the same rows: the old one's positions at q are the
+        // new one's at q + shift moved by at most d (ū changed by `off`).
+        let mesh = plate();
+        let p = ContactParams::default();
+        let idx = SurfaceIndex::new(&mesh, &p);
+        let row = SMatrix::<f64, 3, 2>::new(0.0, 1.0, 0.0, 0.0, 1.0, 0.0);
+        let rows = |_| Some(&row);
+        let off = Vec3::new(0.0, 0.0, 1e-4);
+        let shift = SVector::<f64, 2>::new(2e-5, 3e-5);
+        let d = (off + row * shift).norm();
+        let u_new = vec![off; mesh.num_nodes()];
+        let u_old = vec![Vec3::zeros(); mesh.num_nodes()];
+        let q_old = SVector::<f64, 2>::new(-1e-4, 5e-5);
+        let q_new = q_old + shift;
+        let rest = mesh.rest();
+        let old_at = |q: SVector<f64, 2>| move |i: u32| rest[i as usize] + row * q;
+        let new_at = |q: SVector<f64, 2>| {
+            let u_new = &u_new;
+            move |i: u32| rest[i as usize] + u_new[i as usize] + row * q
+        };
+        fn motion<'a>(q: &'a SVector<f64, 2>, u: &'a [Vec3]) -> Option<Motion<'a, 2>> {
+            Some(Motion {
+                q,
+                row_bound: 1.0,
+                offset: Some(u),
+            })
+        }
+        let mut scratch = Candidates::new();
+        let (mut new, mut old, mut fresh) = (
+            ContactOutput::<2>::for_index(&idx),
+            ContactOutput::<2>::for_index(&idx),
+            ContactOutput::<2>::for_index(&idx),
+        );
+        for (k, dx) in [0.0, 2e-4, 1.5e-3].into_iter().enumerate() {
+            let c = [Vec3::new(0.02 + dx, 0.02, 0.002 + p.tool_radius_m - 5e-4)];
+            evaluate_spheres(
+                &idx,
+                &p,
+                &c,
+                new_at(q_new),
+                rows,
+                None,
+                motion(&q_new, &u_new),
+                &mut scratch,
+                &mut new,
+            );
+            let om = motion(&q_old, &u_old).unwrap();
+            let adopted = old.adopt_searches(&new, d, &shift, &c, &om);
+            // The new model searched on the first tick and after 1.5 mm;
+            // the old one takes those searches over, and reuses its kept
+            // triangles in between.
+            assert_eq!(new.searches, usize::from(k != 1), "tick {k}");
+            assert_eq!(adopted, new.searches, "tick {k}");
+            evaluate_spheres(
+                &idx,
+                &p,
+                &c,
+                old_at(q_old),
+                rows,
+                None,
+                Some(om),
+                &mut scratch,
+                &mut old,
+            );
+            assert_eq!(old.searches, 0, "tick {k}: the old model searched nothing");
+            fresh.forget();
+            evaluate_spheres(
+                &idx,
+                &p,
+                &c,
+                old_at(q_old),
+                rows,
+                None,
+                motion(&q_old, &u_old),
+                &mut scratch,
+                &mut fresh,
+            );
+            assert_eq!(fresh.searches, 1);
+            assert!(fresh.tool_force.norm() > 0.0, "tick {k}: the sphere presses");
+            assert!(
+                (old.tool_force - fresh.tool_force).norm() <= 1e-12 * fresh.tool_force.norm(),
+                "tick {k}: {:?} vs a fresh search {:?}",
+                old.tool_force,
+                fresh.tool_force
+            );
+        }
+        // A bound beyond the slack takes nothing over.
+        let c = [Vec3::new(0.03, 0.02, 0.002 + p.tool_radius_m - 5e-4)];
+        evaluate_spheres(
+            &idx,
+            &p,
+            &c,
+            new_at(q_new),
+            rows,
+            None,
+            motion(&q_new, &u_new),
+            &mut scratch,
+            &mut new,
+        );
+        let om = motion(&q_old, &u_old).unwrap();
+        assert_eq!(old.adopt_searches(&new, 2.0 * COHERENCE_SLACK_M, &shift, &c, &om), 0);
     }
 }

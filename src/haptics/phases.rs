@@ -32,6 +32,11 @@ pub enum Phase {
     /// search or the kept triangles, the pressure quadrature and the
     /// residual-compliance series solve.
     Contact,
+    /// The searches for the surface triangles near the tool spheres alone
+    /// (part of [`Phase::Contact`], and of [`Phase::Fade`] for the old
+    /// model's; only on ticks where a sphere left the slack of its kept
+    /// triangles, or had none).
+    Search,
     /// The residual-compliance series solve alone (part of [`Phase::Contact`];
     /// only on ticks with a patch and a compliance table).
     Series,
@@ -60,7 +65,7 @@ pub enum Phase {
 pub const TAIL_US: f64 = 100.0;
 
 /// Number of phases.
-pub const PHASES: usize = 11;
+pub const PHASES: usize = 12;
 
 impl Phase {
     /// Every phase, in the order of the tick.
@@ -69,6 +74,7 @@ impl Phase {
         Phase::Swap,
         Phase::Instruments,
         Phase::Contact,
+        Phase::Search,
         Phase::Series,
         Phase::Step,
         Phase::Fade,
@@ -85,6 +91,7 @@ impl Phase {
             Phase::Swap => "swap",
             Phase::Instruments => "instruments",
             Phase::Contact => "contact",
+            Phase::Search => "search",
             Phase::Series => "series",
             Phase::Step => "step",
             Phase::Fade => "fade",
@@ -98,7 +105,7 @@ impl Phase {
     /// Whether the phase is part of another one (not counted twice in the
     /// tick's sum).
     pub fn nested(self) -> bool {
-        matches!(self, Phase::Series | Phase::QpSolve)
+        matches!(self, Phase::Search | Phase::Series | Phase::QpSolve)
     }
 
     fn index(self) -> usize {

@@ -163,6 +163,11 @@ pub struct ServoCounters {
     /// slack): no surface search
     /// on the swap tick ([`LoopModel::surface_moved_m`]).
     pub swaps_carried: u64,
+    /// Spheres of the old model's contact in a cross-fade that took over
+    /// the triangles the new model's contact had just searched for, instead
+    /// of searching the same surface again on the same tick
+    /// ([`contact::ContactOutput::adopt_searches`]).
+    pub fade_searches_shared: u64,
 }
 
 /// Longest delay from a patch's first touch to its first corrected tick
@@ -383,6 +388,10 @@ pub struct Servo<const R: usize> {
     now_s: f64,
     fault_until_s: f64,
     fading: Option<Box<LoopModel<R>>>,
+    /// While fading on the same basis: the swap's bound on how far the
+    /// models' surfaces differ (m) and the new model's state shift (the
+    /// old model's contact takes over the new one's searches with it).
+    fade_carry: Option<(f64, SVector<f64, R>)>,
     fade_scratch: Candidates,
     fade_contact: Box<ContactOutput<R>>,
     blend: f64,
@@ -429,6 +438,7 @@ impl<const R: usize> Servo<R> {
             now_s,
             fault_until_s: f64::NEG_INFINITY,
             fading: None,
+            fade_carry: None,
             fade_scratch: Candidates::new(),
             fade_contact,
             blend: 1.0,
@@ -555,6 +565,10 @@ impl<const R: usize> Servo<R> {
         // output without triangles found on its model's positions searches
         // again (a full search costs several times a tick).
         std::mem::swap(&mut self.contact, &mut self.fade_contact);
+        self.fade_carry = match (evaluated_new, carry) {
+            (false, Some(d)) => Some((d, new.shift)),
+            _ => None,
+        };
         let carried = match (evaluated_new, carry) {
             (true, _) => 0,
             (false, Some(d)) => self.contact.carry_from(&self.fade_contact, d, &new.shift),
@@ -837,6 +851,9 @@ impl<const R: usize> Servo<R> {
         if self.contact.series_ns > 0 {
             self.split.add(Phase::Series, self.contact.series_ns);
         }
+        if self.contact.search_ns > 0 {
+            self.split.add(Phase::Search, self.contact.search_ns);
+        }
         if !self.contact.nodes.is_empty() {
             fl |= flags::CONTACT;
             self.counters.contact_ticks += 1;
@@ -871,6 +888,16 @@ impl<const R: usize> Servo<R> {
         let t0 = self.split.add_since(Phase::Step, t0);
         // A cross-fade: the old model runs on and the force blends over.
         if let Some(old) = self.fading.as_mut() {
+            if let Some((d, shift)) = &self.fade_carry {
+                let motion = contact::Motion {
+                    q: old.dynamics.q(),
+                    row_bound: old.dynamics.row_bound(),
+                    offset: Some(old.offset.as_slice()),
+                };
+                self.counters.fade_searches_shared +=
+                    self.fade_contact
+                        .adopt_searches(&self.contact, *d, shift, &self.centers, &motion) as u64;
+            }
             eval_contact(
                 old,
                 &self.index,
@@ -887,6 +914,9 @@ impl<const R: usize> Servo<R> {
                 self.hand_sphere,
                 &mut self.counters,
             );
+            if self.fade_contact.search_ns > 0 {
+                self.split.add(Phase::Search, self.fade_contact.search_ns);
+            }
             self.blend = (self.blend + p.dt / p.swap_blend_s.max(p.dt)).min(1.0);
             desired = f_old * (1.0 - self.blend) + desired * self.blend;
             finite &= ok_old;

@@ -552,8 +552,9 @@ impl Report {
         );
         s += &format!(
             "    the compliance's pair blocks read from its table on {} of those ticks (the others reused them: same touched nodes); \
-             {} of {} swaps kept the contact's triangles (no search on the swap tick)\n",
-            w.compliance_lookup_ticks, w.swaps_carried, w.model_swaps
+             {} of {} swaps kept the contact's triangles (no search on the swap tick); \
+             the old model took over {} of the new one's searches in the cross-fades\n",
+            w.compliance_lookup_ticks, w.swaps_carried, w.model_swaps, w.fade_searches_shared
         );
         let c = &self.contact;
         s += &format!(
