@@ -26,6 +26,12 @@
 //! compliance times 0.3 N (docs/PRESSURE.md, "The wall's give under the
 //! wire").
 //!
+//! `cargo run --release --example pressure_bench -- modes [R]` — the first
+//! vibration modes of the living scene's wall at rest, of that basis at the
+//! inflated wall's tangent, and of the basis computed at the inflated wall
+//! (default R = 32), and the share of the give the modes carry
+//! (docs/PRESSURE.md, "The reduced model at pressure").
+//!
 //! `cargo run --release --example pressure_bench -- step [NODES] [SECONDS]` —
 //! the service scene's full solve (NVTMM + Prony, 10 ms linearized steps,
 //! Cholesky-preconditioned CG) on a 1 MPa wall with and without a 12 kPa
@@ -334,7 +340,6 @@ fn normal_compliance(
 
 fn give(scene: Option<&str>) {
     use nvtmm::scene::Scene;
-    use nvtmm::wire::coupling::InnerWall;
     let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
     let living = scene
         .map(std::path::PathBuf::from)
@@ -343,36 +348,12 @@ fn give(scene: Option<&str>) {
     let on = Scene::load(&living).expect("scene");
     let mut off = on.clone();
     off.pressure = None;
-    // The sample: inner-wall nodes of the aorta, 15 mm or more from every
-    // fixed node, on the image; normals into the lumen there (the
-    // reference keeps the image's node order).
     let image = off.build().expect("scene without pressure");
-    let wall = InnerWall::from_mesh(&image.mesh, "inner_wall").expect("inner_wall");
-    let aorta: std::collections::HashSet<u32> = image
-        .mesh
-        .node_set("segment_aorta")
-        .expect("segment_aorta")
-        .iter()
-        .copied()
-        .collect();
-    let x = image.mesh.rest();
-    let normals_all = wall.vertex_normals();
-    let (mut nodes, mut normals) = (Vec::new(), Vec::new());
-    for (&i, nrm) in wall.mesh_nodes().iter().zip(&normals_all) {
-        let far = image
-            .fixed
-            .iter()
-            .all(|&f| (x[f as usize] - x[i as usize]).norm() >= 0.015);
-        if aorta.contains(&i) && far {
-            nodes.push(i);
-            // Pushed outward, against the lumen normal.
-            normals.push(-nrm);
-        }
-    }
+    let (nodes, normals, on_wall) = give_sample(&image);
     println!(
         "{} inner-wall nodes of the aorta at least 15 mm from the fixed openings (of {} on the inner wall)",
         nodes.len(),
-        wall.mesh_nodes().len()
+        on_wall
     );
     let report = |name: &str, c: &[f64]| {
         let mut s = c.to_vec();
@@ -433,6 +414,135 @@ fn give(scene: Option<&str>) {
     );
 }
 
+/// The give's sample: inner-wall nodes of the aorta, 15 mm or more from
+/// every fixed node, with the outward normal (against the lumen's) at each,
+/// and how many nodes the inner wall has.
+fn give_sample(image: &nvtmm::scene::Built) -> (Vec<u32>, Vec<Vec3>, usize) {
+    use nvtmm::wire::coupling::InnerWall;
+    // Normals into the lumen on the image (the reference keeps the image's
+    // node order).
+    let wall = InnerWall::from_mesh(&image.mesh, "inner_wall").expect("inner_wall");
+    let aorta: std::collections::HashSet<u32> = image
+        .mesh
+        .node_set("segment_aorta")
+        .expect("segment_aorta")
+        .iter()
+        .copied()
+        .collect();
+    let x = image.mesh.rest();
+    let normals_all = wall.vertex_normals();
+    let (mut nodes, mut normals) = (Vec::new(), Vec::new());
+    for (&i, nrm) in wall.mesh_nodes().iter().zip(&normals_all) {
+        let far = image
+            .fixed
+            .iter()
+            .all(|&f| (x[f as usize] - x[i as usize]).norm() >= 0.015);
+        if aorta.contains(&i) && far {
+            nodes.push(i);
+            // Pushed outward, against the lumen normal.
+            normals.push(-nrm);
+        }
+    }
+    (nodes, normals, wall.mesh_nodes().len())
+}
+
+/// The reduced model at pressure: the first vibration modes of the living
+/// scene's wall at rest, of the same basis with the inflated wall's tangent
+/// (its Ritz values: the reduced stiffness K_r = ΦᵀK_pΦ a basis computed
+/// at rest gives at pressure), and of the basis computed at the inflated
+/// wall (the pressure's load stiffness in it); and the share of the static
+/// give under a point load that the modes carry, φᵀK_r⁻¹φ / nᵀK_p⁻¹n with
+/// φ = Φᵢᵀn, at the give's sample nodes (the rest is the residual
+/// compliance's).
+fn modes(r: usize) {
+    use nvtmm::model::BlockTangent;
+    use nvtmm::reduced::{BasisParams, BasisSpec, ModalBasis, Refresher, Statics, Stiffness};
+    use nvtmm::scene::Scene;
+    let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
+    let on = Scene::load(&root.join("rt-config/scenes/guidewire_arch_living.toml")).expect("scene");
+    let mut b = on.build().expect("scene with pressure");
+    let mut load = b.loads.pressure.take().expect("the scene has a [pressure]");
+    let inflated = on.inflate(&mut b, &mut load, on.integrator.dt).expect("inflation");
+    let (nodes, normals, _) = give_sample(&b);
+    let mass = b.mesh.lumped_mass(b.material.density);
+    let elastic = build_model(on.model, &b.mesh, &on.material(), on.material.law, &[]);
+    let mut k0 = BlockTangent::zeros(&b.mesh);
+    elastic.add_stiffness(&vec![Vec3::zeros(); b.mesh.num_nodes()], &mut k0);
+    let basis = |k: &BlockTangent| {
+        let t0 = Instant::now();
+        let basis = ModalBasis::compute(&BasisSpec {
+            stiffness: Stiffness::Tangent(k),
+            mass: &mass,
+            fixed: &b.fixed,
+            r,
+            statics: Statics::None,
+            warm: None,
+            params: BasisParams::default(),
+        })
+        .expect("basis");
+        (basis, t0.elapsed().as_secs_f64())
+    };
+    let (rest, rest_s) = basis(&k0);
+    let (press, press_s) = basis(&inflated.tangent);
+    let kr = Refresher::new(&b.mesh, &rest, &mass).project_tangent(&inflated.tangent);
+    let mut ritz: Vec<f64> = kr.clone().symmetric_eigenvalues().iter().copied().collect();
+    ritz.sort_by(f64::total_cmp);
+    let hz = |w2: f64| w2.max(0.0).sqrt() / (2.0 * std::f64::consts::PI);
+    println!(
+        "living arch, {} nodes, r = {r} vibration modes; inflated to {:.1} kPa by up to {:.2} mm; bases {:.1} s at rest, {:.1} s inflated",
+        b.mesh.num_nodes(),
+        load.schedule.mean_pa * 1e-3,
+        inflated.max_u_m * 1e3,
+        rest_s,
+        press_s
+    );
+    println!("| mode | at rest (Hz) | rest basis, inflated tangent (Hz) | inflated basis (Hz) |");
+    println!("|---:|---:|---:|---:|");
+    let rows = rest.omega2.iter().zip(&ritz).zip(&press.omega2).take(6);
+    for (m, ((rest_w2, ritz_w2), press_w2)) in rows.enumerate() {
+        println!(
+            "| {} | {:.2} | {:.2} | {:.2} |",
+            m + 1,
+            hz(*rest_w2),
+            hz(*ritz_w2),
+            hz(*press_w2)
+        );
+    }
+    // The modes' share of the static give at the sample nodes.
+    let exact = normal_compliance(&b.mesh, &mut inflated.tangent.clone(), &b.fixed, &nodes, &normals);
+    let share = |phi: &nalgebra::DMatrix<f64>, kr_inv: &nalgebra::DMatrix<f64>| -> Vec<f64> {
+        let mut s: Vec<f64> = nodes
+            .iter()
+            .zip(&normals)
+            .zip(&exact)
+            .map(|((&i, n), c)| {
+                let g = phi.rows(3 * i as usize, 3).transpose() * nalgebra::Vector3::new(n.x, n.y, n.z);
+                (g.transpose() * kr_inv * &g)[(0, 0)] / c
+            })
+            .collect();
+        s.sort_by(f64::total_cmp);
+        s
+    };
+    let kr_inv = kr.try_inverse().expect("K_r invertible");
+    let diag_inv = nalgebra::DMatrix::from_diagonal(&nalgebra::DVector::from_iterator(
+        press.omega2.len(),
+        press.omega2.iter().map(|w| 1.0 / w),
+    ));
+    let q = |s: &[f64], f: f64| s[((s.len() - 1) as f64 * f).round() as usize];
+    for (name, s) in [
+        ("rest basis, inflated tangent", share(&rest.phi, &kr_inv)),
+        ("inflated basis", share(&press.phi, &diag_inv)),
+    ] {
+        println!(
+            "modal share of the give at {} nodes, {name}: p05 {:.3} p50 {:.3} p95 {:.3}",
+            nodes.len(),
+            q(&s, 0.05),
+            q(&s, 0.5),
+            q(&s, 0.95)
+        );
+    }
+}
+
 fn main() {
     let args: Vec<String> = std::env::args().skip(1).collect();
     let num = |i: usize, d: f64| args.get(i).and_then(|s| s.parse().ok()).unwrap_or(d);
@@ -442,6 +552,9 @@ fn main() {
         Some("step") => step(num(1, 5832.0) as usize, num(2, 5.0)),
         Some("tick") => tick(),
         Some("give") => give(args.get(1).map(String::as_str)),
-        _ => eprintln!("usage: pressure_bench newton | unload [NODES] | step [NODES] [SECONDS] | tick | give [SCENE]"),
+        Some("modes") => modes(num(1, 32.0) as usize),
+        _ => eprintln!(
+            "usage: pressure_bench newton | unload [NODES] | step [NODES] [SECONDS] | tick | give [SCENE] | modes [R]"
+        ),
     }
 }

@@ -87,12 +87,30 @@ fn median<T: Copy + PartialOrd>(v: &mut [T]) -> Option<T> {
 /// progress (steps, task `"simulate"`) goes to `observer`.
 pub fn run(scene: &Scene, out_dir: &Path, observer: &crate::observe::Observe) -> Result<RunSummary, SimError> {
     let mut built = scene.build()?;
-    let mesh = &built.mesh;
-    let n = mesh.num_nodes();
-    let mass = mesh.lumped_mass(built.material.density);
-    let mut euler = ImplicitEuler::new(mesh, mass, scene.integrator).map_err(|e| SimError::Solver(e.to_string()))?;
+    let n = built.mesh.num_nodes();
     let mut state = TissueState::at_rest(n);
     let dt = scene.integrator.dt;
+    // A living vessel is never deflated: a pressurized scene starts from
+    // its wall inflated to the mean pressure, as the service starts it.
+    if let Some(mut load) = built.loads.pressure.take() {
+        observer.message(&format!(
+            "nvtmm simulate: inflating the wall to {:.0} Pa...",
+            load.schedule.mean_pa
+        ));
+        let inflated = scene.inflate(&mut built, &mut load, dt);
+        built.loads.pressure = Some(load);
+        let inflated = inflated?;
+        observer.message(&format!(
+            "nvtmm simulate: inflated by up to {:.2} mm ({} Newton iterations, {:.1} s)",
+            inflated.max_u_m * 1e3,
+            inflated.newton_iters,
+            inflated.solve_s
+        ));
+        state.u = inflated.u;
+    }
+    let mesh = &built.mesh;
+    let mass = mesh.lumped_mass(built.material.density);
+    let mut euler = ImplicitEuler::new(mesh, mass, scene.integrator).map_err(|e| SimError::Solver(e.to_string()))?;
     let steps = (scene.duration / dt).round().max(1.0) as usize;
     let out_err = |path: &Path, e: &dyn std::fmt::Display| SimError::Output {
         path: path.to_path_buf(),

@@ -6,7 +6,7 @@
 use nvtmm::material::{Law, Material};
 use nvtmm::mesh::block::block;
 use nvtmm::model::tmm::Tmm;
-use nvtmm::reduced::cache::{cache_path, load_or_compute, BasisRequest, CacheStatus};
+use nvtmm::reduced::cache::{cache_path, load_or_compute, BasisRequest, CacheStatus, Pressurized};
 use nvtmm::reduced::BasisParams;
 use std::process::Command;
 
@@ -29,6 +29,7 @@ fn cache_round_trip_and_corrupt_file_recovery() {
         contact: &contact,
         max_static: 4,
         params: BasisParams::default(),
+        pressurized: None,
     };
     let dir = tempfile::tempdir().unwrap();
     let (b1, o1) = load_or_compute(&req, Some(dir.path()), false).unwrap();
@@ -92,6 +93,20 @@ fn cache_round_trip_and_corrupt_file_recovery() {
     // The key depends on the contact nodes and on the mesh.
     let c2 = [contact[0]];
     assert_ne!(BasisRequest { contact: &c2, ..other }.key(), other.key());
+    // A basis linearized about a pressurized state is another basis, and
+    // so is one at another pressure or another state's tangent.
+    let mut k = nvtmm::model::BlockTangent::zeros(&mesh);
+    nvtmm::model::ForceModel::add_stiffness(&model, &vec![nvtmm::math::Vec3::zeros(); mesh.num_nodes()], &mut k);
+    let at = |mean_pa: f64, k| BasisRequest {
+        pressurized: Some(Pressurized { mean_pa, tangent: k }),
+        ..req
+    };
+    assert_ne!(at(1e4, &k).key(), req.key());
+    assert_ne!(at(1e4, &k).key(), at(1.2e4, &k).key());
+    let mut k2 = k.clone();
+    k2.diag[0][(0, 0)] *= 1.01;
+    assert_ne!(at(1e4, &k).key(), at(1e4, &k2).key());
+    assert_eq!(at(1e4, &k).key(), at(1e4, &k.clone()).key());
     // force recomputes; no cache dir means no file.
     assert_eq!(
         load_or_compute(&req, Some(dir.path()), true).unwrap().1.status,

@@ -5,7 +5,10 @@
 //! on — the cache format version, the mesh's rest positions and tets, the
 //! model name, the material constants and law, the lumped masses, the fixed
 //! nodes, r, the contact nodes and static-mode budget, and the basis
-//! tolerance and iteration limit. The file is `basis-<key as 16 hex>.bin` in
+//! tolerance and iteration limit; for a basis linearized about a
+//! pressurized state ([`Pressurized`]), also the pressure and that state's
+//! tangent (each entry rounded to single precision, so the last bits of a
+//! static solve do not change the key). The file is `basis-<key as 16 hex>.bin` in
 //! the cache directory.
 //!
 //! File format (all integers and floats little-endian; see docs/REDUCED.md):
@@ -121,6 +124,21 @@ pub struct BasisRequest<'a> {
     pub max_static: usize,
     /// Stopping rule.
     pub params: BasisParams,
+    /// None: linearized at rest (u = 0, `model`'s stiffness). Some: about
+    /// the wall inflated to a luminal pressure, whose tangent carries the
+    /// pressure's load stiffness.
+    pub pressurized: Option<Pressurized<'a>>,
+}
+
+/// The state a basis is linearized about when the vessel holds a luminal
+/// pressure (docs/PRESSURE.md, "The reduced model at pressure").
+#[derive(Debug, Clone, Copy)]
+pub struct Pressurized<'a> {
+    /// The steady pressure the wall is inflated to (Pa).
+    pub mean_pa: f64,
+    /// The full model's tangent there, with the pressure's load stiffness
+    /// ([`crate::scene::Inflated::tangent`]).
+    pub tangent: &'a crate::model::BlockTangent,
 }
 
 impl BasisRequest<'_> {
@@ -165,6 +183,17 @@ impl BasisRequest<'_> {
         h.u64(self.max_static as u64);
         h.f64(self.params.tol);
         h.u64(self.params.max_iterations as u64);
+        if let Some(p) = &self.pressurized {
+            h.str("pressurized");
+            h.f64(p.mean_pa);
+            let t = p.tangent;
+            h.u64((t.diag.len() + t.off.len()) as u64);
+            for b in t.diag.iter().chain(&t.off) {
+                for v in b.iter() {
+                    h.bytes(&(*v as f32).to_bits().to_le_bytes());
+                }
+            }
+        }
         h.finish()
     }
 
@@ -172,10 +201,13 @@ impl BasisRequest<'_> {
     pub fn compute(&self) -> Result<ModalBasis, ReducedError> {
         let u = vec![Vec3::zeros(); self.mesh.num_nodes()];
         ModalBasis::compute(&crate::reduced::BasisSpec {
-            stiffness: crate::reduced::Stiffness::Model {
-                mesh: self.mesh,
-                model: self.model,
-                u: &u,
+            stiffness: match &self.pressurized {
+                Some(p) => crate::reduced::Stiffness::Tangent(p.tangent),
+                None => crate::reduced::Stiffness::Model {
+                    mesh: self.mesh,
+                    model: self.model,
+                    u: &u,
+                },
             },
             mass: self.mass,
             fixed: self.fixed,
@@ -464,6 +496,7 @@ pub fn basis_for_scene(
         contact: &contact,
         max_static: if contact_modes { r / 2 } else { 0 },
         params: BasisParams::default(),
+        pressurized: None,
     };
     let dir = if red.is_none_or(|c| c.cache) {
         Some(scene.cache_dir())

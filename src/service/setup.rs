@@ -10,7 +10,7 @@ use crate::haptics::passivity::PassivityParams;
 use crate::math::Vec3;
 use crate::mesh::TetMesh;
 use crate::model::BlockTangent;
-use crate::reduced::cache::{load_or_compute, BasisRequest, CacheStatus};
+use crate::reduced::cache::{load_or_compute, BasisRequest, CacheStatus, Pressurized};
 use crate::reduced::compliance::{ComplianceParams, ComplianceStats, LocalCompliance};
 use crate::reduced::{BasisParams, DynamicsParams, ModalBasis};
 use crate::scene::{Inflated, Scene};
@@ -92,43 +92,6 @@ pub fn prepare(opts: &StartOptions) -> Result<Prepared, ServiceError> {
         Vec::new()
     };
     let mass = built.mesh.lumped_mass(built.material.density);
-    if opts.observer.is_active() {
-        opts.observer.message(&format!(
-            "nvtmm run: {} nodes, {} tets; basis r = {} ({} contact nodes)...",
-            built.mesh.num_nodes(),
-            built.mesh.tets().len(),
-            red.r,
-            contact.len()
-        ));
-    }
-    let req = BasisRequest {
-        mesh: &built.mesh,
-        model: built.model.as_ref(),
-        material: built.material,
-        law: scene.material.law,
-        mass: &mass,
-        fixed: &built.fixed,
-        r: red.r,
-        contact: &contact,
-        max_static: red.r / 2,
-        params: BasisParams::default(),
-    };
-    let max_static = red.r / 2;
-    let dir = red.cache.then(|| scene.cache_dir());
-    let (basis, outcome) = load_or_compute(&req, dir.as_deref(), false)?;
-    let basis_cache = match &outcome.status {
-        CacheStatus::Hit => "hit".to_string(),
-        CacheStatus::Computed => "computed".to_string(),
-        CacheStatus::Recomputed(why) => format!("recomputed ({why})"),
-        CacheStatus::Bypassed => "off".to_string(),
-    };
-    let mut passivity = cfg.passivity.clone();
-    passivity.dt_s = 1.0 / cfg.servo.rate_hz;
-    let dynamics = DynamicsParams {
-        dt: 1.0 / cfg.servo.rate_hz,
-        alpha: red.alpha,
-        beta: red.beta,
-    };
     let inflated = match pressure.as_mut() {
         Some(load) => {
             if let Some(u) = &built.unloaded {
@@ -158,6 +121,49 @@ pub fn prepare(opts: &StartOptions) -> Result<Prepared, ServiceError> {
             Some(s)
         }
         None => None,
+    };
+    if opts.observer.is_active() {
+        opts.observer.message(&format!(
+            "nvtmm run: {} nodes, {} tets; basis r = {} ({} contact nodes)...",
+            built.mesh.num_nodes(),
+            built.mesh.tets().len(),
+            red.r,
+            contact.len()
+        ));
+    }
+    let req = BasisRequest {
+        mesh: &built.mesh,
+        model: built.model.as_ref(),
+        material: built.material,
+        law: scene.material.law,
+        mass: &mass,
+        fixed: &built.fixed,
+        r: red.r,
+        contact: &contact,
+        max_static: red.r / 2,
+        params: BasisParams::default(),
+        // With a pressure, the modes of the inflated wall: its tangent
+        // has the pressure's load stiffness (docs/PRESSURE.md).
+        pressurized: inflated.as_ref().map(|s| Pressurized {
+            mean_pa: pressure.as_ref().map_or(0.0, |l| l.schedule.mean_pa),
+            tangent: &s.tangent,
+        }),
+    };
+    let max_static = red.r / 2;
+    let dir = red.cache.then(|| scene.cache_dir());
+    let (basis, outcome) = load_or_compute(&req, dir.as_deref(), false)?;
+    let basis_cache = match &outcome.status {
+        CacheStatus::Hit => "hit".to_string(),
+        CacheStatus::Computed => "computed".to_string(),
+        CacheStatus::Recomputed(why) => format!("recomputed ({why})"),
+        CacheStatus::Bypassed => "off".to_string(),
+    };
+    let mut passivity = cfg.passivity.clone();
+    passivity.dt_s = 1.0 / cfg.servo.rate_hz;
+    let dynamics = DynamicsParams {
+        dt: 1.0 / cfg.servo.rate_hz,
+        alpha: red.alpha,
+        beta: red.beta,
     };
     let compliance = match scene.compliance_params() {
         Some(cp) => {
