@@ -2389,10 +2389,15 @@ impl Wire {
                     let (e, f, kk) = penalty(pen, k, onset);
                     // The depth reported is the penalty's share of the
                     // force, f / k_c (with the onset, k_c · onset / 2 at touch).
-                    if o.weight > 0.0 && !inside {
-                        max_pen = max_pen.max(f / kc);
-                    } else {
-                        signed = true;
+                    // The sheath's depth is reported apart; its one
+                    // overlap has weight one, and its block k nnᵀ needs no
+                    // eigen-decomposition to stay positive semi-definite.
+                    if !inside {
+                        if o.weight > 0.0 {
+                            max_pen = max_pen.max(f / kc);
+                        } else {
+                            signed = true;
+                        }
                     }
                     energy += o.weight * e;
                     g -= o.normal * (o.weight * f);
