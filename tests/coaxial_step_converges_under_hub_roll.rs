@@ -9,7 +9,7 @@
 //! Guards the sheath contact's Hessian (the tube's curvature about a node,
 //! docs/CATHETER.md "The coupled solve"): without it 78 of these 3000
 //! steps ended off equilibrium and the wire took 4.0 Newton iterations a
-//! step on average; with it 7 and 3.2. The bounds leave room for rounding
+//! step on average; with it 4 to 7 and 3.2. The bounds leave room for rounding
 //! differences between machines, not for the old behaviour.
 
 use nvtmm::bench::coaxial::bench_coaxial;
