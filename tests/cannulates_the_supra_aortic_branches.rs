@@ -8,7 +8,8 @@
 //! scenarios"). The report names each instrument's tip segment: the wire's
 //! tip ends at least 20 mm into the target branch and the catheter's at
 //! least 10 mm, with no reset, no penetration of either rod into the
-//! vessel's wall beyond 0.2 mm and no allocation after start (the
+//! vessel's wall, nor of the wire into the catheter's, beyond 0.2 mm and
+//! no allocation after start (the
 //! brachiocephalic and carotid runs are ignored: they do not reach their
 //! targets every time, docs/scenes.md). Runs RT
 //! threads: run it alone (`cargo test --release --test

@@ -29,9 +29,9 @@ use std::path::Path;
 pub const WIRE_CATHETER_FRICTION: f64 = 0.05;
 
 /// The share of the wire's contact penalty with which the wire's contact
-/// forces on the catheter resist the catheter's motion over its step, when
-/// the stabilising spring is on ([`Coaxial::set_load_stiffness_share`]; off
-/// by default). The wire, held through the catheter's step, pushes back at
+/// forces on the catheter resist the catheter's motion over its step: the
+/// stabilising spring, on at this share by default
+/// ([`Coaxial::set_load_stiffness_share`]). The wire, held through the catheter's step, pushes back at
 /// most at its penalty's stiffness K_w; with a stiffness K̃ on the change,
 /// each pass multiplies the error by (K̃ − K_w) / (K_c + K̃), below one in
 /// size for any K̃ above K_w / 2. As dead loads alone (K̃ = 0) the factor
@@ -129,7 +129,7 @@ impl Coaxial {
             wire: w,
             catheter: c,
             friction: WIRE_CATHETER_FRICTION,
-            load_share: 0.0,
+            load_share: LOAD_STIFFNESS_SHARE,
         })
     }
 
@@ -154,12 +154,13 @@ impl Coaxial {
         }
     }
 
-    /// Turns on the stabilising spring with which the wire's contact
-    /// forces resist the catheter's motion over its step, at `share` of the
-    /// wire's contact penalty ([`LOAD_STIFFNESS_SHARE`] is the service's;
-    /// 0, the default, turns it off; clamped to [0, 1]). Needed where a
-    /// shaped wire tip or a shaped catheter presses the two together (the
-    /// service's pair), at the cost its doc names.
+    /// Sets the stabilising spring with which the wire's contact forces
+    /// resist the catheter's motion over its step, at `share` of the wire's
+    /// contact penalty ([`LOAD_STIFFNESS_SHARE`], the default and the
+    /// service's; 0 turns it off; clamped to [0, 1]). Needed where a shaped
+    /// wire tip or a shaped catheter presses the two together; off, a pair
+    /// without either settles a gentle shared curve faster (its doc names
+    /// the cost).
     pub fn set_load_stiffness_share(&mut self, share: f64) {
         if share.is_finite() {
             self.load_share = share.clamp(0.0, 1.0);

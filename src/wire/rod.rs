@@ -2307,10 +2307,14 @@ impl Wire {
         // pulls", change 2).
         for i in 2..n {
             let inside = self.cx.inside[i];
+            // Inside the sheath: the distance ρ from its centreline and the
+            // directions along it and out to the node, for the tube's
+            // curvature in the Hessian (below).
+            let mut tube = None;
             let hit = if inside {
                 // Inside the sheath: its inner wall is the node's lumen (a
                 // tube of its inner radius about its centreline).
-                let (_, _, q) = nearest_on_polyline(&self.cx.sheath, self.xt[i], &mut self.cx.sheath_seg[i]);
+                let (k, _, q) = nearest_on_polyline(&self.cx.sheath, self.xt[i], &mut self.cx.sheath_seg[i]);
                 let d = self.xt[i] - q;
                 let rho = d.norm();
                 let out = if rho > 1e-15 {
@@ -2318,6 +2322,8 @@ impl Wire {
                 } else {
                     perpendicular(self.tan[Self::contact_edge(i, n)])
                 };
+                let along = self.cx.sheath[k + 1] - self.cx.sheath[k];
+                tube = Some((rho, out, along));
                 let a = self.cx.funnel[i].max(self.cx.sheath_radius);
                 Some(WallHit {
                     distance: a - rho,
@@ -2383,10 +2389,15 @@ impl Wire {
                     let (e, f, kk) = penalty(pen, k, onset);
                     // The depth reported is the penalty's share of the
                     // force, f / k_c (with the onset, k_c · onset / 2 at touch).
-                    if o.weight > 0.0 && !inside {
-                        max_pen = max_pen.max(f / kc);
-                    } else {
-                        signed = true;
+                    // The sheath's depth is reported apart; its one
+                    // overlap has weight one, and its block k nnᵀ needs no
+                    // eigen-decomposition to stay positive semi-definite.
+                    if !inside {
+                        if o.weight > 0.0 {
+                            max_pen = max_pen.max(f / kc);
+                        } else {
+                            signed = true;
+                        }
                     }
                     energy += o.weight * e;
                     g -= o.normal * (o.weight * f);
@@ -2396,6 +2407,29 @@ impl Wire {
                 // contact block positive semi-definite.
                 if signed {
                     hm = psd(hm);
+                }
+                // The tube's inner wall curves about the node at its small
+                // radius: the penalty force f along the outward direction
+                // turns with the node's move across it, a stiffness
+                // f / ρ in the cross-section's other direction. Left out,
+                // it is of the order of the penalty's own (ρ is the
+                // clearance plus the depth, a tenth of a millimetre), far
+                // above the wire's bending stiffness at a node, and each
+                // Newton update overshot around the tube: the pair's steps
+                // ran out of iterations off equilibrium (docs/CATHETER.md
+                // "The coupled solve").
+                if let Some((rho, out, along)) = tube {
+                    let f = g.dot(&out);
+                    if f > 0.0 && rho > 1e-9 * r_w {
+                        let t = along - out * out.dot(&along);
+                        let tn = t.norm();
+                        let mut pr = Mat3::identity() - outer(&out, &out);
+                        if tn > 1e-300 {
+                            let t = t / tn;
+                            pr -= outer(&t, &t);
+                        }
+                        hm += pr * (f / rho);
+                    }
                 }
                 self.wall_force[i] = -g;
                 touched = true;
