@@ -490,7 +490,7 @@ impl PassivityFilter {
 
     /// The force to command for the filter's output `filtered` under the
     /// watchdog's gain `gain` while it ramps IN (no fault): `g′·filtered`
-    /// with the least `g′` in [`gain`, 1] whose change from the force held
+    /// with the least `g′` between `gain` and 1 whose change from the force held
     /// now (the last [`Self::set_commanded`]) is within the rate row.
     ///
     /// Why: the rate row bounds the filter's output against the commanded
@@ -510,12 +510,13 @@ impl PassivityFilter {
         let delta = self.params.rate_n_per_tick;
         let (ff, fp) = (filtered.norm_squared(), filtered.dot(&self.f_prev));
         let pp = self.f_prev.norm_squared();
-        if !(ff > 0.0) || (filtered * g - self.f_prev).norm() <= delta {
+        let usable = ff > 0.0 && ff.is_finite();
+        if !usable || (filtered * g - self.f_prev).norm() <= delta {
             return filtered * g;
         }
         // ‖g′F − P‖² ≤ Δ²: g′ between the roots of ff g′² − 2 fp g′ + pp − Δ².
         let disc = fp * fp - ff * (pp - delta * delta);
-        if !(disc >= 0.0) {
+        if disc.is_nan() || disc < 0.0 {
             return filtered * g;
         }
         let (lo, hi) = ((fp - disc.sqrt()) / ff, (fp + disc.sqrt()) / ff);
