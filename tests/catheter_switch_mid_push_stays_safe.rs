@@ -7,8 +7,10 @@
 //! neither rod goes more than 0.2 mm into the vessel's wall nor the wire
 //! into the catheter's, no step is reset, the instrument not worked holds
 //! its hub while the other advances, and the force the peer receives never
-//! exceeds the passivity filter's peak nor changes faster than its rate
-//! limit. Runs RT threads: run it alone.
+//! exceeds the passivity filter's peak, never grows faster than its rate
+//! limit, and around the presses never changes faster (the whole run's
+//! largest change of the loop's commanded force is printed: a start-up step
+//! over the limit is an open defect). Runs RT threads: run it alone.
 
 mod common;
 
@@ -158,11 +160,20 @@ inserted_m = 0.015
     );
 
     // The hand's force: finite, within the peak; its size grows no faster
-    // than the passivity filter's rate limit anywhere (a fall toward zero
-    // may be faster: the watchdog's ramp-down is one); and around each
+    // than the passivity filter's rate limit anywhere; and around each
     // press (from 50 ms before to 150 ms after it) it changes, in any
     // direction, no faster than that limit. One force datagram a device
-    // period, one loop tick a period.
+    // period, one loop tick a period (the device thread sends the newest
+    // command once a period: where the loop and the device drift a tick
+    // apart, one datagram's change spans two ticks).
+    //
+    // Over the whole run the loop's own figure (`qp.command_change_max_n`,
+    // every tick's commanded force) is printed, not bounded: before any
+    // push, 0.79 s after the start with the stylus still, the pair's
+    // settling makes the commanded force fall by 1.03-1.05 N in one tick,
+    // over the 1 N limit, the same to 15 digits from run to run, with the
+    // watchdog's gain already at one and no energy row active. An open
+    // defect (docs/INSTRUMENTS.md "The force while the gain ramps in").
     assert!(forces.len() > 1000, "{} force datagrams", forces.len());
     let pose_time = |seq: u64| sent_at.get((seq as usize).wrapping_sub(1)).copied().unwrap_or(f64::NAN);
     let near_press = |seq: u64| presses.iter().any(|&p| (p - 0.05..p + 0.15).contains(&pose_time(seq)));
@@ -182,6 +193,16 @@ inserted_m = 0.015
             any_most = (jump, k + 1);
         }
     }
+    // The force at rest, before the push: what the rods' settling gives
+    // the hand (printed every 100 ms).
+    let mut next_print = 0.0;
+    for (n, s, f) in &forces {
+        let t = pose_time(*s);
+        if t >= next_print && t < push_from {
+            println!("  at rest, {t:.2} s (datagram {n}): |F| {:.3} N", norm(f));
+            next_print = t + 0.1;
+        }
+    }
     let biggest = forces.iter().map(|(_, _, f)| norm(f)).fold(0.0, f64::max);
     let at = any_most.1;
     println!(
@@ -197,12 +218,24 @@ inserted_m = 0.015
         "the force changed {near_most} N in a tick at a switch"
     );
     assert!(grow_most <= rate + 1e-6, "the force grew {grow_most} N in a tick");
+    println!(
+        "the loop's commanded force: {:.4} N a tick at most over the whole run (not bounded: an open defect)",
+        report.qp.command_change_max_n
+    );
 
     // Both rods stayed in their walls, finite, never reset.
     let w = report.wire.as_ref().expect("wire.*");
     let json = serde_json::to_value(&report).unwrap();
     let c = &json["instruments"][2]["keys"];
     let f = |k: &str| c[k].as_f64().unwrap_or_else(|| panic!("catheter key {k}: {}", c[k]));
+    println!(
+        "wire: axial force at most {:.3} N, {:.1} mm inserted at most; the wire on the catheter: \
+         {:.0} N at most (normal, summed), {:.3} mm into its wall at most",
+        w.axial_force_max_n,
+        w.inserted_max_m * 1e3,
+        f("coaxial_normal_force_max_n"),
+        f("sheath_penetration_max_m") * 1e3
+    );
     assert!(w.inserted_m.is_finite() && f("inserted_m").is_finite());
     assert!(
         w.max_penetration_m < 0.2e-3,

@@ -234,7 +234,11 @@ impl<const R: usize> HapticTick<R> {
         if (filtered - out.desired).norm() > 1e-9 {
             fl |= flags::LIMITED;
         }
-        let force = self.servo.apply_gain(filtered, &mut fl);
+        let mut force = self.servo.apply_gain(filtered, &mut fl);
+        if fl & flags::WATCHDOG == 0 {
+            // Ramping in: the gain must not add to the rate row's step.
+            force = self.filter.ramp_in_within_rate(filtered, self.servo.gain());
+        }
         if fl & flags::NONFINITE != 0 {
             self.filter.reset();
             self.v_prev = Vec3::zeros();

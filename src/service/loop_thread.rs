@@ -16,7 +16,7 @@ use crate::haptics::device::DeviceSample;
 use crate::haptics::frame::DeviceFrame;
 use crate::haptics::passivity::PassivityStats;
 use crate::haptics::phases::{Phase, TickPhases, TickSplit};
-use crate::haptics::servo::{LoopModel, ServoCounters};
+use crate::haptics::servo::{flags, LoopModel, ServoCounters};
 use crate::haptics::tick::{Contribution, HapticTick, TickInput, MAX_INSTRUMENTS};
 use crate::math::Vec3;
 use crate::rt::clock::{self, Nanos};
@@ -280,7 +280,8 @@ pub(super) fn loop_thread<const R: usize>(mut tick: HapticTick<R>, mut io: LoopI
                 Some(fr) => fr.force_to_device(second_force),
                 None => second_force,
             };
-            second.output(sec, f, tick.servo().gain());
+            let faulted = out.flags & flags::WATCHDOG != 0;
+            second.output(sec, f, tick.servo().gain(), faulted);
         }
         let c = tick.servo().contact();
         if !c.nodes.is_empty() {
@@ -432,8 +433,9 @@ impl SecondPort {
     }
 
     /// Filters its instrument's force `f` (N, device frame) for its port,
-    /// applies the loop's watchdog gain and pushes it to its device.
-    fn output(&mut self, sec: &mut SecondIo, f: Vec3, gain: f64) {
+    /// applies the loop's watchdog gain (`faulted`: ramping down) and
+    /// pushes it to its device.
+    fn output(&mut self, sec: &mut SecondIo, f: Vec3, gain: f64, faulted: bool) {
         let sample = self.last.as_ref().filter(|_| self.fresh).map(|(s, _)| *s);
         let seq = sample.map(|s| s.seq);
         let repeated = seq.is_some() && seq == self.last_seq;
@@ -452,7 +454,13 @@ impl SecondPort {
             Vec3::zeros()
         };
         let filtered = sec.filter.filter(desired, x, v).force;
-        let mut force = filtered * gain.clamp(0.0, 1.0);
+        // The loop's gain, ramping in within this port's rate row (as the
+        // first port's `HapticTick::run_with`); a fault's ramp-down as it is.
+        let mut force = if faulted {
+            filtered * gain.clamp(0.0, 1.0)
+        } else {
+            sec.filter.ramp_in_within_rate(filtered, gain)
+        };
         if !force.iter().all(|c| c.is_finite()) {
             sec.filter.reset();
             force = Vec3::zeros();

@@ -47,6 +47,11 @@ pub struct QpReport {
     /// Of `solves`, those the exact active-set step answered with a KKT
     /// certificate, without the interior-point solver (docs/PASSIVITY.md).
     pub exact_solves: u64,
+    /// The largest change of the force commanded to the device from one
+    /// loop tick to the next (N): at most `passivity.rate_n_per_tick`
+    /// unless the energy row needed a faster change or the watchdog ramped
+    /// the force down.
+    pub command_change_max_n: f64,
 }
 
 /// One ring's counters.
@@ -473,7 +478,8 @@ impl Report {
         } else {
             s += &format!(
                 "  QP: {} solves ({} exact on their active set, the rest by the interior-point solver; {} ticks inside every bound took the shortcut), active norm {} rate {} energy {}, \
-                 iters p99 {}, solve p50 {:.1} µs p99 {:.1} µs, {} fallbacks, tank low {:.4} J; observer: in {:.4} J, out {:.4} J, unobserved {:.4} J, uncredited {:.4} J\n",
+                 iters p99 {}, solve p50 {:.1} µs p99 {:.1} µs, {} fallbacks, tank low {:.4} J; observer: in {:.4} J, out {:.4} J, unobserved {:.4} J, uncredited {:.4} J; \
+                 the commanded force changed by {:.3} N a tick at most\n",
                 q.solves,
                 q.exact_solves,
                 q.shortcuts,
@@ -488,7 +494,8 @@ impl Report {
                 q.observed_in_j,
                 q.observed_out_j,
                 q.unobserved_j,
-                q.uncredited_j
+                q.uncredited_j,
+                q.command_change_max_n
             );
         }
         let b = &self.background;

@@ -272,6 +272,7 @@ impl<const R: usize> RunningService for Running<R> {
                 uncredited_j: qp.uncredited_j,
                 shortcuts: qp.interior,
                 exact_solves: qp.exact,
+                command_change_max_n: qp.command_change_max_n,
             },
             energy_in_j: energy_in,
             energy_out_j: energy_out,

@@ -117,6 +117,13 @@ pub struct WireParams {
     /// its inputs; the shipped service file sets 500 µs for its 1 ms wire
     /// thread (docs/WIRE.md "A time limit on the extra iterations").
     pub residual_time_limit_us: f64,
+    /// Iterations past `newton_iterations` a step may take at most (for
+    /// `residual_tolerance_n`, or a node deep in the wall). A fixed count,
+    /// unlike `residual_time_limit_us`, so a scripted run's outcome does
+    /// not depend on the machine's load. `None` (the key left out): three
+    /// times `newton_iterations` (docs/WIRE.md "A fixed budget of extra
+    /// iterations").
+    pub max_extra_iterations: Option<usize>,
     /// Evaluations of the incremental potential per step at most (Newton
     /// assemblies, line-search trials and the reactions' evaluation): the
     /// step's cost is about this many evaluations at worst, whatever the
@@ -153,6 +160,7 @@ impl Default for WireParams {
             newton_iterations: 3,
             residual_tolerance_n: rod::RESIDUAL_TOLERANCE_N,
             residual_time_limit_us: 0.0,
+            max_extra_iterations: None,
             max_evaluations: 1000,
             drive: DriveParams::default(),
         }
@@ -254,6 +262,9 @@ impl WireParams {
         c.f64_in("dt_s", self.dt_s, 1e-6, 0.01, "s")?;
         c.int_in("newton_iterations", self.newton_iterations, 1, 100)?;
         c.int_in("max_evaluations", self.max_evaluations, 3, 10_000)?;
+        if let Some(k) = self.max_extra_iterations {
+            c.int_in("max_extra_iterations", k, 0, 300)?;
+        }
         c.f64_in("residual_tolerance_n", self.residual_tolerance_n, 0.0, 1e3, "N")?;
         c.f64_in(
             "residual_time_limit_us",
@@ -264,6 +275,12 @@ impl WireParams {
         )?;
         self.drive.validate(path, "drive.")?;
         Ok(())
+    }
+
+    /// The most iterations a step takes: `newton_iterations` plus
+    /// `max_extra_iterations` (three times `newton_iterations` when unset).
+    pub fn max_iterations(&self) -> usize {
+        self.newton_iterations + self.max_extra_iterations.unwrap_or(3 * self.newton_iterations)
     }
 
     /// The fastest the hub feeds wire in or out (m/s): a quarter of the

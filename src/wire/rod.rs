@@ -1334,9 +1334,9 @@ impl Wire {
             fed_m: fed,
             ..StepReport::default()
         };
-        // Past the configured iterations, go on (up to four times as many)
-        // only while the wire is deeper than a quarter radius in the wall.
-        let max_it = 4 * self.p.newton_iterations;
+        // Past the configured iterations, go on (up to the extra budget)
+        // only while the wire is off equilibrium or deep in the wall.
+        let max_it = self.p.max_iterations();
         // What the buffers hold at the current iterate (`s.x`, `xt`): its
         // geometry, energy (`e_cur`), penetration (`eval_pen`), gradient,
         // Hessian. A line search's first trial assembles what the next

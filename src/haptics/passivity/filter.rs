@@ -127,6 +127,10 @@ pub struct PassivityStats {
     pub uncredited_j: f64,
     /// Lowest tank level seen (J).
     pub tank_low_j: f64,
+    /// The largest change of the commanded force from one tick to the next
+    /// (N, [`PassivityFilter::set_commanded`]): the rate row's limit, unless
+    /// the energy row used the slack or the watchdog ramped the force down.
+    pub command_change_max_n: f64,
 }
 
 impl PassivityStats {
@@ -153,6 +157,7 @@ impl PassivityStats {
             unobserved_j: 0.0,
             uncredited_j: 0.0,
             tank_low_j: tank,
+            command_change_max_n: 0.0,
         }
     }
 
@@ -292,6 +297,8 @@ pub struct PassivityFilter {
     tank: f64,
     theta: f64,
     stats: PassivityStats,
+    /// The force commanded at the last [`Self::set_commanded`].
+    commanded: Vec3,
     /// The active set of the last solved tick: the exact step tries it
     /// first (consecutive ticks mostly share it).
     last_guess: Option<Guess>,
@@ -375,6 +382,7 @@ impl PassivityFilter {
             b,
             f_prev: Vec3::zeros(),
             f_prev2: Vec3::zeros(),
+            commanded: Vec3::zeros(),
             x_prev: Vec3::zeros(),
             have_prev: false,
             v_last: Vec3::zeros(),
@@ -432,6 +440,8 @@ impl PassivityFilter {
         self.last_guess = None;
         self.f_prev = Vec3::zeros();
         self.have_prev = false;
+        // The device is commanded zero from here.
+        self.set_commanded(Vec3::zeros());
     }
 
     /// Tells the filter that the sample of the coming call to
@@ -473,6 +483,47 @@ impl PassivityFilter {
         } else {
             Vec3::zeros()
         };
+        let change = (self.f_prev - self.commanded).norm();
+        self.stats.command_change_max_n = self.stats.command_change_max_n.max(change);
+        self.commanded = self.f_prev;
+    }
+
+    /// The force to command for the filter's output `filtered` under the
+    /// watchdog's gain `gain` while it ramps IN (no fault): `g′·filtered`
+    /// with the least `g′` between `gain` and 1 whose change from the force held
+    /// now (the last [`Self::set_commanded`]) is within the rate row.
+    ///
+    /// Why: the rate row bounds the filter's output against the commanded
+    /// force, but the hand gets the output times the gain. While the gain
+    /// is below one, a falling output lost its (1 − gain) share on top of
+    /// the rate's step: at a catheter service's start, the rods settling
+    /// and the gain at 0.94, the hand's force fell from 1.77 to 0.72 N in
+    /// one tick, over the 1 N limit. `g′·filtered` lies between
+    /// `gain·filtered` and `filtered`, so it keeps the norm bound and the
+    /// energy ball (both hold `filtered` and the origin, and are convex);
+    /// the ramp-in is slowed only as much as the rate needs. When even
+    /// `filtered` is beyond the rate (the energy row used the slack), the
+    /// plain `gain·filtered`. A fault's ramp-down does not come here: it
+    /// is the watchdog's to be fast.
+    pub fn ramp_in_within_rate(&self, filtered: Vec3, gain: f64) -> Vec3 {
+        let g = gain.clamp(0.0, 1.0);
+        let delta = self.params.rate_n_per_tick;
+        let (ff, fp) = (filtered.norm_squared(), filtered.dot(&self.f_prev));
+        let pp = self.f_prev.norm_squared();
+        let usable = ff > 0.0 && ff.is_finite();
+        if !usable || (filtered * g - self.f_prev).norm() <= delta {
+            return filtered * g;
+        }
+        // ‖g′F − P‖² ≤ Δ²: g′ between the roots of ff g′² − 2 fp g′ + pp − Δ².
+        let disc = fp * fp - ff * (pp - delta * delta);
+        if disc.is_nan() || disc < 0.0 {
+            return filtered * g;
+        }
+        let (lo, hi) = ((fp - disc.sqrt()) / ff, (fp + disc.sqrt()) / ff);
+        if hi < g || lo > 1.0 {
+            return filtered * g;
+        }
+        filtered * lo.clamp(g, 1.0)
     }
 
     /// The norm bound for the current thermal state (N).

@@ -147,6 +147,7 @@ impl CatheterConfig {
             newton_iterations: wire.newton_iterations,
             residual_tolerance_n: wire.residual_tolerance_n,
             residual_time_limit_us: wire.residual_time_limit_us,
+            max_extra_iterations: wire.max_extra_iterations,
             max_evaluations: wire.max_evaluations,
             drive: wire.drive,
             ..base
