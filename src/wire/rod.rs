@@ -865,6 +865,16 @@ fn psd(m: Mat3) -> Mat3 {
         return Mat3::zeros();
     }
     let scale = l[0].max(-l[2]);
+    // Eigenvalues within the closed form's own error of zero (a rank-one
+    // block's two zero eigenvalues come out as ±1e-9 of it, whose
+    // eigenvectors are not determined): taken as zero.
+    let tiny = PSD_ZERO * scale;
+    if l[1] >= 0.0 && l[2] >= -tiny {
+        return m;
+    }
+    if l[1] < 0.0 && l[0] <= tiny {
+        return Mat3::zeros();
+    }
     // One negative eigenvalue: take it out; two: keep the positive one.
     let (lam, keep) = if l[1] >= 0.0 { (l[2], false) } else { (l[0], true) };
     if let Some(v) = sym3_eigenvector(&m, lam, scale) {
@@ -873,6 +883,12 @@ fn psd(m: Mat3) -> Mat3 {
     }
     psd_iterative(m)
 }
+
+/// Eigenvalues of a contact block within this fraction of its largest
+/// are zero to [`psd`]: above the closed form's error near a double
+/// eigenvalue (about 10⁻⁸ of the block), far below what the Newton model
+/// can feel.
+const PSD_ZERO: f64 = 3e-8;
 
 /// [`psd`] by the iterative symmetric eigensolver.
 fn psd_iterative(m: Mat3) -> Mat3 {
