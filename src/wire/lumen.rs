@@ -156,7 +156,20 @@ pub struct ProbeCache {
     clear: f64,
     len: u16,
     tris: [u32; PROBE_CACHE_CAP],
+    /// The nearest candidate of the last full search ([`NO_NEAR`]: none
+    /// since the cache was built), the point searched from, the lumen's
+    /// `moved` then, and a lower bound on how much farther every other
+    /// candidate was: a later query within `near_gap` / 2 of that point,
+    /// wall motion included, has the same nearest candidate
+    /// (`TriangleLumen::nearest_cached`).
+    near: u32,
+    near_at: Vec3,
+    near_moved: f64,
+    near_gap: f64,
 }
+
+/// [`ProbeCache`]'s `near` when no full search has run since it was built.
+const NO_NEAR: u32 = u32::MAX;
 
 impl Default for ProbeCache {
     fn default() -> Self {
@@ -170,6 +183,10 @@ impl Default for ProbeCache {
             clear: 0.0,
             len: 0,
             tris: [0; PROBE_CACHE_CAP],
+            near: NO_NEAR,
+            near_at: Vec3::zeros(),
+            near_moved: 0.0,
+            near_gap: 0.0,
         }
     }
 }
@@ -1221,17 +1238,79 @@ impl TriangleLumen {
         if cache.clear - off > range + 1e-9 * range.max(cache.clear) {
             return None;
         }
-        let mut best: Option<(f64, Vec3, usize)> = None;
-        for &t in &cache.tris[..cache.len as usize] {
-            let t = t as usize;
-            self.consider(p, t, &self.tri_spheres[t], &mut best);
-        }
+        let best = self.nearest_cached(p, cache);
         match best {
             // Every triangle within `range` of p is a candidate: none is
             // within range, and p is on the lumen's side (see ProbeCache).
             Some((d2, _, _)) if d2 > range * range => None,
             _ => self.finish(p, range, best),
         }
+    }
+
+    /// The nearest of `cache`'s candidates to `p` (squared distance,
+    /// nearest point, triangle), as [`TriangleLumen::consider`] over them
+    /// all in order finds it. When `p` is within half the last full
+    /// search's gap of the point it searched from (the wall's motion since
+    /// counted in), that search's nearest triangle is still strictly the
+    /// nearest (triangle inequality: it came nearer by at most the drift,
+    /// every other candidate by at most the drift too), and only its
+    /// distance is computed: the same result, bit for bit, as the full
+    /// search (`cached_probe_matches_the_grid_probe`).
+    ///
+    /// Why: a wire's node moves micrometres between the evaluations of a
+    /// step and between steps, while its cache holds a dozen candidates;
+    /// the full search over them was the largest part of a wall-loaded
+    /// step (the tick bench's 33 contacts: ~60 probes an evaluation).
+    fn nearest_cached(&self, p: Vec3, cache: &mut ProbeCache) -> Option<(f64, Vec3, usize)> {
+        if cache.near != NO_NEAR {
+            let drift = (p - cache.near_at).norm() + (self.moved - cache.near_moved);
+            // The margin covers the distances' rounding, far below it.
+            if cache.near_gap > 2.0 * drift + 1e-9 * cache.reach {
+                let t = cache.near as usize;
+                let [va, vb, vc] = self.tris[t].map(|i| self.verts[i as usize]);
+                let q = closest_on_triangle(p, va, vb, vc);
+                return Some(((p - q).norm_squared(), q, t));
+            }
+        }
+        // The full search, as `consider` does it, noting a lower bound on
+        // every other candidate's distance: its own where computed, its
+        // sphere's where skipped (at least the best's distance).
+        let mut best: Option<(f64, Vec3, usize)> = None;
+        let mut other = f64::INFINITY;
+        for &t in &cache.tris[..cache.len as usize] {
+            let t = t as usize;
+            let [gx, gy, gz, gr] = self.tri_spheres[t];
+            if let Some((bd, _, _)) = best {
+                let dc = ((p.x - gx).powi(2) + (p.y - gy).powi(2) + (p.z - gz).powi(2)).sqrt();
+                let lb = dc - gr;
+                if lb > 0.0 && lb * lb >= bd {
+                    other = other.min(lb);
+                    continue;
+                }
+            }
+            let [va, vb, vc] = self.tris[t].map(|i| self.verts[i as usize]);
+            let q = closest_on_triangle(p, va, vb, vc);
+            let d2 = (p - q).norm_squared();
+            match best {
+                Some((bd, _, _)) if d2 >= bd => other = other.min(d2.sqrt()),
+                _ => {
+                    if let Some((bd, _, _)) = best {
+                        other = other.min(bd.sqrt());
+                    }
+                    best = Some((d2, q, t));
+                }
+            }
+        }
+        match best {
+            Some((d2, _, t)) => {
+                cache.near = t as u32;
+                cache.near_at = p;
+                cache.near_moved = self.moved;
+                cache.near_gap = other - d2.sqrt();
+            }
+            None => cache.near = NO_NEAR,
+        }
+        best
     }
 
     /// Whether `cache` was built by this lumen and holds every triangle
@@ -1255,6 +1334,7 @@ impl TriangleLumen {
         cache.reach = reach;
         cache.moved = self.moved;
         cache.len = 0;
+        cache.near = NO_NEAR;
         // A centre on the lumen's side, or beyond the wall by at most half
         // the range (a wire pressed into a compliant wall, which gives: the
         // nearest wall of every query it serves then lies within the
@@ -1642,6 +1722,53 @@ mod tests {
         }
         assert!(hits > 2000, "{hits} hits");
         assert!(kept > 10000, "{kept} cached queries");
+    }
+
+    /// Points drifting by micrometres, as a wire's nodes do between the
+    /// evaluations of a step, while the wall breathes by less and twins
+    /// are swapped in: every query is the grid probe's, bit for bit, and
+    /// most take the last full search's nearest triangle.
+    #[test]
+    fn a_probe_that_drifts_micrometres_keeps_its_nearest_triangle_exactly() {
+        let (v, t) = tube_mesh(5e-3, 0.05, 32, 20);
+        let first = TriangleLumen::new(&v, &t).unwrap();
+        let mut spare = first.twin();
+        let mut current = first;
+        let mut moved = 0.0;
+        let mut last = v.clone();
+        let mut rnd = uniform(17);
+        let range = 1.335e-3;
+        let mut caches = [ProbeCache::default(); 8];
+        // Near the wall (0.1–1 mm inside it), where a wire's nodes probe.
+        let mut pts: Vec<Vec3> = (0..8)
+            .map(|k| {
+                let phi = 0.8 * k as f64;
+                let rho = 4.0e-3 + 0.12e-3 * k as f64;
+                Vec3::new(0.006 + 0.005 * k as f64, rho * phi.cos(), rho * phi.sin())
+            })
+            .collect();
+        let (mut quick, mut queries) = (0, 0);
+        for it in 0..6000 {
+            if it % 17 == 16 {
+                let f = 1.0 + 0.0004 * rnd();
+                let new: Vec<Vec3> = v.iter().map(|p| Vec3::new(p.x, p.y * f, p.z * f)).collect();
+                moved += new.iter().zip(&last).map(|(a, b)| (a - b).norm()).fold(0.0, f64::max);
+                last.copy_from_slice(&new);
+                spare.update_twin(&new, moved).unwrap();
+                std::mem::swap(&mut current, &mut spare);
+            }
+            for (k, p) in pts.iter_mut().enumerate() {
+                let d = Vec3::new(rnd(), rnd(), rnd()) * 4e-6;
+                let at = caches[k].near_at;
+                wander_and_probe(&current, p, d, range, &mut caches[k], (it, k));
+                quick += (caches[k].near != NO_NEAR && caches[k].near_at == at) as usize;
+                queries += 1;
+            }
+        }
+        assert!(
+            quick > queries / 2,
+            "{quick} of {queries} queries took the kept nearest triangle"
+        );
     }
 
     /// Nodes of a wire pressed into a compliant wall sit beyond the
