@@ -1957,6 +1957,19 @@ mod tests {
             })
         }
         let mut scratch = Candidates::new();
+        let press_new = |c: &[Vec3], scratch: &mut Candidates, out: &mut ContactOutput<2>| {
+            evaluate_spheres(
+                &idx,
+                &p,
+                c,
+                new_at(q_new),
+                rows,
+                None,
+                motion(&q_new, &u_new),
+                scratch,
+                out,
+            )
+        };
         let (mut new, mut old, mut fresh) = (
             ContactOutput::<2>::for_index(&idx),
             ContactOutput::<2>::for_index(&idx),
@@ -1964,17 +1977,7 @@ mod tests {
         );
         for (k, dx) in [0.0, 2e-4, 1.5e-3].into_iter().enumerate() {
             let c = [Vec3::new(0.02 + dx, 0.02, 0.002 + p.tool_radius_m - 5e-4)];
-            evaluate_spheres(
-                &idx,
-                &p,
-                &c,
-                new_at(q_new),
-                rows,
-                None,
-                motion(&q_new, &u_new),
-                &mut scratch,
-                &mut new,
-            );
+            press_new(&c, &mut scratch, &mut new);
             let om = motion(&q_old, &u_old).unwrap();
             let adopted = old.adopt_searches(&new, d, &shift, &c, &om);
             // The new model searched on the first tick and after 1.5 mm;
@@ -2017,17 +2020,7 @@ mod tests {
         }
         // A bound beyond the slack takes nothing over.
         let c = [Vec3::new(0.03, 0.02, 0.002 + p.tool_radius_m - 5e-4)];
-        evaluate_spheres(
-            &idx,
-            &p,
-            &c,
-            new_at(q_new),
-            rows,
-            None,
-            motion(&q_new, &u_new),
-            &mut scratch,
-            &mut new,
-        );
+        press_new(&c, &mut scratch, &mut new);
         let om = motion(&q_old, &u_old).unwrap();
         assert_eq!(old.adopt_searches(&new, 2.0 * COHERENCE_SLACK_M, &shift, &c, &om), 0);
     }
