@@ -54,7 +54,7 @@ fn the_wire_turned_to_the_right_leads_and_the_catheter_tracks_into_the_brachioce
 /// turned back toward the carotid and advanced out of the catheter into
 /// it; the catheter tracks over it.
 #[test]
-#[ignore = "not reliable yet: in 8 of 9 runs on the loaded development machine both reached the carotid (wire 54-57 mm, catheter 16-20 mm), in the ninth both ended in the aorta with no time-limited step; docs/scenes.md \"Cannulation scenarios\""]
+#[ignore = "not reliable yet: with the sheath contact's curvature in the wire's Newton step, 1 of 3 runs on the quiet development machine reached the carotid (wire 51 mm, catheter 12 mm); in the others both tips ended in the aorta; docs/scenes.md \"Cannulation scenarios\""]
 fn the_catheter_holds_the_wire_below_the_ostium_and_the_turned_wire_leads_into_the_left_common_carotid() {
     cannulates("cannulate_left_common_carotid.toml", "left_common_carotid");
 }
