@@ -167,6 +167,13 @@ basis_refresh_m = 1e-5
         report.model_swaps
     );
     assert!(ph.phases["fade"].ticks > 0, "the cross-fade ran");
+    // A cross-fade ends early at most once, and only a swap's.
+    assert!(
+        report.watchdog.fades_ended_early <= report.model_swaps,
+        "{} fades ended early, {} swaps",
+        report.watchdog.fades_ended_early,
+        report.model_swaps
+    );
     assert_eq!(ph.phases["series"].ticks, report.watchdog.compliance_ticks);
     // The probe slides, so its sphere leaves its kept triangles' slack and
     // searches again; never on more ticks than contact ran.

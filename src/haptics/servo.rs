@@ -93,6 +93,14 @@ pub struct ServoParams {
     pub command_timeout_s: f64,
 }
 
+/// A model swap's cross-fade ends at the first tick where the old and the
+/// new model's forces on the hand differ by at most this (N): the output
+/// then steps by less than 1 mN, well under what a hand feels through a
+/// stylus (tens of millinewtons), and the old model's contact and step stop
+/// costing the loop a tick sooner. Out of contact that is the swap's first
+/// tick.
+pub const FADE_DONE_N: f64 = 1e-3;
+
 /// Status bits of a tick (also the stream's flags).
 pub mod flags {
     /// The watchdog is holding the force down (a fault is active).
@@ -168,6 +176,9 @@ pub struct ServoCounters {
     /// of searching the same surface again on the same tick
     /// ([`contact::ContactOutput::adopt_searches`]).
     pub fade_searches_shared: u64,
+    /// Cross-fades ended before their time because the two models' forces
+    /// on the hand agreed within [`FADE_DONE_N`].
+    pub fades_ended_early: u64,
 }
 
 /// Longest delay from a patch's first touch to its first corrected tick
@@ -918,6 +929,12 @@ impl<const R: usize> Servo<R> {
                 self.split.add(Phase::Search, self.fade_contact.search_ns);
             }
             self.blend = (self.blend + p.dt / p.swap_blend_s.max(p.dt)).min(1.0);
+            if (f_old - desired).norm() <= FADE_DONE_N && self.blend < 1.0 {
+                // Nothing left to hide: the models agree on the hand's
+                // force (out of contact, both give none).
+                self.blend = 1.0;
+                self.counters.fades_ended_early += 1;
+            }
             desired = f_old * (1.0 - self.blend) + desired * self.blend;
             finite &= ok_old;
             if self.blend >= 1.0 {
