@@ -553,19 +553,9 @@ impl<const R: usize> ContactOutput<R> {
             if !k.valid {
                 continue;
             }
-            let carried = k.carried + moved;
-            if !at_most(carried, COHERENCE_SLACK_M) {
-                continue;
+            if self.take_sphere_from(from, s, moved, k.q + shift) {
+                carried_spheres += 1;
             }
-            let (base, len) = (s * KEPT_TRIANGLES, k.len as usize);
-            self.kept_tris[base..base + len].copy_from_slice(&from.kept_tris[base..base + len]);
-            self.kept_dist[base..base + len].copy_from_slice(&from.kept_dist[base..base + len]);
-            self.kept[s] = Kept {
-                carried,
-                q: k.q + shift,
-                ..*k
-            };
-            carried_spheres += 1;
         }
         // The pair blocks depend on the table and the nodes only.
         for (s, key) in from.pair_keys.iter().enumerate() {
@@ -600,6 +590,7 @@ impl<const R: usize> ContactOutput<R> {
         if !(moved.is_finite() && moved >= 0.0 && shift.iter().all(|v| v.is_finite()))
             || self.kept.len() != from.kept.len()
             || self.kept_tris.len() != from.kept_tris.len()
+            || self.kept_dist.len() != from.kept_dist.len()
         {
             return 0;
         }
@@ -609,21 +600,29 @@ impl<const R: usize> ContactOutput<R> {
             if from.searched & (1 << s) == 0 || !k.valid || self.may_reuse(s, center, motion).is_some() {
                 continue;
             }
-            let carried = k.carried + moved;
-            if !at_most(carried, COHERENCE_SLACK_M) {
-                continue;
+            if self.take_sphere_from(from, s, moved, k.q - shift) {
+                adopted += 1;
             }
-            let (base, len) = (s * KEPT_TRIANGLES, k.len as usize);
-            self.kept_tris[base..base + len].copy_from_slice(&from.kept_tris[base..base + len]);
-            self.kept_dist[base..base + len].copy_from_slice(&from.kept_dist[base..base + len]);
-            self.kept[s] = Kept {
-                carried,
-                q: k.q - shift,
-                ..k
-            };
-            adopted += 1;
         }
         adopted
+    }
+
+    /// Takes `from`'s kept triangles of sphere `s` for a model whose
+    /// positions differ from `from`'s by up to `moved` (m) more, with the
+    /// kept state `q` in this output's coordinates; false (nothing taken)
+    /// if the motion already allowed would pass the slack. The callers
+    /// checked that both outputs have the same capacities.
+    fn take_sphere_from(&mut self, from: &ContactOutput<R>, s: usize, moved: f64, q: SVector<f64, R>) -> bool {
+        let k = from.kept[s];
+        let carried = k.carried + moved;
+        if !at_most(carried, COHERENCE_SLACK_M) {
+            return false;
+        }
+        let (base, len) = (s * KEPT_TRIANGLES, k.len as usize);
+        self.kept_tris[base..base + len].copy_from_slice(&from.kept_tris[base..base + len]);
+        self.kept_dist[base..base + len].copy_from_slice(&from.kept_dist[base..base + len]);
+        self.kept[s] = Kept { carried, q, ..k };
+        true
     }
 
     /// Calls `f` with each node of every triangle a sphere keeps (a node
