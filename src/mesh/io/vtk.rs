@@ -208,8 +208,9 @@ fn escape(name: &str) -> String {
         .collect()
 }
 
-pub(super) fn read(path: &Path, data: &[u8]) -> Result<RawMesh, MeshError> {
-    let mut s = Scan::new(path, data);
+/// Reads a legacy VTK file's header (version line, title, encoding) up to
+/// its `DATASET` keyword; returns the arrays' encoding and the dataset type.
+pub(crate) fn legacy_header<'a>(s: &mut Scan<'a>) -> Result<(Arrays, &'a str), MeshError> {
     let header = s.rest_of_line();
     if !header.starts_with(b"# vtk DataFile") {
         return Err(s.err_at(
@@ -225,7 +226,12 @@ pub(super) fn read(path: &Path, data: &[u8]) -> Result<RawMesh, MeshError> {
         _ => return Err(s.err(format!("expected ASCII or BINARY, found '{}'", quote(enc)))),
     };
     s.expect("DATASET")?;
-    let ds = s.token("the dataset type")?;
+    Ok((arrays, s.token("the dataset type")?))
+}
+
+pub(super) fn read(path: &Path, data: &[u8]) -> Result<RawMesh, MeshError> {
+    let mut s = Scan::new(path, data);
+    let (arrays, ds) = legacy_header(&mut s)?;
     if ds != "UNSTRUCTURED_GRID" {
         return Err(s.err(format!(
             "dataset '{}' is not supported (only UNSTRUCTURED_GRID holds tets)",

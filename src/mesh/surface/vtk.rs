@@ -15,7 +15,7 @@
 use super::{fan, vertex_index, SurfaceMesh};
 use crate::math::Vec3;
 use crate::mesh::io::scan::{quote, Scan};
-use crate::mesh::io::vtk::{attributes, cell_list, field, metadata, Arrays};
+use crate::mesh::io::vtk::{attributes, cell_list, field, legacy_header, metadata};
 use crate::mesh::io::vtu::{ints, reals, scan_doc, Doc};
 use crate::mesh::io::MeshError;
 use std::collections::BTreeMap;
@@ -92,22 +92,7 @@ fn points(v: &[f64], err: impl Fn(String) -> MeshError) -> Result<Vec<Vec3>, Mes
 
 pub(super) fn read_legacy(path: &Path, data: &[u8]) -> Result<SurfaceMesh, MeshError> {
     let mut s = Scan::new(path, data);
-    let header = s.rest_of_line();
-    if !header.starts_with(b"# vtk DataFile") {
-        return Err(s.err_at(
-            1,
-            "not a VTK legacy file (the first line must start with '# vtk DataFile')",
-        ));
-    }
-    s.rest_of_line(); // title
-    let enc = s.token("ASCII or BINARY")?;
-    let arrays = match enc.to_ascii_uppercase().as_str() {
-        "ASCII" => Arrays { binary: false },
-        "BINARY" => Arrays { binary: true },
-        _ => return Err(s.err(format!("expected ASCII or BINARY, found '{}'", quote(enc)))),
-    };
-    s.expect("DATASET")?;
-    let ds = s.token("the dataset type")?;
+    let (arrays, ds) = legacy_header(&mut s)?;
     if ds != "POLYDATA" {
         return Err(s.err(format!(
             "dataset '{}' is not a surface: only POLYDATA is read as a surface",
