@@ -10,37 +10,14 @@ use std::io::Read;
 use std::net::TcpStream;
 use std::time::{Duration, Instant};
 
+mod common;
+
 #[global_allocator]
 static ALLOC: nvtmm::rt::alloc::RtAllocator = nvtmm::rt::alloc::RtAllocator;
 
 fn config(dir: &std::path::Path, igtl_port: Option<u16>) -> String {
     let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
-    std::fs::write(
-        dir.join("scene.toml"),
-        format!(
-            r#"model = "nvtmm"
-duration = 1.0
-[mesh]
-arch_nodes = 1458
-[material]
-youngs_pa = 65e3
-poisson = 0.45
-[fixed]
-sets = ["inlet", "outlet_descending"]
-[integrator]
-dt = 1e-2
-newton = {{ max_iters = 1 }}
-linear = {{ kind = "cholesky_pcg", tol = 1e-6, refactor_every = 3, factor_f32 = true }}
-[reduced]
-r = 16
-contact_modes = true
-contact_region = {{ center = [0.0065, -0.031, 0.177], radius = 0.015, set = "outer_wall" }}
-cache_dir = "{}"
-"#,
-            dir.join("cache").display()
-        ),
-    )
-    .unwrap();
+    common::service::write_small_scene(dir);
     let igtl = igtl_port
         .map(|p| format!("igtl = {{ listen = \"127.0.0.1:{p}\", queue_frames = 2 }}\n"))
         .unwrap_or_default();

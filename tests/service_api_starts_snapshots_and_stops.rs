@@ -6,6 +6,8 @@
 use nvtmm::service::{Service, StartOptions};
 use std::time::Duration;
 
+mod common;
+
 #[global_allocator]
 static ALLOC: nvtmm::rt::alloc::RtAllocator = nvtmm::rt::alloc::RtAllocator;
 
@@ -13,32 +15,7 @@ static ALLOC: nvtmm::rt::alloc::RtAllocator = nvtmm::rt::alloc::RtAllocator;
 fn start_snapshot_stop_from_an_in_memory_config() {
     let dir = tempfile::tempdir().unwrap();
     let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
-    std::fs::write(
-        dir.path().join("scene.toml"),
-        format!(
-            r#"model = "nvtmm"
-duration = 1.0
-[mesh]
-arch_nodes = 1458
-[material]
-youngs_pa = 65e3
-poisson = 0.45
-[fixed]
-sets = ["inlet", "outlet_descending"]
-[integrator]
-dt = 1e-2
-newton = {{ max_iters = 1 }}
-linear = {{ kind = "cholesky_pcg", tol = 1e-6, refactor_every = 3, factor_f32 = true }}
-[reduced]
-r = 16
-contact_modes = true
-contact_region = {{ center = [0.0065, -0.031, 0.177], radius = 0.015, set = "outer_wall" }}
-cache_dir = "{}"
-"#,
-            dir.path().join("cache").display()
-        ),
-    )
-    .unwrap();
+    common::service::write_small_scene(dir.path());
     let config = format!(
         r#"scene = "scene.toml"
 seconds = 2.0

@@ -15,10 +15,9 @@ pub fn options(dir: &std::path::Path) -> StartOptions {
     StartOptions::text(config, dir.join("in-memory.toml"))
 }
 
-/// Writes the small service's scene (`dir/scene.toml`) and returns its
-/// service configuration's text (relative paths anchored in `dir`).
-pub fn write_scene_and_config(dir: &std::path::Path) -> String {
-    let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
+/// Writes the small service's scene (`dir/scene.toml`: the 1458-node arch,
+/// r = 16, its basis cached in `dir/cache`).
+pub fn write_small_scene(dir: &std::path::Path) {
     std::fs::write(
         dir.join("scene.toml"),
         format!(
@@ -45,6 +44,13 @@ cache_dir = "{}"
         ),
     )
     .unwrap();
+}
+
+/// Writes the small service's scene (`dir/scene.toml`) and returns its
+/// service configuration's text (relative paths anchored in `dir`).
+pub fn write_scene_and_config(dir: &std::path::Path) -> String {
+    let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
+    write_small_scene(dir);
     format!(
         r#"scene = "scene.toml"
 seconds = 60.0
