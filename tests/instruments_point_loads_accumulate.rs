@@ -8,16 +8,10 @@
 mod common;
 
 use common::counting::{count_allocations, Counting};
-use nvtmm::haptics::contact::{ContactParams, SurfaceIndex};
 use nvtmm::haptics::device::DeviceSample;
 use nvtmm::haptics::passivity::{PassivityFilter, PassivityParams};
-use nvtmm::haptics::servo::{Servo, ServoParams};
 use nvtmm::haptics::tick::{Contribution, HapticTick, TickInput};
-use nvtmm::material::Material;
 use nvtmm::math::Vec3;
-use nvtmm::reduced::{basis_rows, DynamicsParams, Refresher};
-use nvtmm::service::background::rest_model;
-use std::sync::Arc;
 
 #[global_allocator]
 static ALLOC: Counting = Counting;
@@ -26,41 +20,7 @@ const R: usize = 8;
 const DT: f64 = 1e-3;
 
 fn plate_tick() -> (HapticTick<R>, Vec<u32>, Vec3) {
-    let mat = Material::aorta();
-    let plate = common::contact_plate(&mat, &["x_min", "x_max", "z_min"], R);
-    let zeros = vec![Vec3::zeros(); plate.mesh.num_nodes()];
-    let rows = basis_rows::<R>(&plate.basis).unwrap();
-    let k0 = Refresher::new(&plate.mesh, &plate.basis, &plate.mass).reduced_stiffness(&plate.model, &zeros);
-    let dynp = DynamicsParams {
-        dt: DT,
-        alpha: 5.0,
-        beta: 1e-3,
-    };
-    let first = rest_model::<R>(rows, &k0, &dynp, plate.mesh.num_nodes()).unwrap();
-    let cp = ContactParams {
-        tool_radius_m: 3e-3,
-        pressure_stiffness: 1e9,
-        search_margin_m: 3e-3,
-    };
-    let index = Arc::new(SurfaceIndex::new(&plate.mesh, &cp));
-    // The probe's hand rests 0.3 m above the plate: no sphere contact, so
-    // the loads alone move the vessel.
-    let sp = ServoParams {
-        dt: DT,
-        contact: cp,
-        device_origin: plate.center + Vec3::new(0.0, 0.0, 0.3),
-        device_timeout_s: 5e-3,
-        model_timeout_s: f64::INFINITY,
-        model_max_age_s: f64::INFINITY,
-        max_speed_m_s: 5.0,
-        max_reach_m: 0.25,
-        overrun_streak: 5,
-        ramp_down_s: 10e-3,
-        ramp_in_s: 0.0,
-        swap_blend_s: 0.02,
-        command_timeout_s: nvtmm::haptics::device::DEFAULT_COMMAND_TIMEOUT_S,
-    };
-    let servo = Servo::new(first, index, sp, 0.0);
+    let (servo, plate) = common::far_plate_servo::<R>(DT);
     let tick = HapticTick::new(servo, PassivityFilter::new(&PassivityParams::default()).unwrap());
     (tick, plate.contact.clone(), plate.center)
 }

@@ -324,3 +324,45 @@ pub fn open_tube(r: f64, len: f64, around: usize, rings: usize) -> SurfaceMesh {
     }
     s
 }
+
+/// A servo on the aorta-material [`contact_plate`] (edges `x_min`, `x_max`
+/// and `z_min` fixed, r = `R`) whose probe's hand rests 0.3 m above the
+/// plate: the sphere never touches it, so only instruments' loads move
+/// the vessel. Returns the servo and the plate.
+pub fn far_plate_servo<const R: usize>(dt: f64) -> (nvtmm::haptics::servo::Servo<R>, ContactPlate) {
+    use nvtmm::haptics::contact::{ContactParams, SurfaceIndex};
+    use nvtmm::haptics::servo::{Servo, ServoParams};
+    let plate = contact_plate(&Material::aorta(), &["x_min", "x_max", "z_min"], R);
+    let zeros = vec![Vec3::zeros(); plate.mesh.num_nodes()];
+    let rows = nvtmm::reduced::basis_rows::<R>(&plate.basis).unwrap();
+    let k0 =
+        nvtmm::reduced::Refresher::new(&plate.mesh, &plate.basis, &plate.mass).reduced_stiffness(&plate.model, &zeros);
+    let dynp = nvtmm::reduced::DynamicsParams {
+        dt,
+        alpha: 5.0,
+        beta: 1e-3,
+    };
+    let first = nvtmm::service::background::rest_model::<R>(rows, &k0, &dynp, plate.mesh.num_nodes()).unwrap();
+    let cp = ContactParams {
+        tool_radius_m: 3e-3,
+        pressure_stiffness: 1e9,
+        search_margin_m: 3e-3,
+    };
+    let index = std::sync::Arc::new(SurfaceIndex::new(&plate.mesh, &cp));
+    let sp = ServoParams {
+        dt,
+        contact: cp,
+        device_origin: plate.center + Vec3::new(0.0, 0.0, 0.3),
+        device_timeout_s: 5e-3,
+        model_timeout_s: f64::INFINITY,
+        model_max_age_s: f64::INFINITY,
+        max_speed_m_s: 5.0,
+        max_reach_m: 0.25,
+        overrun_streak: 5,
+        ramp_down_s: 10e-3,
+        ramp_in_s: 0.0,
+        swap_blend_s: 0.02,
+        command_timeout_s: nvtmm::haptics::device::DEFAULT_COMMAND_TIMEOUT_S,
+    };
+    (Servo::new(first, index, sp, 0.0), plate)
+}
