@@ -14,7 +14,6 @@ use nvtmm::math::Vec3;
 use nvtmm::mesh::surface::SurfaceMesh;
 use nvtmm::mesh::TetMesh;
 use nvtmm::model::{fem::Fem, msm::Msm, tmm::Tmm, BlockTangent, ForceModel};
-use std::f64::consts::TAU;
 
 /// A block of nx × ny × nz cubes of side `h` (m), Kuhn-subdivided
 /// (`mesh::block`).
@@ -307,22 +306,7 @@ pub fn contact_plate(mat: &Material, fixed_sets: &[&str], r: usize) -> ContactPl
 
 /// An open tube along z (in whatever unit), `around` vertices per ring.
 pub fn open_tube(r: f64, len: f64, around: usize, rings: usize) -> SurfaceMesh {
-    let mut s = SurfaceMesh::default();
-    for j in 0..rings {
-        for k in 0..around {
-            let a = TAU * k as f64 / around as f64;
-            s.vertices
-                .push(Vec3::new(r * a.cos(), r * a.sin(), len * j as f64 / (rings - 1) as f64));
-        }
-    }
-    let id = |j: usize, k: usize| (j * around + k % around) as u32;
-    for j in 0..rings - 1 {
-        for k in 0..around {
-            s.triangles.push([id(j, k), id(j, k + 1), id(j + 1, k + 1)]);
-            s.triangles.push([id(j, k), id(j + 1, k + 1), id(j + 1, k)]);
-        }
-    }
-    s
+    SurfaceMesh::open_tube(r, len, around, rings)
 }
 
 /// A servo on the aorta-material [`contact_plate`] (edges `x_min`, `x_max`

@@ -51,6 +51,35 @@ pub struct SurfaceMesh {
     pub triangles: Vec<[u32; 3]>,
 }
 
+impl SurfaceMesh {
+    /// An open circular tube along z from 0 to `length`, `around` vertices
+    /// on each of `rings` rings (at least 2), triangles wound so that their
+    /// normals point out of the lumen: the simplest vessel-like surface, for
+    /// trying the wall builder and the readers.
+    pub fn open_tube(radius: f64, length: f64, around: usize, rings: usize) -> SurfaceMesh {
+        let mut s = SurfaceMesh::default();
+        let rings = rings.max(2);
+        for j in 0..rings {
+            for k in 0..around {
+                let a = std::f64::consts::TAU * k as f64 / around as f64;
+                s.vertices.push(Vec3::new(
+                    radius * a.cos(),
+                    radius * a.sin(),
+                    length * j as f64 / (rings - 1) as f64,
+                ));
+            }
+        }
+        let id = |j: usize, k: usize| (j * around + k % around) as u32;
+        for j in 0..rings - 1 {
+            for k in 0..around {
+                s.triangles.push([id(j, k), id(j, k + 1), id(j + 1, k + 1)]);
+                s.triangles.push([id(j, k), id(j + 1, k + 1), id(j + 1, k)]);
+            }
+        }
+        s
+    }
+}
+
 /// Why a surface file could not be read or used.
 #[derive(Debug, thiserror::Error)]
 pub enum SurfaceError {

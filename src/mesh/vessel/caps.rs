@@ -425,21 +425,8 @@ mod tests {
     /// A tube along z, optionally closed by fan caps around a centre vertex.
     fn tube(capped: bool) -> SurfaceMesh {
         let (r, len, around, rings) = (0.005, 0.04, 24usize, 9usize);
-        let mut s = SurfaceMesh::default();
-        for j in 0..rings {
-            for k in 0..around {
-                let a = std::f64::consts::TAU * k as f64 / around as f64;
-                s.vertices
-                    .push(Vec3::new(r * a.cos(), r * a.sin(), len * j as f64 / (rings - 1) as f64));
-            }
-        }
+        let mut s = SurfaceMesh::open_tube(r, len, around, rings);
         let id = |j: usize, k: usize| (j * around + k % around) as u32;
-        for j in 0..rings - 1 {
-            for k in 0..around {
-                s.triangles.push([id(j, k), id(j, k + 1), id(j + 1, k + 1)]);
-                s.triangles.push([id(j, k), id(j + 1, k + 1), id(j + 1, k)]);
-            }
-        }
         if capped {
             let c0 = s.vertices.len() as u32;
             s.vertices.push(Vec3::zeros());

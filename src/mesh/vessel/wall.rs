@@ -825,22 +825,7 @@ mod tests {
 
     /// An open tube along z (m).
     fn tube(r: f64, len: f64, around: usize, rings: usize) -> SurfaceMesh {
-        let mut s = SurfaceMesh::default();
-        for j in 0..rings {
-            for k in 0..around {
-                let a = std::f64::consts::TAU * k as f64 / around as f64;
-                s.vertices
-                    .push(Vec3::new(r * a.cos(), r * a.sin(), len * j as f64 / (rings - 1) as f64));
-            }
-        }
-        let id = |j: usize, k: usize| (j * around + k % around) as u32;
-        for j in 0..rings - 1 {
-            for k in 0..around {
-                s.triangles.push([id(j, k), id(j, k + 1), id(j + 1, k + 1)]);
-                s.triangles.push([id(j, k), id(j + 1, k + 1), id(j + 1, k)]);
-            }
-        }
-        s
+        SurfaceMesh::open_tube(r, len, around, rings)
     }
 
     #[test]
