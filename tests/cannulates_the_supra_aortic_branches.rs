@@ -17,7 +17,7 @@
 //! (`wire.max_extra_iterations`), so the outcome does not hang on the
 //! machine's load (docs/WIRE.md "A fixed budget of extra iterations").
 //! Runs RT threads: run it alone (`cargo test --release --test
-//! cannulates_the_supra_aortic_branches -- --nocapture`); 13 to 32 s of
+//! cannulates_the_supra_aortic_branches -- --nocapture`); 13 to 47 s of
 //! simulated time each.
 
 mod common;
