@@ -130,6 +130,16 @@ impl SegmentMap {
         &self.names
     }
 
+    /// The labelled wall vertices (m, at rest).
+    pub fn points(&self) -> &[Vec3] {
+        &self.points
+    }
+
+    /// Each vertex's label (an index into [`SegmentMap::names`]).
+    pub fn labels(&self) -> &[u8] {
+        &self.labels
+    }
+
     /// The label index of `name`.
     pub fn label_of(&self, name: &str) -> Option<u8> {
         self.names.iter().position(|n| n == name).map(|i| i as u8)

@@ -34,6 +34,11 @@
 //!   ([`TouchXSim::set_button_script`]: from each row's time on, the
 //!   buttons it holds; none without one), e.g. the switch between
 //!   instruments on bit 0.
+//! - **A live hand** ([`TouchXSim::set_live_hand`]): in place of the three
+//!   scripts, an object that decides the hand's target, gimbal angles and
+//!   buttons as it goes (a scripted hand that watches what the service
+//!   shows, `crate::service::script::WatchingHand`). It is asked at every
+//!   sub-step, in time order, and must not allocate.
 //! - **Command timeout.** Like a device-side servo that stops playing a
 //!   stale command, a force written more than the command timeout ago
 //!   (device time; [`TouchXSim::set_command_timeout`], default
@@ -394,6 +399,38 @@ impl GimbalScript {
     }
 }
 
+/// What a live hand does at one instant: the stylus tip's target (m, device
+/// frame) and its velocity (m/s), the gimbal angles (rad, unwrapped) and the
+/// buttons it holds.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct HandPose {
+    /// Target tip position (m).
+    pub position: Vec3,
+    /// Target tip velocity (m/s).
+    pub velocity: Vec3,
+    /// Gimbal angles (rad, [`DeviceSample::gimbal_rad`] order).
+    pub gimbal_rad: [f64; 3],
+    /// Buttons held (bit 0 the first stylus button).
+    pub buttons: u32,
+}
+
+/// A hand that decides as it goes ([`TouchXSim::set_live_hand`]), e.g. from
+/// what it sees of the simulation. Runs on the device's thread after start:
+/// [`LiveHand::at`] must not allocate, lock or block.
+pub trait LiveHand: Send + std::fmt::Debug {
+    /// The hand at script time `t` (s, from the first read); called at
+    /// every sub-step, times increasing.
+    fn at(&mut self, t: f64) -> HandPose;
+    /// A copy of the hand (for [`Clone`] of the device).
+    fn clone_box(&self) -> Box<dyn LiveHand>;
+}
+
+impl Clone for Box<dyn LiveHand> {
+    fn clone(&self) -> Self {
+        self.clone_box()
+    }
+}
+
 /// The simulated device's true internal state (for tests and reports; a real
 /// device does not expose it).
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -441,6 +478,8 @@ pub struct TouchXSim {
     buttons: Vec<(f64, u32)>,
     /// Index of the button row last used (times are read in order).
     button_cursor: usize,
+    /// A live hand in place of the scripts, and its last pose.
+    live: Option<(Box<dyn LiveHand>, HandPose)>,
     started: bool,
     /// Caller time of the first read (script time 0), once known.
     origin_s: Option<f64>,
@@ -491,6 +530,7 @@ impl TouchXSim {
             gimbal_rad: [0.0; 3],
             buttons: Vec::new(),
             button_cursor: 0,
+            live: None,
             started: false,
             origin_s: None,
             n: 0,
@@ -593,6 +633,17 @@ impl TouchXSim {
         }
     }
 
+    /// Puts a live hand in place of the waypoints, gimbal and button
+    /// scripts: the stylus starts at rest where it is at time 0. Allocates:
+    /// call before [`HapticDevice::start`].
+    pub fn set_live_hand(&mut self, mut hand: Box<dyn LiveHand>) {
+        let pose = hand.at(0.0);
+        self.x = pose.position;
+        self.v = Vec3::zeros();
+        self.gimbal_rad = pose.gimbal_rad;
+        self.live = Some((hand, pose));
+    }
+
     /// Scripts the stylus's gimbal angles (same script clock as the hand's
     /// waypoints); replaces any earlier gimbal script. Allocates: call before
     /// [`HapticDevice::start`].
@@ -660,7 +711,13 @@ impl TouchXSim {
             self.command_timeouts += 1;
         }
         let m = self.p.apparent_mass_kg;
-        let (xt, vt) = self.script.target(t);
+        let (xt, vt) = match self.live.as_mut() {
+            Some((hand, pose)) => {
+                *pose = hand.at(t);
+                (pose.position, pose.velocity)
+            }
+            None => self.script.target(t),
+        };
         let hand = (xt - self.x) * self.p.hand_stiffness_n_per_m + (vt - self.v) * self.p.hand_damping_ns_per_m;
         self.hand_force = hand;
         // Smooth forces first, then viscous friction implicitly, then
@@ -755,7 +812,11 @@ impl HapticDevice for TouchXSim {
         if let Some(g) = self.gimbal.as_mut() {
             self.gimbal_rad = g.target(self.n as f64 * self.dt);
         }
-        let buttons = self.buttons_at(self.n as f64 * self.dt);
+        let mut buttons = self.buttons_at(self.n as f64 * self.dt);
+        if let Some((_, pose)) = &self.live {
+            self.gimbal_rad = pose.gimbal_rad;
+            buttons = pose.buttons;
+        }
         let q = self.quantize(self.x);
         if first {
             self.last_q = q;

@@ -44,6 +44,8 @@ pub(super) struct PublisherResult {
     pub igtl: Option<crate::stream::igtl::IgtlStats>,
     /// The task's figures at the end (None without `[task]`).
     pub task: Option<crate::task::TaskSummary>,
+    /// The watching hand's watched moves (the report's `hand_watches`).
+    pub hand_watches: Vec<super::report::HandWatchReport>,
 }
 
 /// What the publisher thread needs.
@@ -66,6 +68,10 @@ pub(super) struct PublisherPlan<const R: usize> {
     /// The instruments' publisher sides, in registry order, with their
     /// stream id (their index in the run's list) and kind.
     pub instruments: Vec<PublishedInstrument>,
+    /// The simulated hand's eyes and the places in `instruments` of the
+    /// hub-driven ones, in the switch button's order (None: the hand does
+    /// not watch).
+    pub hand_watcher: Option<(super::script::TipWatcher, Vec<usize>)>,
 }
 
 /// One instrument on the publisher thread.
@@ -169,6 +175,14 @@ pub(super) fn publisher_thread<const R: usize>(mut p: PublisherPlan<R>) -> Publi
             };
             for inst in p.instruments.iter_mut() {
                 inst.side.update(&view);
+            }
+        }
+        // The scripted hand watches the tips as the stream shows them.
+        if let Some((w, hub)) = p.hand_watcher.as_mut() {
+            for (rod, &k) in hub.iter().enumerate() {
+                if let Some(i) = p.instruments.get(k) {
+                    w.look(rod, i.side.polyline());
+                }
             }
         }
         if s.epoch != last_epoch {
@@ -282,11 +296,13 @@ pub(super) fn publisher_thread<const R: usize>(mut p: PublisherPlan<R>) -> Publi
         }
         summary
     });
+    let hand_watches = p.hand_watcher.map_or_else(Vec::new, |(w, _)| w.report());
     PublisherResult {
         frames,
         errors,
         first_error,
         igtl,
         task,
+        hand_watches,
     }
 }

@@ -285,6 +285,10 @@ pub struct Report {
     pub wire: Option<WireReport>,
     /// The task's metrics (None without `[task]`; docs/DRIVING.md).
     pub task: Option<crate::task::TaskSummary>,
+    /// The simulated hand's watched moves, in script order (empty unless
+    /// `catheter.script` has some; docs/INSTRUMENTS.md "A hand that
+    /// watches").
+    pub hand_watches: Vec<HandWatchReport>,
     /// Every instrument of the run, in the loop's order: its id, kind,
     /// faults raised and its kind's own keys (docs/INSTRUMENTS.md).
     pub instruments: Vec<crate::service::instrument::InstrumentReport>,
@@ -293,6 +297,20 @@ pub struct Report {
     pub instrument_switches: u64,
     /// The second device (`[device.second]`; None without one).
     pub second_device: Option<SecondDeviceReport>,
+}
+
+/// How one watched move of the simulated hand ended (`hand_watches[]`).
+#[derive(Debug, Clone, Default, PartialEq, serde::Serialize)]
+pub struct HandWatchReport {
+    /// Its row in `catheter.script`.
+    pub row: usize,
+    /// Whether the run reached it.
+    pub reached: bool,
+    /// Whether its condition held when it ended (false: it waited its
+    /// `within_s`).
+    pub met: bool,
+    /// How long it moved (s; the script's clock stands still meanwhile).
+    pub took_s: f64,
 }
 
 /// The second device's keys of the report (`second_device.*`).
@@ -626,6 +644,17 @@ impl Report {
                     )
                 } else {
                     "    wall under the wire: not loaded (guidewire.load_wall = false)\n".to_string()
+                }
+            );
+        }
+        for h in &self.hand_watches {
+            s += &format!(
+                "  scripted hand: watched row {} {}\n",
+                h.row,
+                match (h.reached, h.met) {
+                    (false, _) => "not reached".to_string(),
+                    (true, true) => format!("met its condition after {:.2} s", h.took_s),
+                    (true, false) => format!("waited its within_s ({:.2} s) in vain", h.took_s),
                 }
             );
         }

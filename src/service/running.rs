@@ -305,6 +305,7 @@ impl<const R: usize> RunningService for Running<R> {
             device_loop_silent_periods: dr.loop_silent,
             wire: None,
             task: pr.task,
+            hand_watches: pr.hand_watches,
             instruments: Vec::new(),
             instrument_switches: lr.instrument_switches,
             second_device: match (&second, &lr.second) {
@@ -393,6 +394,7 @@ pub(super) fn start_with<const R: usize>(p: Prepared) -> Result<Running<R>, Serv
         compliance,
         pressure,
         inflated,
+        hand_watcher,
     } = p;
     let n = mesh.num_nodes();
     let rows = basis_rows::<R>(&basis)?;
@@ -618,6 +620,14 @@ pub(super) fn start_with<const R: usize>(p: Prepared) -> Result<Running<R>, Serv
         ),
         None => None,
     };
+    // The hub-driven instruments in the switch button's order: what the
+    // watching hand calls instrument 0, 1, ...
+    let hub_driven: Vec<usize> = built
+        .iter()
+        .enumerate()
+        .filter(|(_, b)| b.loop_side.hub_driven())
+        .map(|(k, _)| k)
+        .collect();
     let mut loop_sides = Vec::with_capacity(built.len());
     let mut published = Vec::with_capacity(built.len());
     let mut service_sides = Vec::with_capacity(built.len());
@@ -656,6 +666,7 @@ pub(super) fn start_with<const R: usize>(p: Prepared) -> Result<Running<R>, Serv
                 None => None,
             },
             instruments: published,
+            hand_watcher: hand_watcher.map(|w| (w, hub_driven)),
         };
         std::thread::Builder::new()
             .name("nvtmm-stream".into())

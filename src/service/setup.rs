@@ -41,6 +41,10 @@ pub struct Prepared {
     pub dynamics: DynamicsParams,
     /// The device.
     pub device: Box<dyn HapticDevice>,
+    /// The eyes of the simulated hand that watches (a `catheter.script`
+    /// with watched moves), for the stream publisher's thread; None
+    /// otherwise.
+    pub hand_watcher: Option<super::script::TipWatcher>,
     /// The passivity parameters.
     pub passivity: PassivityParams,
     /// The loop runs this long (s).
@@ -183,16 +187,20 @@ pub fn prepare(opts: &StartOptions) -> Result<Prepared, ServiceError> {
         }
         None => None,
     };
-    let device = match &opts.device {
-        Some(factory) => (factory.0)(&super::DeviceContext {
-            cfg: &cfg,
-            mesh: &built.mesh,
-            scene: &scene,
-            seconds,
-        })?,
-        None => make_device(&cfg, &built.mesh, &scene, seconds)?,
+    let (device, hand_watcher) = match &opts.device {
+        Some(factory) => (
+            (factory.0)(&super::DeviceContext {
+                cfg: &cfg,
+                mesh: &built.mesh,
+                scene: &scene,
+                seconds,
+            })?,
+            None,
+        ),
+        None => make_watched_device(&cfg, &built.mesh, &scene, seconds)?,
     };
     Ok(Prepared {
+        hand_watcher,
         compliance,
         basis_s: outcome.compute_s,
         basis_cache,
@@ -215,13 +223,28 @@ pub fn prepare(opts: &StartOptions) -> Result<Prepared, ServiceError> {
     })
 }
 
-/// Opens the configured device backend.
+/// Opens the configured device backend. A simulated hand that watches
+/// (`catheter.script` with watched moves) sees nothing through this one:
+/// its watched moves run to their limits and wait their `within_s`; the
+/// service opens it with its eyes ([`make_watched_device`]).
 pub fn make_device(
     cfg: &ServiceConfig,
     mesh: &TetMesh,
     scene: &Scene,
     seconds: f64,
 ) -> Result<Box<dyn HapticDevice>, ServiceError> {
+    make_watched_device(cfg, mesh, scene, seconds).map(|(d, _)| d)
+}
+
+/// Opens the configured device backend and, for a simulated hand that
+/// watches, the watcher that shows it the instruments' tips (the stream
+/// publisher runs it).
+pub fn make_watched_device(
+    cfg: &ServiceConfig,
+    mesh: &TetMesh,
+    scene: &Scene,
+    seconds: f64,
+) -> Result<(Box<dyn HapticDevice>, Option<super::script::TipWatcher>), ServiceError> {
     let origin = Vec3::from(cfg.device.origin_m);
     let command_timeout_s = cfg.watchdog.command_timeout_ms * 1e-3;
     match cfg.device.backend {
@@ -229,6 +252,9 @@ pub fn make_device(
             use crate::haptics::touchx::{TouchXParams, TouchXSim, Waypoint};
             let params = TouchXParams::load(&cfg.resolve(&cfg.device.touchx))?;
             if let (Some(wire), Some(g), Some(cat)) = (&cfg.wire, &cfg.guidewire, &cfg.catheter) {
+                if cat.watches() {
+                    return watching_hand(params, cfg, mesh, wire, g, cat).map(|(d, w)| (d, Some(w)));
+                }
                 // The pair's scripted hand: one stylus, the switch button
                 // between the guidewire and the catheter.
                 let hand = cat
@@ -239,7 +265,7 @@ pub fn make_device(
                     .and_then(|()| dev.set_button_script(&hand.buttons))
                     .map_err(|e| ServiceError::Device(e.to_string()))?;
                 dev.set_command_timeout(command_timeout_s);
-                return Ok(Box::new(dev));
+                return Ok((Box::new(dev), None));
             }
             if let (Some(wire), Some(g)) = (&cfg.wire, &cfg.guidewire) {
                 // The guidewire's scripted hand: stylus along the drive's
@@ -249,7 +275,7 @@ pub fn make_device(
                 dev.set_gimbal_script(&gimbal)
                     .map_err(|e| ServiceError::Device(e.to_string()))?;
                 dev.set_command_timeout(command_timeout_s);
-                return Ok(Box::new(dev));
+                return Ok((Box::new(dev), None));
             }
             let (_, p, n, t) = press_target(mesh, scene);
             let pts: Vec<Waypoint> = scripted_press(p, n, t, &cfg.interaction, cfg.contact.tool_radius_m, seconds)
@@ -261,20 +287,56 @@ pub fn make_device(
                 .collect();
             let mut dev = TouchXSim::new(params, &pts).map_err(|e| ServiceError::Device(e.to_string()))?;
             dev.set_command_timeout(command_timeout_s);
-            Ok(Box::new(dev))
+            Ok((Box::new(dev), None))
         }
         Backend::Udp => {
             use crate::haptics::udp::{UdpDevice, UdpParams};
             let params = UdpParams::load(&cfg.resolve(&cfg.device.udp))?;
-            Ok(Box::new(UdpDevice::new(params)))
+            Ok((Box::new(UdpDevice::new(params)), None))
         }
-        Backend::Openhaptics => open_openhaptics(command_timeout_s),
+        Backend::Openhaptics => open_openhaptics(command_timeout_s).map(|d| (d, None)),
         Backend::Host => Err(ServiceError::Device(
             "device.backend = \"host\": the host application starts the service with its device \
              (haptics::host::host_device in StartOptions::device, or nvtmm_start_host in the C ABI)"
                 .into(),
         )),
     }
+}
+
+/// The simulated Touch X with the pair's hand that watches: it plays
+/// `catheter.script` on line ([`super::script::WatchingHand`]), seeing the
+/// tips through the returned watcher. Errors name the row.
+fn watching_hand(
+    params: crate::haptics::touchx::TouchXParams,
+    cfg: &ServiceConfig,
+    mesh: &TetMesh,
+    wire: &crate::wire::WireParams,
+    g: &super::instrument::guidewire::GuidewireConfig,
+    cat: &super::instrument::catheter::CatheterConfig,
+) -> Result<(Box<dyn HapticDevice>, super::script::TipWatcher), ServiceError> {
+    use super::script::{TipWatch, TipWatcher, WatchingHand};
+    use crate::haptics::touchx::{TouchXSim, Waypoint};
+    let bad = |e: String| ServiceError::Device(format!("catheter.script{e}"));
+    // Checks order, switches and the stylus's extremes.
+    cat.hand(g, wire).map_err(|e| bad(format!(": {e}")))?;
+    let steps = cat
+        .steps(g, [f64::INFINITY; 2])
+        .map_err(|(k, e)| bad(format!("{k}: {e}")))?;
+    let map = crate::task::SegmentMap::from_mesh(mesh, &g.wall_set).map_err(|e| bad(format!(": {e}")))?;
+    let watch = Arc::new(TipWatch::new(&steps));
+    let start = cat.start(g);
+    let hand = WatchingHand::new(&steps, &wire.drive, &start, map.names(), watch.clone()).map_err(bad)?;
+    let mut dev = TouchXSim::new(
+        params,
+        &[Waypoint {
+            t_s: 0.0,
+            position: wire.drive.stylus_at(start[0].0),
+        }],
+    )
+    .map_err(|e| ServiceError::Device(e.to_string()))?;
+    dev.set_live_hand(Box::new(hand));
+    dev.set_command_timeout(cfg.watchdog.command_timeout_ms * 1e-3);
+    Ok((Box::new(dev), TipWatcher::new(map, watch)))
 }
 
 #[cfg(feature = "openhaptics")]

@@ -37,7 +37,7 @@ use crate::rt::clock::{self, Nanos};
 use crate::rt::thread::{setup_current, RtRequest};
 use crate::service::faults::FaultSwitches;
 use crate::service::report::Report;
-use crate::service::script::{switching_hand, HubRow, SwitchingHand};
+use crate::service::script::{parse_steps, planned_rows, switching_hand, HandStep, HubRow, SwitchingHand};
 use crate::service::ServiceError;
 use crate::wire::catheter::{catheter_params, TipShape};
 use crate::wire::coaxial::{Coaxial, LOAD_STIFFNESS_SHARE, WIRE_CATHETER_FRICTION};
@@ -89,13 +89,16 @@ pub struct CatheterConfig {
     /// wire's contact penalty ([`Coaxial::set_load_stiffness_share`]; 0
     /// turns it off, and a shaped tip then swings the pair apart).
     pub coupling_stiffness_share: f64,
-    /// The simulated hand's script: rows of `[time_s, instrument,
+    /// The simulated hand's script: timed rows `[time_s, instrument,
     /// inserted_m, roll_rad]`, instrument 0 the guidewire and 1 the
-    /// catheter (the switch button's order); a row naming the other
+    /// catheter (the switch button's order), where a row naming the other
     /// instrument than the previous row switches to it, holding it where it
-    /// was left ([`switching_hand`]). Empty: `guidewire.script` drives the
-    /// wire and the catheter stays where it starts.
-    pub script: Vec<[f64; 4]>,
+    /// was left ([`switching_hand`]); switch rows `{ t_s, switch_to }`; and
+    /// watched moves, tables that move the active instrument until what the
+    /// hand sees of a tip meets a condition ([`parse_steps`],
+    /// [`crate::service::script::WatchingHand`]). Empty: `guidewire.script`
+    /// drives the wire and the catheter stays where it starts.
+    pub script: Vec<toml::Value>,
 }
 
 impl Default for CatheterConfig {
@@ -154,40 +157,59 @@ impl CatheterConfig {
         }
     }
 
-    /// The hand's rows: `script`, or without one `guidewire.script` on the
-    /// wire (instrument 0).
-    pub fn rows(&self, g: &GuidewireConfig) -> Vec<HubRow> {
+    /// The hand's steps: `script` ([`parse_steps`]; `max_inserted`: the
+    /// most the wire and the catheter insert), or without one
+    /// `guidewire.script` on the wire (instrument 0). Errors: the row's key
+    /// after `catheter.script` (e.g. `[3].speed_m_s`) and the message.
+    pub fn steps(&self, g: &GuidewireConfig, max_inserted: [f64; 2]) -> Result<Vec<HandStep>, (String, String)> {
         if self.script.is_empty() {
-            g.script
+            Ok(g.script
                 .iter()
-                .map(|r| HubRow {
-                    t_s: r[0],
-                    instrument: 0,
-                    inserted_m: r[1],
-                    roll_rad: r[2],
+                .map(|r| {
+                    HandStep::Timed(HubRow {
+                        t_s: r[0],
+                        instrument: 0,
+                        inserted_m: r[1],
+                        roll_rad: r[2],
+                    })
                 })
-                .collect()
+                .collect())
         } else {
-            self.script
-                .iter()
-                .map(|r| HubRow {
-                    t_s: r[0],
-                    instrument: r[1] as usize,
-                    inserted_m: r[2],
-                    roll_rad: r[3],
-                })
-                .collect()
+            parse_steps(&self.script, 2, &max_inserted)
         }
     }
 
-    /// The simulated hand that follows the script ([`switching_hand`]
-    /// through the wire's drive).
+    /// Whether the hand watches: the script has a watched move or a switch
+    /// row (a table), so the scripted Touch X plays it on line
+    /// ([`crate::service::script::WatchingHand`]).
+    pub fn watches(&self) -> bool {
+        self.script.iter().any(toml::Value::is_table)
+    }
+
+    /// Each instrument's hub at the start (inserted m, roll rad).
+    pub fn start(&self, g: &GuidewireConfig) -> [(f64, f64); 2] {
+        [(g.inserted_m, 0.0), (self.inserted_m, 0.0)]
+    }
+
+    /// The hand's timed rows, a watched move as if it ran to its limits at
+    /// its start ([`planned_rows`]); empty if the script does not parse
+    /// (validation says why).
+    pub fn rows(&self, g: &GuidewireConfig) -> Vec<HubRow> {
+        self.steps(g, [f64::INFINITY; 2])
+            .ok()
+            .and_then(|s| planned_rows(&s, &self.start(g)).ok())
+            .unwrap_or_default()
+    }
+
+    /// The simulated hand that follows the script's planned rows
+    /// ([`switching_hand`] through the wire's drive; a hand that watches
+    /// is played on line instead, and this checks its extremes).
     pub fn hand(&self, g: &GuidewireConfig, wire: &WireParams) -> Result<SwitchingHand, String> {
-        switching_hand(
-            &self.rows(g),
-            &wire.drive,
-            &[(g.inserted_m, 0.0), (self.inserted_m, 0.0)],
-        )
+        let steps = self
+            .steps(g, [f64::INFINITY; 2])
+            .map_err(|(k, e)| format!("{k}: {e}"))?;
+        let rows = planned_rows(&steps, &self.start(g))?;
+        switching_hand(&rows, &wire.drive, &self.start(g))
     }
 
     /// Range checks; keys are named `catheter.…`.
@@ -253,17 +275,8 @@ impl CatheterConfig {
             ));
         }
         let max = [wire.max_inserted_m(), p.max_inserted_m()];
-        for (k, r) in self.script.iter().enumerate() {
-            c.f64_in(&format!("catheter.script[{k}][0]"), r[0], 0.0, 86_400.0, "s")?;
-            if r[1] != 0.0 && r[1] != 1.0 {
-                return Err(c.err(
-                    &format!("catheter.script[{k}][1]"),
-                    format!("{}: the instrument is 0 (the guidewire) or 1 (the catheter)", r[1]),
-                ));
-            }
-            c.f64_in(&format!("catheter.script[{k}][2]"), r[2], 0.0, max[r[1] as usize], "m")?;
-            c.f64_in(&format!("catheter.script[{k}][3]"), r[3], -1000.0, 1000.0, "rad")?;
-        }
+        self.steps(g, max)
+            .map_err(|(k, e)| c.err(&format!("catheter.script{k}"), e))?;
         self.hand(g, wire).map_err(|e| c.err("catheter.script", e))?;
         Ok(())
     }
