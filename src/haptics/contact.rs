@@ -179,6 +179,12 @@ pub struct SurfaceIndex {
     dims: [usize; 3],
     cell_start: Vec<u32>,
     nodes: Vec<u32>,
+    /// Beside `nodes` (the grid's order, cell by cell), each node's rest
+    /// position and longest surface edge: what a query and the search's
+    /// first filter read of every node in the cells they scan, so that
+    /// they walk a few contiguous runs of memory (one per row of cells)
+    /// instead of one cache line per node of the mesh-ordered arrays.
+    slots: Vec<Slot>,
     rest: Vec<Vec3>,
     area: Vec<f64>,
     normal: Vec<Vec3>,
@@ -189,8 +195,6 @@ pub struct SurfaceIndex {
     node_tri_start: Vec<u32>,
     node_tris: Vec<u32>,
     max_edge: f64,
-    /// Per node, the longest edge of its surface triangles (m).
-    reach_of: Vec<f64>,
     /// The search margin (m).
     margin: f64,
 }
@@ -295,12 +299,20 @@ impl SurfaceIndex {
                 fill[i as usize] += 1;
             }
         }
+        let slots = nodes
+            .iter()
+            .map(|&i| Slot {
+                rest: rest[i as usize],
+                reach: reach_of[i as usize],
+            })
+            .collect();
         SurfaceIndex {
             origin: lo,
             cell,
             dims,
             cell_start: count,
             nodes,
+            slots,
             rest,
             area,
             normal,
@@ -311,7 +323,6 @@ impl SurfaceIndex {
             node_tri_start: start,
             node_tris,
             max_edge,
-            reach_of,
             margin: params.search_margin_m,
         }
     }
@@ -361,8 +372,23 @@ impl SurfaceIndex {
     /// overflowed (the list is then truncated). Allocates nothing.
     pub fn query<const N: usize>(&self, center: &Vec3, out: &mut heapless::Vec<u32, N>) -> bool {
         out.clear();
+        let mut ok = true;
+        self.scan(center, |slot| {
+            if out.push(self.nodes[slot]).is_err() {
+                ok = false;
+            }
+        });
+        ok
+    }
+
+    /// Calls `f` with the slot (index into `nodes` and `slots`) of every
+    /// surface node whose rest position is within the reach of `center`,
+    /// cell by cell in the grid's order: each row of cells is one
+    /// contiguous run of `slots`.
+    #[inline(always)]
+    fn scan(&self, center: &Vec3, mut f: impl FnMut(usize)) {
         if self.nodes.is_empty() || !center.iter().all(|v| v.is_finite()) {
-            return true;
+            return;
         }
         let r2 = self.reach * self.reach;
         let mut range = [(0usize, 0usize); 3];
@@ -370,26 +396,67 @@ impl SurfaceIndex {
             let a = ((center[k] - self.reach - self.origin[k]) / self.cell).floor();
             let b = ((center[k] + self.reach - self.origin[k]) / self.cell).floor();
             if b < 0.0 || a > (self.dims[k] - 1) as f64 {
-                return true;
+                return;
             }
             range[k] = (a.max(0.0) as usize, (b as usize).min(self.dims[k] - 1));
         }
-        let mut ok = true;
         for z in range[2].0..=range[2].1 {
             for y in range[1].0..=range[1].1 {
-                for x in range[0].0..=range[0].1 {
-                    let c = (z * self.dims[1] + y) * self.dims[0] + x;
-                    let (a, b) = (self.cell_start[c] as usize, self.cell_start[c + 1] as usize);
-                    for &i in &self.nodes[a..b] {
-                        if (self.rest[i as usize] - center).norm_squared() <= r2 && out.push(i).is_err() {
-                            ok = false;
-                        }
+                // The cells x0..=x1 of this row are consecutive in the grid,
+                // so their nodes are one run of slots.
+                let row = (z * self.dims[1] + y) * self.dims[0];
+                let (a, b) = (
+                    self.cell_start[row + range[0].0] as usize,
+                    self.cell_start[row + range[0].1 + 1] as usize,
+                );
+                for (k, slot) in self.slots[a..b].iter().enumerate() {
+                    if (slot.rest - center).norm_squared() <= r2 {
+                        f(a + k);
                     }
                 }
             }
         }
-        ok
     }
+
+    /// The search's candidates near `center` into `out`, as slots (see
+    /// [`SurfaceIndex::scan`]), in the query's order: the nodes a query
+    /// finds whose rest position is also within `near` plus their longest
+    /// surface edge of it. With `offset`, asks for each one's cache line of
+    /// it (the search's next filter reads it). Returns the query's count
+    /// and whether it fitted in `out` (a query that overflows keeps its
+    /// first `N` nodes, and so does this).
+    fn candidates<const N: usize>(
+        &self,
+        center: &Vec3,
+        near: f64,
+        offset: Option<&[Vec3]>,
+        out: &mut heapless::Vec<u32, N>,
+    ) -> (usize, bool) {
+        out.clear();
+        let mut count = 0usize;
+        self.scan(center, |slot| {
+            count += 1;
+            let s = &self.slots[slot];
+            let far = near + s.reach;
+            if count <= N && at_most((s.rest - center).norm_squared(), far * far) {
+                let _ = out.push(slot as u32);
+                if let Some(o) = offset {
+                    prefetch(o.get(self.nodes[slot] as usize));
+                }
+            }
+        });
+        (count, count <= N)
+    }
+}
+
+/// A surface node's rest position and the longest edge of its surface
+/// triangles (m), in the grid's order ([`SurfaceIndex`]); 32 bytes, aligned
+/// so that one never straddles two cache lines.
+#[derive(Debug, Clone, Copy)]
+#[repr(C, align(32))]
+struct Slot {
+    rest: Vec3,
+    reach: f64,
 }
 
 /// One touched node.
@@ -1217,59 +1284,56 @@ fn search_triangles_timed<'r, const R: usize>(
     // tool radius while the motion stays under the slack.
     let slack = if motion.is_some() { COHERENCE_SLACK_M } else { 0.0 };
     let reach = rho + slack;
-    let complete = index.query(center, scratch);
+    // How far Φ q can move a node from rest + ū (NaN: none is skipped by it).
+    let base = motion.and_then(|m| m.offset.map(|o| (o, m.row_bound * m.q.norm())));
+    // The query's nodes whose rest position is within the search margin
+    // of reaching the sphere, as slots of the index's grid-ordered copy
+    // (contiguous runs, read in order, rather than a cache line per node).
+    let (found, complete) = index.candidates(center, reach + index.margin, base.map(|b| b.0), scratch);
     out.truncated |= !complete;
-    out.candidates += scratch.len();
+    out.candidates += found.min(MAX_CANDIDATES);
     // Triangles with a vertex near enough to reach the sphere.
     out.stamp = out.stamp.wrapping_add(1);
     if out.stamp == 0 {
         out.stamps.iter_mut().for_each(|s| *s = 0);
         out.stamp = 1;
     }
-    // How far Φ q can move a node from rest + ū (NaN: none is skipped by it).
-    let base = motion.and_then(|m| m.offset.map(|o| (o, m.row_bound * m.q.norm())));
-    // The candidates are scattered over the mesh's arrays, so the search
-    // waits on memory more than it computes: each pass asks for the lines
-    // a few candidates ahead while it works on the current one. First the
-    // candidates whose deformed position can reach the sphere, compacted in
-    // place.
+    // The mesh-ordered arrays the next passes read are scattered, so the
+    // search waits on memory more than it computes: each pass asks for
+    // the lines of the nodes it will read while it works on the current
+    // one. First the candidates whose deformed position can reach the
+    // sphere, compacted in place (the candidates pass asked for their ū).
     let mut kept_n = 0;
     for k in 0..scratch.len() {
-        if let Some(&j) = scratch.get(k + PREFETCH_AHEAD) {
-            prefetch(index.reach_of.get(j as usize));
-            if let Some((offset, _)) = base {
-                prefetch(offset.get(j as usize));
-            }
-        }
-        let i = scratch[k];
-        let far = reach + index.margin + index.reach_of[i as usize];
-        if !at_most((index.rest[i as usize] - center).norm_squared(), far * far) {
-            continue;
-        }
+        let slot = scratch[k] as usize;
+        let (sl, i) = (&index.slots[slot], index.nodes[slot]);
         if let Some((offset, moved)) = base {
             if let Some(u) = offset.get(i as usize) {
-                let within = reach + index.reach_of[i as usize] + moved;
-                if (index.rest[i as usize] + u - center).norm_squared() > within * within {
+                let within = reach + sl.reach + moved;
+                if (sl.rest + u - center).norm_squared() > within * within {
                     continue;
                 }
             }
         }
-        scratch[kept_n] = i;
+        prefetch(index.rest.get(i as usize));
+        scratch[kept_n] = slot as u32;
         kept_n += 1;
     }
     scratch.truncate(kept_n);
     // Then their deformed positions and triangles.
     for k in 0..scratch.len() {
         if let Some(&j) = scratch.get(k + PREFETCH_AHEAD) {
+            let j = index.nodes[j as usize];
             if let Some(r) = rows(j) {
                 prefetch_all(r);
             }
             prefetch(out.cache.get(j as usize));
             prefetch(index.node_tri_start.get(j as usize));
         }
-        let i = scratch[k];
+        let slot = scratch[k] as usize;
+        let i = index.nodes[slot];
         let x = out.position_of(i, position);
-        let near = reach + index.reach_of[i as usize];
+        let near = reach + index.slots[slot].reach;
         if !at_most((x - center).norm_squared(), near * near) {
             continue;
         }
@@ -1290,8 +1354,19 @@ fn search_triangles_timed<'r, const R: usize>(
     let base = s * KEPT_TRIANGLES;
     let mut len = 0usize;
     for ti in 0..out.tris.len() {
-        if let Some(&u) = out.tris.get(ti + PREFETCH_AHEAD) {
+        // Two stages: a triangle's vertex list, then (when it has come in)
+        // its vertices' basis rows and cached positions, since a vertex
+        // the candidates' filters passed over is reconstructed here.
+        if let Some(&u) = out.tris.get(ti + 2 * PREFETCH_AHEAD) {
             prefetch(index.tris.get(u as usize));
+        }
+        if let Some(&u) = out.tris.get(ti + PREFETCH_AHEAD) {
+            for &v in &index.tris[u as usize] {
+                if let Some(r) = rows(v) {
+                    prefetch_all(r);
+                }
+                prefetch(out.cache.get(v as usize));
+            }
         }
         let t = out.tris[ti];
         let x = index.tris[t as usize].map(|v| out.position_of(v, position));
@@ -1847,6 +1922,89 @@ mod tests {
         assert!(!idx.query(&Vec3::new(0.02, 0.02, 0.0), &mut small));
         assert!(idx.query(&Vec3::new(f64::NAN, 0.0, 0.0), &mut small));
         assert!(small.is_empty());
+    }
+
+    #[test]
+    fn a_search_keeps_exactly_the_triangles_within_reach_on_random_spheres() {
+        // A deformed plate (ū up to 2 mm, Φ q up to 2 mm per node: under
+        // the 8 mm search margin), many spheres about its top face: the
+        // triangles a search keeps are exactly those of a brute force over
+        // every surface triangle at its deformed position, and the force
+        // is the one the search without the motion's filters renders.
+        let mesh = plate();
+        let p = ContactParams::default();
+        let idx = SurfaceIndex::new(&mesh, &p);
+        let mut seed = 11u64;
+        let mut next = || {
+            seed = seed.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+            ((seed >> 11) as f64 / (1u64 << 53) as f64) - 0.5
+        };
+        let n = mesh.num_nodes();
+        let offset: Vec<Vec3> = (0..n)
+            .map(|_| Vec3::new(next(), next(), next()) * 2e-3 / 3f64.sqrt())
+            .collect();
+        let rows: Vec<SMatrix<f64, 3, 2>> = (0..n).map(|_| SMatrix::from_fn(|_, _| next())).collect();
+        let row_bound = rows.iter().map(|r| r.norm()).fold(0.0, f64::max);
+        let q = SVector::<f64, 2>::new(next(), next()).normalize() * (2e-3 / row_bound);
+        let rest = mesh.rest();
+        let at = |i: u32| rest[i as usize] + offset[i as usize] + rows[i as usize] * q;
+        let motion = Motion {
+            q: &q,
+            row_bound,
+            offset: Some(&offset),
+        };
+        let mut scratch = Candidates::new();
+        let (mut out, mut plain) = (ContactOutput::<2>::for_index(&idx), ContactOutput::<2>::for_index(&idx));
+        let reach = p.tool_radius_m + COHERENCE_SLACK_M;
+        let mut pressed = 0;
+        for _ in 0..400 {
+            let c = Vec3::new(0.02 + 0.036 * next(), 0.02 + 0.036 * next(), 0.002 + 0.01 * next());
+            out.forget();
+            evaluate_spheres(
+                &idx,
+                &p,
+                &[c],
+                at,
+                |i| rows.get(i as usize),
+                None,
+                Some(motion),
+                &mut scratch,
+                &mut out,
+            );
+            assert_eq!(out.searches, 1);
+            assert!(!out.truncated);
+            let kept = out.kept[0];
+            assert!(kept.valid, "{c}: the triangles fit");
+            let mut got: Vec<u32> = out.kept_tris[..kept.len as usize].to_vec();
+            let mut want: Vec<u32> = (0..idx.tris.len() as u32)
+                .filter(|&t| {
+                    let x = idx.tris[t as usize].map(at);
+                    (crate::math::closest_on_triangle(c, x[0], x[1], x[2]) - c).norm() <= reach
+                })
+                .collect();
+            got.sort_unstable();
+            want.sort_unstable();
+            assert_eq!(got, want, "sphere at {c}");
+            evaluate_spheres(
+                &idx,
+                &p,
+                &[c],
+                at,
+                |i| rows.get(i as usize),
+                None,
+                None,
+                &mut scratch,
+                &mut plain,
+            );
+            assert!(
+                (out.tool_force - plain.tool_force).norm() <= 1e-12 * plain.tool_force.norm(),
+                "{c}: {} vs {}",
+                out.tool_force,
+                plain.tool_force
+            );
+            pressed += usize::from(plain.tool_force.norm() > 0.0);
+        }
+        assert!(pressed > 50, "{pressed} of the spheres press");
     }
 
     #[test]
