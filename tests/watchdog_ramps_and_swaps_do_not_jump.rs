@@ -185,19 +185,27 @@ fn the_force_ramps_to_zero_within_10_ms_when_the_device_goes_silent_or_sends_nan
 
 #[test]
 fn a_refreshed_model_swaps_in_mid_contact_without_a_force_jump() {
-    swap_mid_contact(false);
+    swap_mid_contact(false, false);
 }
 
 #[test]
 fn a_model_in_a_recomputed_basis_swaps_in_mid_contact_without_a_force_jump() {
-    swap_mid_contact(true);
+    swap_mid_contact(true, false);
+}
+
+/// The swap's state correction computed on the tick before, as the loop
+/// does (`Servo::prepare`).
+#[test]
+fn a_refreshed_model_prepared_a_tick_ahead_swaps_in_mid_contact_without_a_force_jump() {
+    swap_mid_contact(false, true);
 }
 
 /// Presses the plate for 1.5 s, runs the full model under the loop's contact
 /// forces, builds the refreshed model (in a basis recomputed at the full
-/// state, warm-started, if `new_basis`), swaps it in and bounds the force
-/// change per tick over the cross-fade.
-fn swap_mid_contact(new_basis: bool) {
+/// state, warm-started, if `new_basis`), swaps it in (its correction
+/// prepared first, if `prepared`) and bounds the force change per tick over
+/// the cross-fade.
+fn swap_mid_contact(new_basis: bool, prepared: bool) {
     let p = plate();
     let mut s = servo(&p);
     let pos = Vec3::new(p.center.x, p.center.y, p.top + 3e-3 - 1.5e-3);
@@ -309,7 +317,12 @@ fn swap_mid_contact(new_basis: bool) {
         moved
     };
     let carries = moved < nvtmm::haptics::contact::COHERENCE_SLACK_M;
+    if prepared {
+        // As the loop does: the tick before the swap prepares it.
+        std::hint::black_box(s.prepare(&m));
+    }
     let old = s.swap(m).map(|o| o.epoch);
+    assert_eq!(s.counters().swaps_prepared, (prepared && !new_basis) as u64);
     // In the same basis, with ū moved less than the slack, the swap keeps
     // the contact's triangles (no search); the ticks below check that they
     // give what a fresh search gives.

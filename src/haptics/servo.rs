@@ -167,10 +167,13 @@ pub struct ServoCounters {
     /// changed); on the others every patch reused the blocks it kept.
     pub compliance_lookup_ticks: u64,
     /// Swaps that carried the contact's kept triangles over to the new
-    /// model (same basis, the swap moved the surface less than the
-    /// slack): no surface search
-    /// on the swap tick ([`LoopModel::surface_moved_m`]).
+    /// model (same basis, the swap moved the surface less than the slack,
+    /// [`LoopModel::surface_moved_m`]): the swap tick searches only if the
+    /// swap's change of state uses up the rest of the slack.
     pub swaps_carried: u64,
+    /// Swaps whose state correction (the contact match and the static step)
+    /// was computed on the tick before ([`Servo::prepare`]).
+    pub swaps_prepared: u64,
     /// Spheres of the old model's contact in a cross-fade that took over
     /// the triangles the new model's contact had just searched for, instead
     /// of searching the same surface again on the same tick
@@ -407,6 +410,9 @@ pub struct Servo<const R: usize> {
     fade_contact: Box<ContactOutput<R>>,
     blend: f64,
     retired: Option<Box<LoopModel<R>>>,
+    /// The next swap's state correction, computed on the tick before it
+    /// ([`Servo::prepare`]).
+    prepared: Option<PreparedSwap<R>>,
     extra: heapless::Vec<Vec3, { contact::MAX_SPHERES - 1 }>,
     centers: heapless::Vec<Vec3, { contact::MAX_SPHERES }>,
     events: ContactEvents,
@@ -418,6 +424,43 @@ pub struct Servo<const R: usize> {
     /// Whether the tool sphere at the hand takes part in the contact (the
     /// sphere probe is an instrument).
     hand_sphere: bool,
+}
+
+/// A swap's state correction prepared a tick ahead: the contact match and
+/// the static step to equilibrium under the contact, as a change of the
+/// transferred state (q ← T q + shift + `correction`).
+#[derive(Debug, Clone, Copy)]
+struct PreparedSwap<const R: usize> {
+    /// The model it was computed for (its address: a boxed model does not
+    /// move between the ring, the loop and the swap).
+    model: usize,
+    /// The servo's tick count when it was computed.
+    tick: u64,
+    correction: SVector<f64, R>,
+}
+
+/// Ticks a prepared swap correction stays usable: the state it was
+/// computed from moves on by one tick's dynamics before the swap.
+const PREPARED_SWAP_TICKS: u64 = 2;
+
+/// One static Newton step of `new`'s reduced model from `q` toward
+/// equilibrium under the contact's reduced force `f_c` and stiffness `k_c`
+/// and the point loads (q unchanged if the step is not finite).
+fn static_step<const R: usize>(
+    new: &LoopModel<R>,
+    mut q: SVector<f64, R>,
+    f_c: &SVector<f64, R>,
+    k_c: &SMatrix<f64, R, R>,
+    point_loads: &[(u32, Vec3)],
+) -> SVector<f64, R> {
+    let k = new.dynamics.stiffness() + k_c;
+    let r = f_c - new.f_bar - new.dynamics.stiffness() * q + project_point_loads(&new.dynamics, point_loads);
+    if let Some(step) = k.cholesky().map(|ch| ch.solve(&r)) {
+        if step.iter().all(|v| v.is_finite()) {
+            q += step;
+        }
+    }
+    q
 }
 
 /// Most point loads the servo keeps ([`Servo::set_point_loads`],
@@ -454,6 +497,7 @@ impl<const R: usize> Servo<R> {
             fade_contact,
             blend: 1.0,
             retired: None,
+            prepared: None,
             extra: heapless::Vec::new(),
             centers: heapless::Vec::new(),
             events: ContactEvents::default(),
@@ -517,9 +561,21 @@ impl<const R: usize> Servo<R> {
         let qd = new.transfer * self.model.dynamics.qd();
         let mut evaluated_new = false;
         if q.iter().chain(qd.iter()).all(|v| v.is_finite()) {
-            let dq = self.contact_match(&new, &q);
-            let mut q = q + dq;
-            if self.params.swap_blend_s > 0.0 && !self.contact.nodes.is_empty() {
+            let address = std::ptr::addr_of!(*new) as usize;
+            let ticks = self.counters.ticks;
+            let prepared = self
+                .prepared
+                .take()
+                .filter(|p| same_basis && p.model == address && ticks.saturating_sub(p.tick) <= PREPARED_SWAP_TICKS);
+            let mut q = match prepared {
+                // Matched and stepped to equilibrium on the tick before.
+                Some(p) => {
+                    self.counters.swaps_prepared += 1;
+                    q + p.correction
+                }
+                None => q + self.contact_match(&new, &q),
+            };
+            if prepared.is_none() && self.params.swap_blend_s > 0.0 && !self.contact.nodes.is_empty() {
                 // The cross-fade hides a step: start the new model at its
                 // equilibrium under the contact (one static Newton step),
                 // so it does not ring after the fade.
@@ -550,14 +606,7 @@ impl<const R: usize> Servo<R> {
                     evaluated_new = true;
                     (self.fade_contact.reduced_force, self.fade_contact.reduced_stiffness)
                 };
-                let k = new.dynamics.stiffness() + k_c;
-                let r = f_c - new.f_bar - new.dynamics.stiffness() * q
-                    + project_point_loads(&new.dynamics, &self.point_loads);
-                if let Some(step) = k.cholesky().map(|ch| ch.solve(&r)) {
-                    if step.iter().all(|v| v.is_finite()) {
-                        q += step;
-                    }
-                }
+                q = static_step(&new, q, &f_c, &k_c, &self.point_loads);
             }
             new.dynamics.set_state(&q, &qd);
             self.loads_part = self.loads_part.transferred(&new.transfer);
@@ -620,6 +669,40 @@ impl<const R: usize> Servo<R> {
         self.contact.for_each_kept_node(&self.index, &mut at);
         for c in self.contact.nodes.iter() {
             at(c.node);
+        }
+        sum
+    }
+
+    /// [`Servo::warm`], and on the same basis also the swap's state
+    /// correction (the contact match and the static step to equilibrium
+    /// under the contact), so that the swap tick, which often also searches
+    /// the surface, only adds it: the swap's cost moves to the tick before,
+    /// one tick of the old model's motion earlier. A swap more than
+    /// [`PREPARED_SWAP_TICKS`] ticks later, or of another model, computes
+    /// it afresh. Returns what [`Servo::warm`] returns. Allocates nothing.
+    pub fn prepare(&mut self, new: &LoopModel<R>) -> f64 {
+        let sum = self.warm(new);
+        self.prepared = None;
+        if !Arc::ptr_eq(new.dynamics.rows(), self.model.dynamics.rows()) {
+            // A new basis: the swap evaluates the contact on the new model.
+            return sum;
+        }
+        let q0 = new.transfer * self.model.dynamics.q() + new.shift;
+        if !q0.iter().all(|v| v.is_finite()) {
+            return sum;
+        }
+        let mut q = q0 + self.contact_match(new, &q0);
+        if self.params.swap_blend_s > 0.0 && !self.contact.nodes.is_empty() {
+            let (f_c, k_c) = (self.contact.reduced_force, self.contact.reduced_stiffness);
+            q = static_step(new, q, &f_c, &k_c, &self.point_loads);
+        }
+        let correction = q - q0;
+        if correction.iter().all(|v| v.is_finite()) {
+            self.prepared = Some(PreparedSwap {
+                model: std::ptr::addr_of!(*new) as usize,
+                tick: self.counters.ticks,
+                correction,
+            });
         }
         sum
     }

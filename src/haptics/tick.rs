@@ -277,6 +277,12 @@ impl<const R: usize> HapticTick<R> {
         self.servo.warm(model)
     }
 
+    /// Prepares a model's swap a tick before it (see [`Servo::prepare`]);
+    /// returns a sum of what it read.
+    pub fn prepare(&mut self, model: &LoopModel<R>) -> f64 {
+        self.servo.prepare(model)
+    }
+
     /// The servo (contact, model, watchdog).
     pub fn servo(&self) -> &Servo<R> {
         &self.servo

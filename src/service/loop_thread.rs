@@ -312,10 +312,11 @@ pub(super) fn loop_thread<const R: usize>(mut tick: HapticTick<R>, mut io: LoopI
         // A refreshed model is taken from the ring after the force is out
         // and swapped in on the next tick: reading its memory now (written
         // by the background thread on the other core) lets the swap tick
-        // find it in this core's cache.
+        // find it in this core's cache, and its state correction is
+        // computed here, off the swap tick (`Servo::prepare`).
         if incoming.is_none() && !io.models.is_empty() && !io.faults.holding_models() {
             if let Ok(m) = io.models.pop() {
-                std::hint::black_box(tick.warm(&m));
+                std::hint::black_box(tick.prepare(&m));
                 incoming = Some(m);
                 split.lap(Phase::Warm);
             }

@@ -577,12 +577,13 @@ impl Report {
         );
         s += &format!(
             "    the compliance's pair blocks read from its table on {} of those ticks (the others reused them: same touched nodes); \
-             {} of {} swaps kept the contact's triangles (no search on the swap tick); \
+             {} of {} swaps kept the contact's triangles, {} were matched and stepped to equilibrium a tick ahead; \
              the old model took over {} of the new one's searches in the cross-fades; \
              {} cross-fades ended early (the models' forces within {} mN)\n",
             w.compliance_lookup_ticks,
             w.swaps_carried,
             w.model_swaps,
+            w.swaps_prepared,
             w.fade_searches_shared,
             w.fades_ended_early,
             crate::haptics::servo::FADE_DONE_N * 1e3
