@@ -40,6 +40,8 @@ fn bench_wire_tick_json_has_the_contract_keys_and_no_resets() {
     assert_eq!(
         keys,
         [
+            "buckled",
+            "buckling_checks",
             "budget_spent",
             "contacts_max",
             "contacts_mean",
@@ -69,10 +71,15 @@ fn bench_wire_tick_json_has_the_contract_keys_and_no_resets() {
             "tick_us",
             "ticks",
             "time_limited",
+            "tip_m",
             "wire_us"
         ]
     );
     assert_eq!(obj["ticks"], 200);
+    // The buckling check's counts are of the timed steps.
+    assert!(obj["buckled"].as_u64().unwrap() <= obj["buckling_checks"].as_u64().unwrap());
+    assert!(obj["buckling_checks"].as_u64().unwrap() <= 200);
+    assert_eq!(obj["tip_m"].as_array().map(Vec::len), Some(3));
     assert_eq!(obj["resets"], 0);
     assert_eq!(obj["follow_wall"], false);
     // Back to back in an ordinary thread unless asked.

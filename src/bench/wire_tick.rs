@@ -92,6 +92,14 @@ pub struct WireTickBench {
     pub rt: crate::rt::thread::RtGrant,
     /// See `rt`; the refusal's text is among `rt.refusals`.
     pub memory_locked: bool,
+    /// Timed steps whose buckling check factored the static Hessian
+    /// (docs/WIRE.md "Buckling"), and those that then moved off a saddle.
+    pub buckling_checks: usize,
+    /// See `buckling_checks`.
+    pub buckled: usize,
+    /// The tip's position at the end (m): two builds whose steps agree bit
+    /// for bit print the same.
+    pub tip_m: [f64; 3],
     /// Steps restored to the last good state (failed or too deep).
     pub resets: usize,
     /// Deepest penetration over the timed ticks (mm).
@@ -245,6 +253,7 @@ pub fn bench_wire_tick(config: &Path, o: &WireTickOptions) -> Result<WireTickBen
     let mut evals = Vec::with_capacity(ticks);
     let mut budget_spent = 0usize;
     let mut time_limited = 0usize;
+    let (mut buckling_checks, mut buckled) = (0usize, 0usize);
     let (mut iters, mut contacts, mut contacts_max, mut loads_max, mut qp_solved, mut resets) =
         (0usize, 0usize, 0usize, 0usize, 0usize, 0usize);
     let mut deepest: f64 = 0.0;
@@ -337,6 +346,8 @@ pub fn bench_wire_tick(config: &Path, o: &WireTickOptions) -> Result<WireTickBen
                 evals.push(r.evaluations);
                 budget_spent += r.budget_spent as usize;
                 time_limited += r.time_spent as usize;
+                buckling_checks += r.buckling_checked as usize;
+                buckled += r.buckled as usize;
                 deepest = deepest.max(r.max_penetration_m);
             }
         }
@@ -372,6 +383,9 @@ pub fn bench_wire_tick(config: &Path, o: &WireTickOptions) -> Result<WireTickBen
         paced: rt_cpu.is_some(),
         rt: grant,
         memory_locked,
+        buckling_checks,
+        buckled,
+        tip_m: wire.tip().into(),
         resets,
         max_penetration_mm: deepest * 1e3,
         tick_us: Percentiles::of(&t_tick),

@@ -133,6 +133,10 @@ pub fn bench_wire_tick_cmd(config: &Path, o: &WireTickOptions, json: bool) -> Re
         b.resets,
         b.max_penetration_mm
     );
+    println!(
+        "buckling check factored on {} of {} steps, moved off a saddle on {}; tip at ({:.17e}, {:.17e}, {:.17e}) m",
+        b.buckling_checks, b.ticks, b.buckled, b.tip_m[0], b.tip_m[1], b.tip_m[2]
+    );
     print_paced(b.paced, &b.rt, b.memory_locked);
     print_parts(&[
         ("whole tick", &b.tick_us),

@@ -116,6 +116,10 @@ pub struct StepReport {
     /// past its buckling load) and moved off it along a direction of
     /// negative curvature (docs/WIRE.md "Buckling").
     pub buckled: bool,
+    /// The step's buckling check factored the static Hessian (the wire
+    /// had settled in the last step, pushed, with a compressed, nearly
+    /// unbent edge): what the check costs, in how many steps.
+    pub buckling_checked: bool,
 }
 
 /// The coaxial terms of a rod (docs/CATHETER.md): the sheath it may run
@@ -558,6 +562,14 @@ pub const SLIDE_MIN_FEED_SMOOTHINGS: f64 = 10.0;
 /// wire did not have; following it jammed a J-tip wire in the ascending
 /// aorta at the grip's limit (docs/WIRE.md "Buckling").
 pub const BUCKLING_BEND_OFF: f64 = 0.02;
+
+/// The buckling check factors the static Hessian only where its bound by
+/// the bending alone (`Wire::may_buckle`) does not rule out negative
+/// curvature with the compressed edges' forces taken this many times:
+/// the bound is exact for a straight wire, and the margin covers the
+/// bend's Gauss–Newton form and its coupling to the twist on a wire bent
+/// within [`BUCKLING_BEND_OFF`] of its rest shape.
+pub const BUCKLING_GATE_MARGIN: f64 = 2.0;
 
 /// A Newton update that the cap on node moves and twists would scale
 /// below this is solved again within a trust region of the cap's size
@@ -1712,6 +1724,9 @@ impl Wire {
     fn buckle(&mut self, lumen: &dyn Lumen, e0: f64, rep: &mut StepReport) -> bool {
         let n = self.s.n;
         let dofs = 4 * n;
+        if !self.may_buckle() {
+            return false;
+        }
         // The static Hessian and gradient from the step's.
         self.hs.copy_from(&self.h);
         let mut inertia_energy = 0.0;
@@ -1752,44 +1767,13 @@ impl Wire {
                 self.hs.add(ts, ts, -h_ss);
             }
         }
-        let f_grip = self.p.max_hub_force_n;
         let mut compressed = false;
-        // How far node i's bend is from its rest (material curvature,
-        // about the turning angle per segment): the Gauss–Newton bend
-        // Hessian leaves out terms of that size, so only where it is small
-        // is the static Hessian accurate enough to tell a saddle.
-        let bend_off = |w: &Wire, i: usize| -> f64 {
-            if i == 0 || i + 1 >= n {
-                return 0.0;
-            }
-            let (te, tf) = (w.tan[i - 1], w.tan[i]);
-            let kb = te.cross(&tf) * (2.0 / (1.0 + te.dot(&tf)).max(1e-12));
-            let k1 = 0.5 * kb.dot(&(w.m2[i - 1] + w.m2[i]));
-            let k2 = -0.5 * kb.dot(&(w.m1[i - 1] + w.m1[i]));
-            ((k1 - w.coef[i].kb_rest).powi(2) + k2 * k2).sqrt()
-        };
-        // Node j + 1's, kept for edge j + 1 (whose node j + 1 it is).
+        // Node j + 1's bend, kept for edge j + 1 (whose node j + 1 it is).
         let mut next_off: Option<(usize, f64)> = None;
         for j in 1..n - 1 {
-            let k = self.coef[j].stretch;
-            let st = self.len[j] - self.s.rest[j];
-            let force = if j == 1 && (k * st).abs() > f_grip {
-                f_grip * st.signum()
-            } else {
-                k * st
-            };
-            if force >= 0.0 {
+            let Some(force) = self.buckling_edge_force(j, &mut next_off) else {
                 continue;
-            }
-            let off_j = match next_off {
-                Some((i, v)) if i == j => v,
-                _ => bend_off(self, j),
             };
-            let off_next = bend_off(self, j + 1);
-            next_off = Some((j + 1, off_next));
-            if off_j.max(off_next) > BUCKLING_BEND_OFF {
-                continue;
-            }
             compressed = true;
             let geo = force * self.inv_len[j];
             let t = self.tan[j];
@@ -1812,6 +1796,7 @@ impl Wire {
         if !compressed {
             return false;
         }
+        rep.buckling_checked = true;
         let Ok(Some((k, d))) = self.hs.factor_indefinite() else {
             return false;
         };
@@ -1883,6 +1868,103 @@ impl Wire {
             self.tht[i] = self.s.theta[i];
         }
         tried
+    }
+
+    /// Whether the buckling check's static Hessian could have negative
+    /// curvature, by the bound of its bending alone (cheap, O(n)): false
+    /// when no edge is compressed and nearly unbent, or when even
+    /// [`BUCKLING_GATE_MARGIN`] times their compression could not bow the
+    /// wire against its bending stiffness.
+    ///
+    /// Why: the check's indefinite factorisation cost about a tenth of a
+    /// wall-loaded step, and it ran on every step of a wire that rests
+    /// pushed against the wall (3000 of 3000 in the tick bench, none of
+    /// which moved). The bound: the static Hessian is its compressed
+    /// edges' geometric stiffness added to terms that are each positive
+    /// semi-definite (stretch, twist, contact, loads; the Gauss–Newton
+    /// bend). Of those, the bend alone, on a nearly straight wire, is
+    /// Σᵢ Bᵢ |uᵢ − uᵢ₋₁|² in the edges' changes of direction u_j
+    /// (B the nodes' EI / l̄, u₀ = 0 at the clamp), and the geometric term
+    /// of a compressed edge of force −P_j is −P_j ℓ_j |u_j|². So if the
+    /// tridiagonal matrix of the first less the second (each P_j times
+    /// the margin) is positive definite, so is the static Hessian, and
+    /// the check would find no saddle: the discrete form of Euler's load
+    /// π² EI / (4 L²) of the clamped, otherwise free, column, with the
+    /// compression where it acts. The margin covers what the bound
+    /// neglects: the bend's Gauss–Newton form on a wire bent within
+    /// [`BUCKLING_BEND_OFF`] of its rest shape, and its coupling to the
+    /// twist there. A check the bound skips would have returned without
+    /// trials, leaving the step's evaluation as it was: the step is the
+    /// same, bit for bit.
+    fn may_buckle(&self) -> bool {
+        let n = self.s.n;
+        let mut next_off: Option<(usize, f64)> = None;
+        let mut compressed = false;
+        // L D Lᵀ of the tridiagonal over edges 1..=n − 2; `prev` the last
+        // pivot (∞ before edge 1: u₀ is clamped).
+        let mut prev = f64::INFINITY;
+        for j in 1..n - 1 {
+            let geo = match self.buckling_edge_force(j, &mut next_off) {
+                Some(force) => {
+                    compressed = true;
+                    -force * BUCKLING_GATE_MARGIN * self.len[j]
+                }
+                None => 0.0,
+            };
+            let bj = self.coef[j].bend;
+            let next = if j + 1 < n - 1 { self.coef[j + 1].bend } else { 0.0 };
+            let d = bj + next - geo - bj * bj / prev;
+            if !(d > 0.0 && d.is_finite()) {
+                return compressed || (j + 1..n - 1).any(|k| self.buckling_edge_force(k, &mut next_off).is_some());
+            }
+            prev = d;
+        }
+        false
+    }
+
+    /// Edge j's force (N, negative) if the buckling check adds its
+    /// geometric stiffness: compressed (the hub edge's force capped at
+    /// the grip's limit), with the bends at both its ends within
+    /// [`BUCKLING_BEND_OFF`] of their rest (the Gauss–Newton bend Hessian
+    /// leaves out terms of that size, so only where it is small is the
+    /// static Hessian accurate enough to tell a saddle). `next_off` keeps
+    /// node j + 1's bend for edge j + 1 (call in increasing j).
+    fn buckling_edge_force(&self, j: usize, next_off: &mut Option<(usize, f64)>) -> Option<f64> {
+        let k = self.coef[j].stretch;
+        let st = self.len[j] - self.s.rest[j];
+        let f_grip = self.p.max_hub_force_n;
+        let force = if j == 1 && (k * st).abs() > f_grip {
+            f_grip * st.signum()
+        } else {
+            k * st
+        };
+        if force >= 0.0 {
+            return None;
+        }
+        let off_j = match *next_off {
+            Some((i, v)) if i == j => v,
+            _ => self.bend_off(j),
+        };
+        let off_next = self.bend_off(j + 1);
+        *next_off = Some((j + 1, off_next));
+        if off_j.max(off_next) > BUCKLING_BEND_OFF {
+            return None;
+        }
+        Some(force)
+    }
+
+    /// How far node i's bend is from its rest (material curvature, about
+    /// the turning angle per segment); 0 at the ends.
+    fn bend_off(&self, i: usize) -> f64 {
+        let n = self.s.n;
+        if i == 0 || i + 1 >= n {
+            return 0.0;
+        }
+        let (te, tf) = (self.tan[i - 1], self.tan[i]);
+        let kb = te.cross(&tf) * (2.0 / (1.0 + te.dot(&tf)).max(1e-12));
+        let k1 = 0.5 * kb.dot(&(self.m2[i - 1] + self.m2[i]));
+        let k2 = -0.5 * kb.dot(&(self.m1[i - 1] + self.m1[i]));
+        ((k1 - self.coef[i].kb_rest).powi(2) + k2 * k2).sqrt()
     }
 
     /// The static potential (no inertia or drag) at the state moved by
