@@ -493,6 +493,10 @@ pub struct ContactOutput<const R: usize> {
     /// Per sphere, its patch's force from the last series solve (N): where
     /// the next solve starts (only a start: the solve is bracketed).
     last_force: [f64; MAX_SPHERES],
+    /// [`LocalCompliance::id`] of the table `last_force` was solved with:
+    /// with another table the solve starts from 0, so an output gives what
+    /// a new one gives on its first evaluation with a table.
+    last_table: u64,
 }
 
 impl<const R: usize> ContactOutput<R> {
@@ -863,6 +867,7 @@ impl<const R: usize> Default for ContactOutput<R> {
             pair_keys: Vec::new(),
             pair_blocks: Vec::new(),
             last_force: [0.0; MAX_SPHERES],
+            last_table: 0,
         }
     }
 }
@@ -1676,6 +1681,10 @@ fn series_patches<'r, const R: usize>(
     const C: usize = MAX_COMPLIANT_PATCHES;
     let m = out.patches.len().min(C);
     out.uncorrected = out.patches.len() - m;
+    if out.last_table != w.id() {
+        out.last_table = w.id();
+        out.last_force = [0.0; MAX_SPHERES];
+    }
     let mut s = [[0.0f64; C]; C];
     for a in 0..m {
         for b in 0..=a {
