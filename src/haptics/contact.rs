@@ -44,12 +44,14 @@
 //! magnitude P, and its distribution e_a = f_a / F as the load shape:
 //!
 //! ```text
-//! δ = S P,   S_pq = Σ_ab e_aᵀ ΔW_ab e_b,   P_p = F_p(δ_p) = c Σ_i k_i (d_i − δ_p)₊,   P ≥ 0
+//! δ = S P,   S_pq = Σ_ab e_aᵀ ΔW_ab e_b,   P_p = F_p(δ_p) = Σ_i k_i (ρ − r_i)₊ (w_i·a) / r_i,   P ≥ 0
 //! ```
 //!
-//! (d_i the depths of the quadrature points into the sphere, k_i = k_p dA),
-//! solved by Newton's method on the piecewise-linear laws, which couples the
-//! patches; the reduced stiffness becomes K_c = G (K⁻¹ + S)⁻¹ Gᵀ with
+//! (w_i = v_i + u_i δ_p the quadrature point's offset from the sphere's
+//! centre moved by its share u_i of the patch's dent, r_i = |w_i|,
+//! k_i = k_p dA, a the patch's force direction: [`patch_law`]), solved by
+//! Newton's method, which couples the patches; the node forces are then the
+//! points' pressures at the solution ([`redistribute`]); the reduced stiffness becomes K_c = G (K⁻¹ + S)⁻¹ Gᵀ with
 //! G = [Σ_a Φ_aᵀ e_a] and K = dF/dδ. At static equilibrium a patch then sees
 //! the full model's local compliance in series with the pressure, at any
 //! surface point, several patches at once, for a cost that follows the
@@ -555,6 +557,13 @@ pub struct ContactOutput<const R: usize> {
     /// zero where the table has none).
     pair_keys: Vec<PairKey>,
     pair_blocks: Vec<Mat3>,
+    /// Per sphere, its patch's force from the last series solve (N): where
+    /// the next solve starts (only a start: the solve is bracketed).
+    last_force: [f64; MAX_SPHERES],
+    /// [`LocalCompliance::id`] of the table `last_force` was solved with:
+    /// with another table the solve starts from 0, so an output gives what
+    /// a new one gives on its first evaluation with a table.
+    last_table: u64,
 }
 
 impl<const R: usize> ContactOutput<R> {
@@ -819,10 +828,18 @@ struct Sample {
     depth: f64,
     /// k_p dA (N/m).
     k: f64,
-    /// How far the point moves out of the sphere per unit of its patch's
-    /// residual deflection δ (1: as the patch on average; see
-    /// [`patch_shape`]).
-    phi: f64,
+    /// With v the point's offset from the sphere's centre, u how far it
+    /// moves per unit of its patch's residual deflection δ (the patch's
+    /// own dent there, [`patch_shape`]) and a the patch's force direction:
+    /// v·u, u·u, v·a and u·a, so that its distance from the centre at δ is
+    /// |v + u δ| and its pressure's share along a follows ([`patch_law`]).
+    vu: f64,
+    /// See `vu`.
+    uu: f64,
+    /// See `vu`.
+    va: f64,
+    /// See `vu`.
+    ua: f64,
 }
 
 /// Where a pressed sample sits, beside its [`Sample`] (kept apart so that
@@ -870,9 +887,8 @@ struct Patch {
     k: f64,
     /// Deepest sample (m).
     depth: f64,
-    /// c = |Σ f_a| / Σ k_i d_i: the scalar law's factor (its samples press
-    /// along different normals, so their magnitudes sum to more than F).
-    law_scale: f64,
+    /// The sphere's radius (m).
+    rho: f64,
     /// Rest centre of its nodes and their largest rest distance from it
     /// (m): two patches farther apart than the compliance table's reach do
     /// not couple.
@@ -917,6 +933,8 @@ impl<const R: usize> Default for ContactOutput<R> {
             kept_dist: Vec::new(),
             pair_keys: Vec::new(),
             pair_blocks: Vec::new(),
+            last_force: [0.0; MAX_SPHERES],
+            last_table: 0,
         }
     }
 }
@@ -1125,7 +1143,14 @@ fn press_sphere<'r, const R: usize>(
             // Both at their fixed capacity: never grown in the tick.
             if samples_buf.len() < samples_buf.capacity() && samples_at.len() < samples_at.capacity() {
                 let dir = fw / w.max(f64::MIN_POSITIVE);
-                samples_buf.push(Sample { depth, k: da, phi: 1.0 });
+                samples_buf.push(Sample {
+                    depth,
+                    k: da,
+                    vu: 0.0,
+                    uu: 0.0,
+                    va: 0.0,
+                    ua: 0.0,
+                });
                 samples_at.push(SampleAt {
                     dir: [dir.x as f32, dir.y as f32, dir.z as f32],
                     bary: [b1 as f32, b2 as f32],
@@ -1221,10 +1246,6 @@ fn press_sphere<'r, const R: usize>(
         return;
     }
     out.max_depth = out.max_depth.max(depth_max);
-    let f0: f64 = out.samples_buf[sample_first..]
-        .iter()
-        .map(|smp| smp.k * smp.depth)
-        .sum();
     let nodes = &out.active[first..];
     let rest_centre = nodes.iter().map(|a| index.rest(a.node)).sum::<Vec3>() / len as f64;
     let rest_radius = nodes
@@ -1240,7 +1261,7 @@ fn press_sphere<'r, const R: usize>(
         force: magnitude,
         k,
         depth: depth_max,
-        law_scale: if f0 > 0.0 { magnitude / f0 } else { 0.0 },
+        rho,
         rest_centre,
         rest_radius,
     });
@@ -1571,22 +1592,50 @@ fn cholesky_solve(
 /// pressed samples; the piecewise-linear law converges in a few).
 const SERIES_ITERATIONS: usize = 16;
 
-/// Patch `q`'s pressure law at a deflection `delta` of the tissue under it
-/// (along its force): (F, −dF/dδ) with F(δ) = c Σ k_i (d_i − φ_i δ)₊ over
-/// its samples, c = F(0) / Σ k_i d_i (the pressed magnitude at no
-/// deflection, [`Patch::law_scale`]) and φ_i the sample's share of the
-/// deflection ([`patch_shape`]).
+/// Patch `q`'s pressure law at a deflection `delta` of the tissue under it:
+/// (F, −dF/dδ) with F(δ) the patch's pressure summed along its force
+/// direction a with every sample moved by its share of the dent,
+///
+/// ```text
+/// F(δ) = Σ_i k_i (ρ − r_i) (w_i · a) / r_i,   w_i = v_i + u_i δ,   r_i = |w_i| < ρ
+/// ```
+///
+/// (v_i the sample's offset from the sphere's centre, u_i its dent per
+/// unit δ, [`patch_shape`]), so F(0) is the pressed magnitude and a deep
+/// patch's rim, whose pressure is nearly tangent to the wall, leaves the
+/// sphere as the wall under it sinks: the distance |v + u δ| is exact for
+/// the sample, where its first-order change v̂·u δ kept the rim pressing
+/// far past where the full model releases it (docs/RESULTS.md, "At
+/// depth"). A sample whose pressure would grow with δ adds nothing to
+/// −dF/dδ (the law's slope stays that of a spring; F is exact).
 fn patch_law<const R: usize>(q: usize, out: &ContactOutput<R>, delta: f64) -> (f64, f64) {
     let p = &out.patches[q];
-    let (f, k) = samples_of(p, &out.samples_buf).iter().fold((0.0, 0.0), |(f, k), smp| {
-        let gap = smp.depth - smp.phi * delta;
-        if gap > 0.0 {
-            (f + smp.k * gap, k + smp.k * smp.phi)
-        } else {
-            (f, k)
+    let rho = p.rho;
+    let rho2 = rho * rho;
+    let (mut f, mut k) = (0.0, 0.0);
+    for smp in samples_of(p, &out.samples_buf) {
+        let r0 = rho - smp.depth;
+        let r2 = r0 * r0 + delta * (2.0 * smp.vu + delta * smp.uu);
+        if r2.is_nan() || r2 >= rho2 {
+            continue;
         }
-    });
-    (p.law_scale * f, p.law_scale * k)
+        let r = r2.sqrt();
+        let g = smp.va + smp.ua * delta;
+        if r > 1e-9 * rho {
+            let inv = 1.0 / r;
+            let grow = rho * inv - 1.0;
+            f += smp.k * grow * g;
+            // d/dδ [(ρ/r − 1) g] = −ρ (w·u) g / r³ + (ρ/r − 1) (u·a).
+            let wu = smp.vu + smp.uu * delta;
+            let slope = rho * wu * g * inv * inv * inv - grow * smp.ua;
+            if slope > 0.0 {
+                k += smp.k * slope;
+            }
+        } else {
+            f += smp.k * (rho - r);
+        }
+    }
+    (f, k)
 }
 
 /// Patch `p`'s pressure samples.
@@ -1596,43 +1645,47 @@ fn samples_of<'a>(p: &Patch, buf: &'a [Sample]) -> &'a [Sample] {
 
 /// The deflection shape of patch `q` under its own load, from its nodes'
 /// `deflect` (Σ_b ΔW_ab f_b) and its self-coupling `s_qq`: sample i, at
-/// barycentric b_c between the nodes of its triangle, moves out of the
-/// sphere along its direction n_i by
+/// barycentric b_c between the nodes of its triangle, moves by
 ///
 /// ```text
-/// φ_i δ,   φ_i = n_i · Σ_c b_c (ΔW e)_c / S_qq,   δ = S_qq P
+/// u_i δ,   u_i = Σ_c b_c (ΔW e)_c / S_qq,   δ = S_qq P
 /// ```
 ///
-/// so the |e|-weighted mean of φ over the nodes is 1: a uniform δ would
-/// release the shallow rim of a deep patch, which the wall, bowing most
-/// under the patch's centre, still presses (measured too soft at 2–3 mm:
-/// docs/REDUCED.md). φ < 0 (the point pulled into the sphere) is taken as
-/// 0 so that the law stays monotone; a sample whose vertices are not all
-/// listed keeps φ = 1.
+/// (its |e|-weighted mean along the pressure is 1). The wall bows most
+/// under the patch's centre, so at depth the rim keeps pressing while the
+/// centre gives; with one uniform deflection the shallow rim of a deep
+/// patch was released as fast as the centre went (measured too soft at
+/// 2–3 mm: docs/RESULTS.md). Fills each sample's v·u, u·u, v·a, u·a for
+/// [`patch_law`] (v its offset from the centre, a the patch's force
+/// direction). A sample whose vertices are not all listed, or a patch
+/// without a usable `s_qq`, moves along its own pressure by δ.
 fn patch_shape<const R: usize>(q: usize, s_qq: f64, out: &mut ContactOutput<R>) {
     let p = out.patches[q];
     let range = p.sample_first as usize..(p.sample_first + p.sample_len) as usize;
-    if !(s_qq > 0.0 && s_qq.is_finite() && p.force > 0.0) {
-        out.samples_buf[range].iter_mut().for_each(|smp| smp.phi = 1.0);
-        return;
-    }
+    let nodes = &out.active[p.first as usize..(p.first + p.len) as usize];
+    let axis = nodes.iter().map(|a| a.f).sum::<Vec3>() / p.force.max(f64::MIN_POSITIVE);
+    let shaped = s_qq > 0.0 && s_qq.is_finite() && p.force > 0.0;
     // (ΔW e)_c = deflect_c / F, divided by S.
-    let scale = 1.0 / (p.force * s_qq);
+    let scale = if shaped { 1.0 / (p.force * s_qq) } else { 0.0 };
     let active = &out.active;
     for (smp, at) in out.samples_buf[range.clone()].iter_mut().zip(&out.samples_at[range]) {
-        if at.slots.contains(&NO_SLOT) {
-            smp.phi = 1.0;
-            continue;
-        }
-        let (b1, b2) = (at.bary[0] as f64, at.bary[1] as f64);
-        let b = [1.0 - b1 - b2, b1, b2];
-        let mut u = Vec3::zeros();
-        for c in 0..3 {
-            u += active[at.slots[c] as usize].deflect * b[c];
-        }
         let n = Vec3::new(at.dir[0] as f64, at.dir[1] as f64, at.dir[2] as f64);
-        let phi = n.dot(&u) * scale;
-        smp.phi = if phi > 0.0 { phi } else { 0.0 };
+        let u = if shaped && !at.slots.contains(&NO_SLOT) {
+            let (b1, b2) = (at.bary[0] as f64, at.bary[1] as f64);
+            let b = [1.0 - b1 - b2, b1, b2];
+            let mut u = Vec3::zeros();
+            for c in 0..3 {
+                u += active[at.slots[c] as usize].deflect * b[c];
+            }
+            u * scale
+        } else {
+            n
+        };
+        let r0 = p.rho - smp.depth;
+        smp.vu = r0 * n.dot(&u);
+        smp.uu = u.norm_squared();
+        smp.va = r0 * n.dot(&axis);
+        smp.ua = u.dot(&axis);
     }
 }
 
@@ -1703,6 +1756,10 @@ fn series_patches<'r, const R: usize>(
     const C: usize = MAX_COMPLIANT_PATCHES;
     let m = out.patches.len().min(C);
     out.uncorrected = out.patches.len() - m;
+    if out.last_table != w.id() {
+        out.last_table = w.id();
+        out.last_force = [0.0; MAX_SPHERES];
+    }
     let mut s = [[0.0f64; C]; C];
     for a in 0..m {
         for b in 0..=a {
@@ -1735,6 +1792,7 @@ fn series_patches<'r, const R: usize>(
     // Scratch of the groups' solves (zeroed once here, not per group).
     let mut l = [[0.0f64; C]; C];
     let mut g_rows = [SVector::<f64, R>::zeros(); C];
+    let mut fresh = [Vec3::zeros(); MAX_CONTACT_NODES];
     for g in 0..m {
         let mut idx = [0usize; C];
         let mut k = 0;
@@ -1747,7 +1805,7 @@ fn series_patches<'r, const R: usize>(
         if k == 0 {
             continue;
         }
-        match series_group(&s, &idx[..k], rows, &mut l, &mut g_rows, out) {
+        match series_group(&s, &idx[..k], rows, &mut l, &mut g_rows, &mut fresh, out) {
             Some(d) => depth = Some(depth.map_or(d, |x: f64| x.max(d))),
             None => {
                 // Not positive definite (a corrupt table): the plain penalty.
@@ -1771,10 +1829,14 @@ fn series_patches<'r, const R: usize>(
 
 /// One group of coupled patches `idx` (indices into `out.patches`) of the
 /// series solve ([`series_patches`]): Newton on their laws with the
-/// couplings `s`, then their node forces and reduced stiffness into `out`.
-/// Returns the deepest penetration into the deflected surface, or None if
-/// the system is not positive definite (nothing written). `l` and `g` are
-/// scratch (overwritten where used).
+/// couplings `s`, then the patches' node forces taken from their samples
+/// at the solution (each sample moved by its share of the dent, so the
+/// pressure is the one the deflected surface takes: a deep patch's rim, and
+/// a far surface the undeflected probe reached, let go, [`redistribute`]),
+/// and their reduced stiffness, into `out`. Returns the deepest
+/// penetration into the deflected surface, or None if the system is not
+/// positive definite (nothing written). `l`, `g` and `fresh` are scratch
+/// (overwritten where used).
 #[allow(clippy::needless_range_loop)] // index arithmetic reads as the formula
 fn series_group<'r, const R: usize>(
     s_all: &[[f64; MAX_COMPLIANT_PATCHES]; MAX_COMPLIANT_PATCHES],
@@ -1782,16 +1844,76 @@ fn series_group<'r, const R: usize>(
     rows: &impl Fn(u32) -> Option<&'r SMatrix<f64, 3, R>>,
     l: &mut [[f64; MAX_COMPLIANT_PATCHES]; MAX_COMPLIANT_PATCHES],
     g: &mut [SVector<f64, R>; MAX_COMPLIANT_PATCHES],
+    fresh: &mut [Vec3; MAX_CONTACT_NODES],
     out: &mut ContactOutput<R>,
 ) -> Option<f64> {
     const C: usize = MAX_COMPLIANT_PATCHES;
     let m = idx.len();
-    let s = |a: usize, b: usize| s_all[idx[a]][idx[b]];
     let mut on = [false; C];
-    on[..m].iter_mut().for_each(|o| *o = true);
     let mut p = [0.0f64; C];
     let mut delta = [0.0f64; C];
     let mut kk = [0.0f64; C];
+    if !solve_group(s_all, idx, l, &mut on, &mut p, &mut delta, &mut kk, out) {
+        return None;
+    }
+    for a in 0..m {
+        on[a] = on[a] && p[a] > 0.0;
+    }
+    let depth = redistribute(s_all, idx, &on, &p, &delta, fresh, out);
+    for a in 0..m {
+        let pa = out.patches[idx[a]];
+        g[a] = patch_rows(&pa, &out.active, rows);
+        if on[a] {
+            for ai in pa.first as usize..(pa.first + pa.len) as usize {
+                let node = out.active[ai];
+                push_force(out, node.node, pa.sphere, node.f);
+            }
+        }
+    }
+    // K_c = G (K⁻¹ + S)⁻¹ Gᵀ on the live patches.
+    for b in 0..m {
+        if !on[b] {
+            continue;
+        }
+        let mut col = [0.0f64; C];
+        col[b] = 1.0;
+        cholesky_solve(l, m, &mut col);
+        let mut h = SVector::<f64, R>::zeros();
+        for a in 0..m {
+            if on[a] {
+                h += g[a] * col[a];
+            }
+        }
+        add_outer(&mut out.reduced_stiffness, 1.0, &h, &g[b]);
+    }
+    Some(depth)
+}
+
+/// Newton on the laws of the patches `idx` with the couplings `s_all`:
+/// (K⁻¹ + S) P = F/K + δ, K = −dF/dδ at the last δ, a patch pulled into
+/// the tool released (`on` false). Leaves the factor of the last system
+/// in `l`, and P, δ = S P and K in `p`, `delta`, `kk`; false if the system
+/// is not positive definite or the forces are not finite.
+#[allow(clippy::needless_range_loop)] // index arithmetic reads as the formula
+#[allow(clippy::too_many_arguments)]
+fn solve_group<const R: usize>(
+    s_all: &[[f64; MAX_COMPLIANT_PATCHES]; MAX_COMPLIANT_PATCHES],
+    idx: &[usize],
+    l: &mut [[f64; MAX_COMPLIANT_PATCHES]; MAX_COMPLIANT_PATCHES],
+    on: &mut [bool; MAX_COMPLIANT_PATCHES],
+    p: &mut [f64; MAX_COMPLIANT_PATCHES],
+    delta: &mut [f64; MAX_COMPLIANT_PATCHES],
+    kk: &mut [f64; MAX_COMPLIANT_PATCHES],
+    out: &mut ContactOutput<R>,
+) -> bool {
+    const C: usize = MAX_COMPLIANT_PATCHES;
+    let m = idx.len();
+    let s = |a: usize, b: usize| s_all[idx[a]][idx[b]];
+    on[..m].iter_mut().for_each(|o| *o = true);
+    delta[..m].iter_mut().for_each(|d| *d = 0.0);
+    if m == 1 {
+        return solve_single(s(0, 0), idx[0], l, on, p, delta, kk, out);
+    }
     let mut ok = false;
     let scale = idx.iter().map(|&a| out.patches[a].depth).fold(0.0, f64::max);
     for _ in 0..SERIES_ITERATIONS + m {
@@ -1813,11 +1935,10 @@ fn series_group<'r, const R: usize>(
             }
         }
         if !cholesky_in_place(l, m) {
-            ok = false;
-            break;
+            return false;
         }
-        p = rhs;
-        cholesky_solve(l, m, &mut p);
+        *p = rhs;
+        cholesky_solve(l, m, p);
         let worst = (0..m)
             .filter(|&a| live(a) && p[a] < 0.0)
             .min_by(|&a, &b| p[a].total_cmp(&p[b]));
@@ -1842,48 +1963,159 @@ fn series_group<'r, const R: usize>(
             break;
         }
     }
-    if !ok || !p[..m].iter().all(|v| v.is_finite()) {
-        return None;
-    }
-    let on: [bool; C] = std::array::from_fn(|a| a < m && on[a] && kk[a] > 0.0);
-    // The penetration into the surface as the residual compliance moves it.
-    let depth = (0..m)
-        .filter(|&a| on[a])
-        .flat_map(|a| {
-            let d = delta[a];
-            samples_of(&out.patches[idx[a]], &out.samples_buf)
-                .iter()
-                .map(move |smp| smp.depth - smp.phi * d)
-        })
-        .fold(0.0, f64::max);
     for a in 0..m {
-        let pa = out.patches[idx[a]];
-        g[a] = patch_rows(&pa, &out.active, rows);
-        if on[a] {
-            let scale = p[a] / pa.force;
-            for ai in pa.first as usize..(pa.first + pa.len) as usize {
-                let node = out.active[ai];
-                push_force(out, node.node, pa.sphere, node.f * scale);
-            }
-        }
+        on[a] = on[a] && kk[a] > 0.0;
     }
-    // K_c = G (K⁻¹ + S)⁻¹ Gᵀ on the live patches.
-    for b in 0..m {
-        if !on[b] {
+    ok && p[..m].iter().all(|v| v.is_finite())
+}
+
+/// [`solve_group`] for a patch alone: P = F(S P) by Newton's method kept
+/// inside a bracket (g(P) = P − F(S P) rises from −F(0) at P = 0), so a
+/// law whose slope the clamp of [`patch_law`] understates, or that bends
+/// as a deep patch's samples leave the sphere, still converges.
+#[allow(clippy::too_many_arguments)]
+fn solve_single<const R: usize>(
+    s: f64,
+    q: usize,
+    l: &mut [[f64; MAX_COMPLIANT_PATCHES]; MAX_COMPLIANT_PATCHES],
+    on: &mut [bool; MAX_COMPLIANT_PATCHES],
+    p: &mut [f64; MAX_COMPLIANT_PATCHES],
+    delta: &mut [f64; MAX_COMPLIANT_PATCHES],
+    kk: &mut [f64; MAX_COMPLIANT_PATCHES],
+    out: &mut ContactOutput<R>,
+) -> bool {
+    if !(s >= 0.0 && s.is_finite()) {
+        return false;
+    }
+    let tol = 1e-9 * out.patches[q].force;
+    let (mut lo, mut hi) = (0.0f64, f64::INFINITY);
+    // From the last tick's force: a held or slowly moving patch is there
+    // within one or two steps.
+    let sphere = out.patches[q].sphere as usize;
+    let mut pv = match out.last_force.get(sphere) {
+        Some(&f) if f > 0.0 && f.is_finite() => f,
+        _ => 0.0,
+    };
+    let (mut f, mut k) = (0.0, 0.0);
+    for _ in 0..2 * SERIES_ITERATIONS {
+        out.iterations += 1;
+        (f, k) = patch_law(q, out, s * pv);
+        let g = pv - f;
+        if g < 0.0 {
+            lo = pv;
+        } else {
+            hi = pv;
+        }
+        if g.abs() <= tol {
+            break;
+        }
+        let mut next = pv - g / (1.0 + s * k);
+        if !(next > lo && next < hi) {
+            next = if hi.is_finite() {
+                0.5 * (lo + hi)
+            } else {
+                lo.max(f) * 2.0
+            };
+        }
+        pv = next;
+    }
+    if !(pv.is_finite() && f.is_finite()) {
+        return false;
+    }
+    kk[0] = k;
+    p[0] = pv;
+    delta[0] = s * pv;
+    on[0] = pv > 0.0 && k > 0.0;
+    if !on[0] {
+        p[0] = 0.0;
+        delta[0] = 0.0;
+        out.released += 1;
+    }
+    l[0][0] = if on[0] { (s + 1.0 / k).sqrt() } else { 1.0 };
+    if let Some(last) = out.last_force.get_mut(sphere) {
+        *last = p[0];
+    }
+    true
+}
+
+/// The node forces of the patches `idx` at their solution (`on`, force
+/// P, deflection δ): each pressed sample, moved by its share of the dent
+/// u δ ([`patch_shape`]), presses with k (ρ − r) along its offset w from
+/// the centre (r = |w|), lumped to its triangle's nodes. The forces go
+/// into `out.active` and each live patch's `force` becomes |Σ f| (a patch
+/// whose samples' pressures cancel keeps P e). Returns the deepest
+/// penetration. `fresh` is scratch.
+#[allow(clippy::too_many_arguments)]
+#[allow(clippy::needless_range_loop)] // index arithmetic reads as the formula
+fn redistribute<const R: usize>(
+    s_all: &[[f64; MAX_COMPLIANT_PATCHES]; MAX_COMPLIANT_PATCHES],
+    idx: &[usize],
+    on: &[bool; MAX_COMPLIANT_PATCHES],
+    p: &[f64; MAX_COMPLIANT_PATCHES],
+    delta: &[f64; MAX_COMPLIANT_PATCHES],
+    fresh: &mut [Vec3; MAX_CONTACT_NODES],
+    out: &mut ContactOutput<R>,
+) -> f64 {
+    let mut depth = 0.0f64;
+    for (a, &q) in idx.iter().enumerate() {
+        if !on[a] {
             continue;
         }
-        let mut col = [0.0f64; C];
-        col[b] = 1.0;
-        cholesky_solve(l, m, &mut col);
-        let mut h = SVector::<f64, R>::zeros();
-        for a in 0..m {
-            if on[a] {
-                h += g[a] * col[a];
+        let pa = out.patches[q];
+        let (first, len) = (pa.first as usize, pa.len as usize);
+        let s_qq = s_all[q][q];
+        let shaped = s_qq > 0.0 && s_qq.is_finite() && pa.force > 0.0;
+        // As in `patch_shape`: u = Σ_c b_c deflect_c / (F S_qq).
+        let unit = if shaped { 1.0 / (pa.force * s_qq) } else { 0.0 };
+        let (d, rho) = (delta[a], pa.rho);
+        fresh[..len].iter_mut().for_each(|f| *f = Vec3::zeros());
+        let range = pa.sample_first as usize..(pa.sample_first + pa.sample_len) as usize;
+        for (smp, at) in out.samples_buf[range.clone()].iter().zip(&out.samples_at[range]) {
+            let r0 = rho - smp.depth;
+            let r2 = r0 * r0 + d * (2.0 * smp.vu + d * smp.uu);
+            if r2.is_nan() || r2 >= rho * rho {
+                continue;
+            }
+            let r = r2.sqrt();
+            depth = depth.max(rho - r);
+            let n = Vec3::new(at.dir[0] as f64, at.dir[1] as f64, at.dir[2] as f64);
+            let (b1, b2) = (at.bary[0] as f64, at.bary[1] as f64);
+            let b = [1.0 - b1 - b2, b1, b2];
+            let u = if shaped && !at.slots.contains(&NO_SLOT) {
+                let mut u = Vec3::zeros();
+                for c in 0..3 {
+                    u += out.active[at.slots[c] as usize].deflect * b[c];
+                }
+                u * unit
+            } else {
+                n
+            };
+            let w = n * r0 + u * d;
+            let f = if r > 1e-9 * rho {
+                w * (smp.k * (rho - r) / r)
+            } else {
+                n * (smp.k * (rho - r))
+            };
+            for c in 0..3 {
+                if let Some(x) = (at.slots[c] as usize).checked_sub(first).and_then(|i| fresh.get_mut(i)) {
+                    *x += f * b[c];
+                }
             }
         }
-        add_outer(&mut out.reduced_stiffness, 1.0, &h, &g[b]);
+        let force = fresh[..len].iter().sum::<Vec3>().norm();
+        if !(force > 0.0 && force.is_finite()) {
+            // The samples' pressures cancel: the forces P e of the law.
+            let scale = p[a] / pa.force;
+            out.active[first..first + len].iter_mut().for_each(|n| n.f *= scale);
+            out.patches[q].force = p[a];
+            continue;
+        }
+        for (n, f) in out.active[first..first + len].iter_mut().zip(&fresh[..len]) {
+            n.f = *f;
+        }
+        out.patches[q].force = force;
     }
-    Some(depth)
+    depth
 }
 
 #[cfg(test)]
