@@ -49,9 +49,9 @@
 //!
 //! (w_i = v_i + u_i δ_p the quadrature point's offset from the sphere's
 //! centre moved by its share u_i of the patch's dent, r_i = |w_i|,
-//! k_i = k_p dA, a the patch's force direction: [`patch_law`]), solved by
+//! k_i = k_p dA, a the patch's force direction: `patch_law`), solved by
 //! Newton's method, which couples the patches; the node forces are then the
-//! points' pressures at the solution ([`redistribute`]); the reduced stiffness becomes K_c = G (K⁻¹ + S)⁻¹ Gᵀ with
+//! points' pressures at the solution (`redistribute`); the reduced stiffness becomes K_c = G (K⁻¹ + S)⁻¹ Gᵀ with
 //! G = [Σ_a Φ_aᵀ e_a] and K = dF/dδ. At static equilibrium a patch then sees
 //! the full model's local compliance in series with the pressure, at any
 //! surface point, several patches at once, for a cost that follows the

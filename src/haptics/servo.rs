@@ -678,7 +678,7 @@ impl<const R: usize> Servo<R> {
     /// under the contact), so that the swap tick, which often also searches
     /// the surface, only adds it: the swap's cost moves to the tick before,
     /// one tick of the old model's motion earlier. A swap more than
-    /// [`PREPARED_SWAP_TICKS`] ticks later, or of another model, computes
+    /// two ticks later, or of another model, computes
     /// it afresh. Returns what [`Servo::warm`] returns. Allocates nothing.
     pub fn prepare(&mut self, new: &LoopModel<R>) -> f64 {
         let sum = self.warm(new);
