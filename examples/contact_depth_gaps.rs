@@ -44,13 +44,7 @@ fn main() {
     let mut last = Vec3::zeros();
     let (mut lo, mut hi) = (f64::INFINITY, 0.0f64);
     for t in 1..=1500 {
-        let smp = DeviceSample {
-            seq: t,
-            time_s: t as f64 * 1e-3,
-            position: tool,
-            velocity: Vec3::zeros(),
-            ..DeviceSample::REST
-        };
+        let smp = DeviceSample::held_at(t, t as f64 * 1e-3, tool);
         last = servo.tick(Some(&smp), t as f64 * 1e-3, 0).desired;
         if t > 1400 {
             lo = lo.min(last.norm());

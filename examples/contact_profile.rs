@@ -52,13 +52,7 @@ fn main() -> Result<(), String> {
     let mut t = 0u64;
     let mut tick = || {
         t += 1;
-        let sample = DeviceSample {
-            seq: t,
-            time_s: t as f64 * 1e-3,
-            position: centres[0],
-            velocity: Vec3::zeros(),
-            ..DeviceSample::REST
-        };
+        let sample = DeviceSample::held_at(t, t as f64 * 1e-3, centres[0]);
         servo.tick(Some(&sample), t as f64 * 1e-3, 0);
     };
     for _ in 0..500 {
@@ -70,13 +64,7 @@ fn main() -> Result<(), String> {
     let mut u = 0u64;
     let free_us = time(reps, || {
         u += 1;
-        let sample = DeviceSample {
-            seq: u,
-            time_s: u as f64 * 1e-3,
-            position: far,
-            velocity: Vec3::zeros(),
-            ..DeviceSample::REST
-        };
+        let sample = DeviceSample::held_at(u, u as f64 * 1e-3, far);
         free.tick(Some(&sample), u as f64 * 1e-3, 0);
     });
     println!("tick out of contact {free_us:.1} µs");

@@ -72,13 +72,7 @@ fn ratio_at(s: &Setup, node: u32, push_m: f64) -> f64 {
     let mut servo = s.servo(true).unwrap();
     let mut f = Vec3::zeros();
     for t in 1..=1500u64 {
-        let smp = DeviceSample {
-            seq: t,
-            time_s: t as f64 * 1e-3,
-            position: tool,
-            velocity: Vec3::zeros(),
-            ..DeviceSample::REST
-        };
+        let smp = DeviceSample::held_at(t, t as f64 * 1e-3, tool);
         f = servo.tick(Some(&smp), t as f64 * 1e-3, 0).desired;
     }
     let seed: Vec<u32> = touched_of(&servo).iter().map(|t| t.node).collect();

@@ -17,13 +17,7 @@ fn settle(s: &Setup, spheres: &[Vec3], seconds: f64) -> (Vec<Vec3>, Vec<nvtmm::e
     servo.set_extra_spheres(&spheres[1..]);
     let ticks = (seconds / s.dynp.dt).round() as usize;
     for t in 1..=ticks {
-        let sample = DeviceSample {
-            seq: t as u64,
-            time_s: t as f64 * s.dynp.dt,
-            position: spheres[0],
-            velocity: Vec3::zeros(),
-            ..DeviceSample::REST
-        };
+        let sample = DeviceSample::held_at(t as u64, t as f64 * s.dynp.dt, spheres[0]);
         let out = servo.tick(Some(&sample), t as f64 * s.dynp.dt, 0);
         assert!(out.desired.iter().all(|v| v.is_finite()));
     }

@@ -11,7 +11,6 @@
 
 use crate::experiment::contact::Setup;
 use crate::haptics::device::DeviceSample;
-use crate::math::Vec3;
 use crate::reduced::compliance::ComplianceParams;
 use crate::rt::stats::Percentiles;
 use std::time::Instant;
@@ -82,13 +81,7 @@ pub fn bench_contact(nodes: usize, patches: usize, ticks: usize) -> Result<Conta
     let mut us = Vec::with_capacity(ticks);
     let mut search_ticks = 0;
     for t in 1..=warm + ticks {
-        let sample = DeviceSample {
-            seq: t as u64,
-            time_s: t as f64 * 1e-3,
-            position: centres[0],
-            velocity: Vec3::zeros(),
-            ..DeviceSample::REST
-        };
+        let sample = DeviceSample::held_at(t as u64, t as f64 * 1e-3, centres[0]);
         let t0 = Instant::now();
         servo.tick(Some(&sample), t as f64 * 1e-3, 0);
         if t > warm {

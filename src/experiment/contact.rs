@@ -600,13 +600,7 @@ pub fn run(e: &ContactExperiment) -> Result<ContactResult, String> {
             let mut trace = Vec::with_capacity(total);
             for t in 1..=total {
                 let w = (t as f64 / arrival as f64).min(1.0);
-                let s = DeviceSample {
-                    seq: t as u64,
-                    time_s: t as f64 * dynp.dt,
-                    position: touching * (1.0 - w) + tool * w,
-                    velocity: Vec3::zeros(),
-                    ..DeviceSample::REST
-                };
+                let s = DeviceSample::held_at(t as u64, t as f64 * dynp.dt, touching * (1.0 - w) + tool * w);
                 let out = servo.tick(Some(&s), t as f64 * dynp.dt, 0);
                 trace.push(out.desired.norm());
             }
@@ -1045,13 +1039,7 @@ pub fn slide(s: &Setup, speed_m_s: f64, push_m: f64, settle_s: f64) -> Result<Sl
     for t in 1..=settle + ticks {
         let dist = (t.saturating_sub(settle) as f64 * speed_m_s * dt).min(total);
         let tool = at(dist);
-        let sample = DeviceSample {
-            seq: t as u64,
-            time_s: t as f64 * dt,
-            position: tool,
-            velocity: Vec3::zeros(),
-            ..DeviceSample::REST
-        };
+        let sample = DeviceSample::held_at(t as u64, t as f64 * dt, tool);
         let f = servo.tick(Some(&sample), t as f64 * dt, 0).desired;
         if t <= settle {
             prev = Some(f);

@@ -81,6 +81,17 @@ impl DeviceSample {
         gimbal_rad: [0.0; 3],
     };
 
+    /// Sample `seq` at `time_s` (s) of a hand held still at `position` (m,
+    /// the device frame), no button pressed.
+    pub fn held_at(seq: u64, time_s: f64, position: Vec3) -> DeviceSample {
+        DeviceSample {
+            seq,
+            time_s,
+            position,
+            ..DeviceSample::REST
+        }
+    }
+
     /// Whether every number in the sample (gimbal angles included) is finite.
     pub fn is_finite(&self) -> bool {
         self.position.iter().chain(self.velocity.iter()).all(|v| v.is_finite())
