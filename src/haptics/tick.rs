@@ -271,12 +271,6 @@ impl<const R: usize> HapticTick<R> {
         self.servo.swap(model)
     }
 
-    /// Reads a model's memory a tick before it is swapped in (see
-    /// [`Servo::warm`]); returns a sum of what it read.
-    pub fn warm(&self, model: &LoopModel<R>) -> f64 {
-        self.servo.warm(model)
-    }
-
     /// Prepares a model's swap a tick before it (see [`Servo::prepare`]);
     /// returns a sum of what it read.
     pub fn prepare(&mut self, model: &LoopModel<R>) -> f64 {
