@@ -47,6 +47,10 @@ use std::path::Path;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex};
 
+/// The catheter's Newton iterations a step before the residual's extra
+/// ones, by default ([`CatheterConfig::newton_iterations`]).
+pub const CATHETER_NEWTON_ITERATIONS: usize = 1;
+
 /// The catheter's kind.
 pub const KIND: Kind = Kind {
     name: "catheter",
@@ -85,6 +89,13 @@ pub struct CatheterConfig {
     pub wire_friction: f64,
     /// Inserted length at start (m).
     pub inserted_m: f64,
+    /// Newton iterations a catheter's step takes before the residual's
+    /// extra ones (`wire.residual_tolerance_n`, `wire.max_extra_iterations`
+    /// govern those, as for the wire). One by default: the catheter, loaded
+    /// by the wire's forces of the same step, ends one iteration within the
+    /// tolerance on nearly every step, and a second fixed one cost a third
+    /// of the pair's step (docs/CATHETER.md "The catheter's iterations").
+    pub newton_iterations: usize,
     /// The stabilising spring of the pair's coupling, as a share of the
     /// wire's contact penalty ([`Coaxial::set_load_stiffness_share`]; 0
     /// turns it off, and a shaped tip then swings the pair apart).
@@ -115,6 +126,7 @@ impl Default for CatheterConfig {
             friction: 0.1,
             wire_friction: WIRE_CATHETER_FRICTION,
             inserted_m: 0.02,
+            newton_iterations: CATHETER_NEWTON_ITERATIONS,
             coupling_stiffness_share: LOAD_STIFFNESS_SHARE,
             script: Vec::new(),
         }
@@ -129,8 +141,8 @@ impl CatheterConfig {
     }
 
     /// The catheter's rod parameters over the wire `wire`: the preset of
-    /// [`catheter_params`] with these keys, and the wire's solver keys and
-    /// hub drive.
+    /// [`catheter_params`] with these keys, and the wire's solver keys
+    /// (but its own `newton_iterations`) and hub drive.
     pub fn params(&self, wire: &WireParams) -> WireParams {
         let base = catheter_params(self.french, self.tip_shape());
         WireParams {
@@ -147,7 +159,7 @@ impl CatheterConfig {
             max_hub_force_n: wire.max_hub_force_n,
             drag_n_s_per_m2: wire.drag_n_s_per_m2,
             dt_s: wire.dt_s,
-            newton_iterations: wire.newton_iterations,
+            newton_iterations: self.newton_iterations,
             residual_tolerance_n: wire.residual_tolerance_n,
             residual_time_limit_us: wire.residual_time_limit_us,
             max_extra_iterations: wire.max_extra_iterations,
@@ -249,6 +261,7 @@ impl CatheterConfig {
         )?;
         c.f64_in("catheter.friction", self.friction, 0.0, 2.0, "")?;
         c.f64_in("catheter.wire_friction", self.wire_friction, 0.0, 2.0, "")?;
+        c.int_in("catheter.newton_iterations", self.newton_iterations, 1, 100)?;
         c.f64_in(
             "catheter.coupling_stiffness_share",
             self.coupling_stiffness_share,
