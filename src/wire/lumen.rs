@@ -583,6 +583,11 @@ pub struct Opening {
     v: Vec3,
     /// The loop's vertices in the plane's basis, about the centre (m).
     flat: Vec<[f64; 2]>,
+    /// The radius of a disk about the centre that lies inside the loop's
+    /// polygon (m; 0 when the centre is outside it): a point whose
+    /// projection is nearer the axis than `inner` less the range has no
+    /// edge within the range (`Opening::probe`'s quick answer).
+    inner: f64,
 }
 
 impl Opening {
@@ -626,6 +631,19 @@ impl Opening {
             let r = verts[i as usize] - c;
             *f = [r.dot(&self.u), r.dot(&self.v)];
         }
+        // The nearest edge to the centre, and whether the centre is inside
+        // (crossings of a ray, as `probe` counts them).
+        let n = self.flat.len();
+        let (mut near, mut inside) = (f64::INFINITY, false);
+        for k in 0..n {
+            let (px, py) = self.nearest_on_edge(k, 0.0, 0.0);
+            near = near.min((px * px + py * py).sqrt());
+            let ([ax, ay], [cx, cy]) = (self.flat[k], self.flat[(k + 1) % n]);
+            if (ay > 0.0) != (cy > 0.0) && 0.0 < ax + (0.0 - ay) / (cy - ay) * (cx - ax) {
+                inside = !inside;
+            }
+        }
+        self.inner = if inside && near.is_finite() { near } else { 0.0 };
         radius > 0.0
     }
 
@@ -715,8 +733,17 @@ impl Opening {
             return None;
         }
         let r = q - self.axis * h;
-        if r.norm_squared() >= 4.0 * self.radius * self.radius {
+        let r2 = r.norm_squared();
+        if r2 >= 4.0 * self.radius * self.radius {
             return None;
+        }
+        // Deep inside the loop: every edge is at least `inner` − |r| away
+        // (the disk of radius `inner` lies inside the polygon), beyond the
+        // range with a margin far above the distances' rounding, so the
+        // edge loop below would find the same: no wall within range (a
+        // rod's nodes on the axis of the opening it enters through).
+        if self.inner - r2.sqrt() > range + 1e-9 * self.radius {
+            return Some(None);
         }
         // The nearest point of the loop's polygon to p's projection, and
         // whether the projection lies inside it (crossings of a ray).
@@ -810,6 +837,7 @@ fn find_openings(verts: &[Vec3], tris: &[[u32; 3]]) -> Vec<Opening> {
             u: Vec3::x(),
             v: Vec3::y(),
             flat,
+            inner: 0.0,
         };
         if !o.measure(verts, Vec3::zeros()) {
             continue;
@@ -1951,6 +1979,35 @@ mod tests {
         // On the axis beyond the end, nothing within 1 mm.
         assert!(l.probe(Vec3::new(0.08, 0.0, 0.0), 1e-3).is_none());
         assert!(sheet(0.0).openings().is_empty());
+    }
+
+    /// An opening's quick answer deep inside its loop (no edge within the
+    /// range) is the edge loop's, for points all over the disk of twice
+    /// its radius beyond its plane and ranges from 0.1 to 4 mm; and the
+    /// disk it trusts lies inside the loop (the apothem of the ring).
+    #[test]
+    fn an_openings_quick_answer_is_the_edge_loops() {
+        let (v, t) = tube_wall(0.01, 0.05, 4e-3, 16, 10, 0.0);
+        let l = TriangleLumen::new(&v, &t).unwrap();
+        let apothem = 4e-3 * (std::f64::consts::PI / 16.0).cos();
+        let mut quick = 0;
+        for o in l.openings() {
+            assert!((o.inner - apothem).abs() < 1e-12, "{} vs {apothem}", o.inner);
+            let slow = Opening {
+                inner: 0.0,
+                ..o.clone()
+            };
+            for k in 0..4000 {
+                let a = k as f64 * 2.399963;
+                let rad = 8e-3 * ((k % 97) as f64 / 97.0).sqrt();
+                let p =
+                    o.centre + o.axis * (1e-3 + (k % 7) as f64 * 1e-3) + o.u * (rad * a.cos()) + o.v * (rad * a.sin());
+                let range = 1e-4 * (1 + k % 40) as f64;
+                assert_eq!(o.probe(p, range), slow.probe(p, range), "{p:?} {range}");
+                quick += (o.inner - (p - o.centre - o.axis * (p - o.centre).dot(&o.axis)).norm() > range) as usize;
+            }
+        }
+        assert!(quick > 500, "{quick} quick answers");
     }
 
     /// A flat square of 4 × 4 cells on z = 0, each cut into two triangles
