@@ -20,7 +20,7 @@
 //! potential.
 
 use crate::math::Vec3;
-use crate::wire::catheter::{catheter_params, TipShape};
+use crate::wire::catheter::{catheter_params, TipShape, CATHETER_NEWTON_ITERATIONS};
 use crate::wire::coaxial::{Coaxial, LOAD_STIFFNESS_SHARE};
 use crate::wire::{CurvedTube, CurvedTubeShape, WireParams};
 use std::time::Instant;
@@ -91,8 +91,10 @@ pub fn bench_coaxial(nodes: usize, steps: usize) -> Result<CoaxialBench, super::
         radius: 2e-3,
     })
     .map_err(|e| arg(e.to_string()))?;
+    // The catheter's iterations as the service runs them.
     let c = WireParams {
         max_nodes: nodes,
+        newton_iterations: CATHETER_NEWTON_ITERATIONS,
         ..catheter_params(5.0, TipShape::Straight)
     };
     let w = WireParams {

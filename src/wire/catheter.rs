@@ -111,6 +111,14 @@ impl TipShape {
     }
 }
 
+/// The Newton iterations of a catheter's step before the residual's extra
+/// ones that the service runs by default (`catheter.newton_iterations`):
+/// the catheter, second in the pair's step and loaded by the wire's forces
+/// of the same step, ends one iteration within the residual tolerance on
+/// nearly every step (docs/CATHETER.md "The catheter's iterations").
+/// [`catheter_params`] keeps [`WireParams::default`]'s.
+pub const CATHETER_NEWTON_ITERATIONS: usize = 1;
+
 /// A diagnostic catheter of `french` size (4–5 F are the usual; its outer
 /// diameter is `french` / 3 mm) with the tip `shape`: a braided polymer
 /// shaft (effective Young's modulus 1 GPa), a lumen of 1.07 mm where the

@@ -39,17 +39,13 @@ use crate::service::faults::FaultSwitches;
 use crate::service::report::Report;
 use crate::service::script::{parse_steps, planned_rows, switching_hand, HandStep, HubRow, SwitchingHand};
 use crate::service::ServiceError;
-use crate::wire::catheter::{catheter_params, TipShape};
+use crate::wire::catheter::{catheter_params, TipShape, CATHETER_NEWTON_ITERATIONS};
 use crate::wire::coaxial::{Coaxial, LOAD_STIFFNESS_SHARE, WIRE_CATHETER_FRICTION};
 use crate::wire::coupling::InnerWall;
 use crate::wire::{TriangleLumen, WireParams};
 use std::path::Path;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex};
-
-/// The catheter's Newton iterations a step before the residual's extra
-/// ones, by default ([`CatheterConfig::newton_iterations`]).
-pub const CATHETER_NEWTON_ITERATIONS: usize = 1;
 
 /// The catheter's kind.
 pub const KIND: Kind = Kind {
