@@ -1437,6 +1437,8 @@ impl Wire {
         let cap_step = 0.5 * r_w;
         let mut rep = StepReport {
             fed_m: fed,
+            // The feed withheld at the grip's limit (`Wire::feed`) is a slip.
+            grip_slipped: fed == 0.0 && self.target > before && self.last_axial >= 0.999 * self.p.max_hub_force_n,
             ..StepReport::default()
         };
         // Past the configured iterations, go on (up to the extra budget)
@@ -1659,6 +1661,26 @@ impl Wire {
         }
         self.s.v[0] = Vec3::zeros();
         self.s.v[1] = Vec3::zeros();
+        // Off equilibrium, the hub edge holds what node 2 leaves unbalanced
+        // along it: a feed the step did not carry into the wire, not a load.
+        // The hub keeps it for the next step (docs/INSTRUMENTS.md "Why the
+        // wire reaches the grip's limit").
+        let (t1, k1) = (self.tan[1], self.coef[1].stretch);
+        let g2 = Vec3::new(self.grad[8], self.grad[9], self.grad[10]).dot(&t1);
+        let st = self.len[1] - self.s.rest[1];
+        let f1 = (k1 * st).clamp(-self.p.max_hub_force_n, self.p.max_hub_force_n);
+        if n >= 3 && g2.abs() > self.settled_tolerance() && g2 * f1 > 0.0 {
+            rep.grip_slipped |= (k1 * st).abs() > self.p.max_hub_force_n;
+            let df = g2.signum() * g2.abs().min(f1.abs());
+            self.s.rest[1] = (self.len[1] - (f1 - df) / k1).max(0.25 * self.p.segment_length_m);
+            self.s.inserted = self.s.u[2] + self.s.rest[1];
+            self.s.u[1] = self.s.inserted;
+            self.s.u[0] = self.s.inserted + self.p.segment_length_m;
+            self.hub_grad += t1 * df;
+            for c in 0..3 {
+                self.grad[8 + c] -= t1[c] * df;
+            }
+        }
         let hub_force = -self.hub_grad;
         rep.hub_axial_force_n = -hub_force.dot(&self.axis);
         rep.hub_torque_nm = -self.hub_dtheta;
