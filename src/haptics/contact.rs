@@ -141,7 +141,7 @@ pub const MAX_TRIANGLES: usize = 1024;
 /// Quadrature points per tool radius along a triangle edge: the pressure is
 /// sampled at sub-triangle centroids about ρ / 3 apart. (4 per radius
 /// rendered the same stiffness within 1 % at 120 points of the branched
-/// arch and cost 10–35 % more per tick: docs/BENCHMARKS.md.)
+/// arch, with more samples to solve each tick.)
 pub const SAMPLES_PER_RADIUS: f64 = 3.0;
 /// Most sub-triangle levels per edge (level² samples per triangle).
 pub const MAX_LEVEL: usize = 16;
