@@ -638,10 +638,7 @@ impl Opening {
         for k in 0..n {
             let (px, py) = self.nearest_on_edge(k, 0.0, 0.0);
             near = near.min((px * px + py * py).sqrt());
-            let ([ax, ay], [cx, cy]) = (self.flat[k], self.flat[(k + 1) % n]);
-            if (ay > 0.0) != (cy > 0.0) && 0.0 < ax + (0.0 - ay) / (cy - ay) * (cx - ax) {
-                inside = !inside;
-            }
+            inside ^= self.crosses(k, 0.0, 0.0);
         }
         self.inner = if inside && near.is_finite() { near } else { 0.0 };
         radius > 0.0
@@ -708,6 +705,14 @@ impl Opening {
 
     /// The point of the loop's flattened edge k (vertex k to k + 1) nearest
     /// to (x, y), in the opening's plane.
+    /// Whether edge k of the loop's polygon crosses the ray from (x, y)
+    /// along +x in the plane (a point is inside if an odd number do).
+    fn crosses(&self, k: usize, x: f64, y: f64) -> bool {
+        let n = self.flat.len();
+        let ([ax, ay], [cx, cy]) = (self.flat[k], self.flat[(k + 1) % n]);
+        (ay > y) != (cy > y) && x < ax + (y - ay) / (cy - ay) * (cx - ax)
+    }
+
     fn nearest_on_edge(&self, k: usize, x: f64, y: f64) -> (f64, f64) {
         let n = self.flat.len();
         let [ax, ay] = self.flat[k];
@@ -752,15 +757,11 @@ impl Opening {
         let (mut best, mut bx, mut by, mut inside) = (f64::INFINITY, 0.0, 0.0, false);
         for k in 0..n {
             let (px, py) = self.nearest_on_edge(k, x, y);
-            let ([ax, ay], [cx, cy]) = (self.flat[k], self.flat[(k + 1) % n]);
-            let ex = cx - ax;
             let d2 = (x - px) * (x - px) + (y - py) * (y - py);
             if d2 < best {
                 (best, bx, by) = (d2, px, py);
             }
-            if (ay > y) != (cy > y) && x < ax + (y - ay) / (cy - ay) * ex {
-                inside = !inside;
-            }
+            inside ^= self.crosses(k, x, y);
         }
         let d = best.sqrt();
         let (nx, ny) = if d > 1e-15 {

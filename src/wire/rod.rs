@@ -1672,10 +1672,7 @@ impl Wire {
         if n >= 3 && g2.abs() > self.settled_tolerance() && g2 * f1 > 0.0 {
             rep.grip_slipped |= (k1 * st).abs() > self.p.max_hub_force_n;
             let df = g2.signum() * g2.abs().min(f1.abs());
-            self.s.rest[1] = (self.len[1] - (f1 - df) / k1).max(0.25 * self.p.segment_length_m);
-            self.s.inserted = self.s.u[2] + self.s.rest[1];
-            self.s.u[1] = self.s.inserted;
-            self.s.u[0] = self.s.inserted + self.p.segment_length_m;
+            self.set_hub_rest(self.len[1] - (f1 - df) / k1);
             self.hub_grad += t1 * df;
             for c in 0..3 {
                 self.grad[8 + c] -= t1[c] * df;
@@ -1690,11 +1687,7 @@ impl Wire {
         let st = self.len[1] - self.s.rest[1];
         if (k1 * st).abs() > self.p.max_hub_force_n {
             let rest = self.len[1] + st.signum() * -self.p.max_hub_force_n / k1;
-            let rest = rest.max(0.25 * self.p.segment_length_m);
-            self.s.rest[1] = rest;
-            self.s.inserted = self.s.u[2] + rest;
-            self.s.u[1] = self.s.inserted;
-            self.s.u[0] = self.s.inserted + self.p.segment_length_m;
+            self.set_hub_rest(rest);
             rep.grip_slipped = true;
         }
         rep.residual_n = (2..n)
@@ -1714,6 +1707,18 @@ impl Wire {
             return Err(WireFault::NonFinite);
         }
         Ok(rep)
+    }
+
+    /// Gives the hub edge the rest length `rest` (at least a quarter
+    /// segment): the inserted length and the hub's material coordinates
+    /// follow, the free nodes stay (the grip slipping, or a feed the step
+    /// did not carry handed back).
+    fn set_hub_rest(&mut self, rest: f64) {
+        let rest = rest.max(0.25 * self.p.segment_length_m);
+        self.s.rest[1] = rest;
+        self.s.inserted = self.s.u[2] + rest;
+        self.s.u[1] = self.s.inserted;
+        self.s.u[0] = self.s.inserted + self.p.segment_length_m;
     }
 
     /// The buckling check at the step's start, with the incremental
