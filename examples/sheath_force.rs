@@ -3,21 +3,24 @@
 //! catheter's node polyline, and the summed normal force over time.
 //!
 //! The scenario's pair as the service builds it (its `[wire]`, `[guidewire]`
-//! and `[catheter]`; the wall inflated to its mean pressure, held still),
-//! the hubs driven as the service drives them: the script's hand that
-//! watches the tips (`catheter.script`, looking at both rods 60 times a
-//! second as the stream does) through the stylus, the switch button and
-//! each instrument's hub drive; without the wire's time limit on its extra
+//! and `[catheter]`), against the wall inflated to its mean pressure and
+//! held still and rigid (the service's wall moves and gives), the hubs
+//! driven as the service drives them: the script's hand that watches the
+//! tips (`catheter.script`, looking at both rods 60 times a second as the
+//! stream does) through the stylus, the switch button and each
+//! instrument's hub drive; without the wire's time limit on its extra
 //! iterations.
 //!
-//! Printed: every `period` s, the summed normal force of the wire on the
-//! catheter, the most on one node, the deepest penetration and the wire's
-//! hub force (and every step whose sum exceeds 50 N or whose hub force
-//! exceeds half the grip's limit); then, at the step with the largest sum, every contact: the
+//! Printed: every `period` s, and at every step whose sum exceeds 50 N or
+//! whose hub force exceeds half the grip's limit, the summed normal force
+//! of the wire on the catheter, the most on one node, the deepest
+//! penetration, the wire's hub force and both rods' iterations and
+//! residuals. Then, at the step with the largest sum, every contact: the
 //! node, its normal force, the catheter segment it lies along and where
 //! along it (t: 0 and 1 are the catheter's nodes), the catheter's turn at
 //! the nearer node and its sagitta over a segment, and which side of the
-//! bend it presses. Last, over every step, the normal force summed by t.
+//! bend it presses. Last, over every step, the normal force summed by t
+//! (docs/INSTRUMENTS.md "In the cannulation scenarios").
 //!
 //! `cargo run --release --example sheath_force -- [config] [seconds] [period_s]`
 //! (default `rt-config/cannulate_left_common_carotid.toml`, its
