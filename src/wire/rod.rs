@@ -3120,15 +3120,27 @@ impl Wire {
             }
             if inside && cx.inside[i] {
                 // The node starts the step carried with the sheath's last
-                // motion (a predictor): a sheath that moved by more than
-                // the clearance would otherwise leave the node deep in its
-                // wall, more than Newton's capped updates can undo in one
-                // step (docs/CATHETER.md "The coupled step"). Its friction
-                // anchor moves with it: riding along is no slip.
+                // motion across its axis (a predictor): a sheath that moved
+                // sideways by more than the clearance would otherwise leave
+                // the node deep in its wall, more than Newton's capped
+                // updates can undo in one step (docs/CATHETER.md "The
+                // coupled step"). Not along its axis: a catheter tracked
+                // over a held wire would carry every inside node forward
+                // by its feed, a stretch of the edges at the hub and at the
+                // catheter's tip of EA/ē ≈ 1.2 × 10⁷ N/m times the feed
+                // (300 N at 26 µm a step) for two or three Newton
+                // iterations to undo (docs/INSTRUMENTS.md "In the
+                // cannulation scenarios"). The friction anchor moves with
+                // the whole motion: riding along is no slip, and a node
+                // that the solve leaves behind slips.
                 let (k, t, _) = nearest_on_polyline(&cx.sheath, self.s.x[i], &mut cx.sheath_seg[i]);
                 let t = t.clamp(0.0, 1.0);
                 let d = (cx.sheath_v[k] * (1.0 - t) + cx.sheath_v[k + 1] * t) * dt;
-                self.s.x[i] += d;
+                let across = match (cx.sheath[k + 1] - cx.sheath[k]).try_normalize(1e-300) {
+                    Some(a) => d - a * a.dot(&d),
+                    None => d,
+                };
+                self.s.x[i] += across;
                 self.xt[i] = self.s.x[i];
                 self.s.anchor[i] += d;
                 // The funnel closes as the node comes in, and steadily.
