@@ -253,6 +253,28 @@ impl Coax {
         }
     }
 
+    /// Moves the per-node state of nodes 2..`n` up by one with the nodes
+    /// when [`Wire::feed`] puts a node in at 2. The new node 2 has none: it
+    /// enters the sheath afresh (searched for, through the funnel) if it
+    /// lies inside. Left unmoved, the node at the sheath's tip took its
+    /// outer neighbour's state and entered anew each time a node was fed
+    /// in: its friction started afresh.
+    fn shift_nodes_up(&mut self, n: usize) {
+        self.inside[2..=n].rotate_right(1);
+        self.funnel[2..=n].rotate_right(1);
+        self.sheath_seg[2..=n].rotate_right(1);
+        self.inside[2] = false;
+        self.funnel[2] = self.sheath_radius;
+    }
+
+    /// [`Coax::shift_nodes_up`]'s inverse, when [`Wire::feed`] takes node 2
+    /// out of `n` nodes.
+    fn shift_nodes_down(&mut self, n: usize) {
+        self.inside[2..n].rotate_left(1);
+        self.funnel[2..n].rotate_left(1);
+        self.sheath_seg[2..n].rotate_left(1);
+    }
+
     /// Forgets which nodes are inside the sheath, so that each one inside
     /// at the next step enters afresh where it lies (the whole sheath
     /// searched, through the lip's funnel). After a return to the last good
@@ -1248,6 +1270,7 @@ impl Wire {
                     s.ref_twist[i + 1] = s.ref_twist[i];
                 }
                 self.probe_cache[2..=n].rotate_right(1);
+                self.cx.shift_nodes_up(n);
                 for j in (1..n - 1).rev() {
                     s.theta[j + 1] = s.theta[j];
                     s.d1[j + 1] = s.d1[j];
@@ -1291,6 +1314,7 @@ impl Wire {
                     s.ref_twist[i] = s.ref_twist[i + 1];
                 }
                 self.probe_cache[2..n].rotate_left(1);
+                self.cx.shift_nodes_down(n);
                 for j in 1..n - 2 {
                     s.theta[j] = s.theta[j + 1];
                     s.d1[j] = s.d1[j + 1];
@@ -3460,6 +3484,51 @@ mod tests {
         w.set_hub(0.0215, 0.5);
         let (worst, scale) = gradient_gap(&mut w, &NoWall, 2e-5);
         assert!(worst < 1e-4 * scale, "worst {worst:e} of {scale:e}");
+    }
+
+    /// A wire fed through a straight sheath whose tip it passes: a node fed
+    /// in at the hub shifts every node's sheath state with it, so no node
+    /// that stays inside enters the sheath anew (which restarted its
+    /// friction); only the new node at the hub does.
+    #[test]
+    fn a_node_fed_in_keeps_each_inside_nodes_sheath_state() {
+        let p = WireParams {
+            segment_length_m: 2e-3,
+            max_nodes: 40,
+            ..WireParams::default()
+        };
+        let mut w = Wire::new(&p, Vec3::zeros(), Vec3::x(), 0.03).unwrap();
+        let sheath: Vec<Vec3> = (0..12).map(|k| Vec3::new(-2e-3 + 2e-3 * k as f64, 0.0, 0.0)).collect();
+        let vel = vec![Vec3::zeros(); sheath.len()];
+        // A sideways load presses the nodes near the sheath's tip onto its
+        // wall.
+        w.set_line_load(Vec3::new(0.0, -50.0, 0.0));
+        let (mut fed, mut checked) = (0, 0);
+        for step in 0..400 {
+            w.set_sheath(&sheath, &vel, 0.015, 0.55e-3, 0.1);
+            w.set_hub(0.03 + 2e-5 * step as f64, 0.0);
+            let (n0, inside0) = (w.num_nodes(), w.cx.inside.clone());
+            let lam0 = w.s.lam.clone();
+            w.step(&NoWall).unwrap();
+            if w.num_nodes() == n0 + 1 {
+                fed += 1;
+                // After the step, node i + 1 is the node that was i: one
+                // that touched the sheath and stays inside slides on with
+                // its friction (kinetic: the wire is fed).
+                for i in 2..n0 {
+                    if inside0[i] && w.cx.inside[i + 1] && lam0[i] > 0.0 {
+                        let c = w.sheath_contacts().iter().find(|c| c.node == i + 1);
+                        let f = c.map_or(0.0, |c| c.friction.norm());
+                        assert!(f > 0.0, "step {step}: node {i} (now {}) slid without friction", i + 1);
+                        checked += 1;
+                    }
+                }
+            }
+        }
+        assert!(
+            fed >= 3 && checked >= fed,
+            "{fed} nodes fed in, {checked} contacts followed"
+        );
     }
 
     /// A square duct of circumradius 1.2 mm along x (triangles wound
