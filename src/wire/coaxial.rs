@@ -24,7 +24,6 @@
 //! is sized at construction: a step allocates nothing.
 
 use super::lumen::Lumen;
-use super::rod::{nearest_on_polyline, nearest_on_polyline_everywhere};
 use super::rod::{StepReport, Wire, WireContact, WireError, WireFault};
 use super::WireParams;
 use crate::config::{Checker, ConfigError};
@@ -45,8 +44,7 @@ pub enum Coupling {
     GaussSeidel,
     /// Block Jacobi: the wire steps as in [`Coupling::GaussSeidel`], the
     /// catheter under the wire's contact forces (and with its inserted
-    /// length) of the period before, their stabilising spring anchored
-    /// where those forces were found. Both steps start from the period's
+    /// length) of the period before. Both steps start from the period's
     /// state only, so they may run at once ([`Coaxial::step_on`]). The step
     /// after construction or a restore, which has no forces of a period
     /// before, is a Gauss–Seidel one (docs/CATHETER.md "The lagged
@@ -319,44 +317,27 @@ impl Coaxial {
     /// The exchange between the rods before the catheter's step: the
     /// wire's contact forces on the catheter (equal and opposite), their
     /// stabilising spring and the wire as the catheter's core. `lagged`:
-    /// before the wire's step too (the forces are the last period's), so
-    /// the wire is also put inside the catheter as it stands, and each
-    /// force is moved back along its spring by the catheter's motion
-    /// since the wire found it: the spring then resists the catheter's
-    /// motion from where the wire last saw it, as the Gauss–Seidel one
-    /// does (docs/CATHETER.md "The lagged coupling").
+    /// before the wire's step too (the forces and the wire's inserted
+    /// length are the last period's), so the wire is also put inside the
+    /// catheter as it stands. The spring stays anchored at the catheter's
+    /// state at the step's start, as in the Gauss–Seidel step: anchored
+    /// where the wire found the forces (a period earlier) it resisted the
+    /// catheter twice over, and the pair settled more slowly
+    /// (docs/CATHETER.md "The lagged coupling").
     fn hand_over(&mut self, lagged: bool) {
-        let k = self.load_share * self.wire.params().contact_stiffness_n_per_m;
         self.loads.clear();
-        let (x, v) = (self.catheter.positions(), self.catheter.velocities());
-        let dt = self.catheter.params().dt_s;
-        let mut seg = 0;
-        for (j, c) in self.wire.sheath_contacts().iter().enumerate() {
+        for c in self.wire.sheath_contacts() {
             if self.loads.len() == self.loads.capacity() {
                 break;
             }
-            let mut f = -(c.normal * c.normal_force + c.friction);
-            if lagged && k > 0.0 && x.len() >= 3 {
-                // The catheter's motion over its last step where the load
-                // lands (its nearest segment, as the rod spreads it).
-                let (s, t, _) = if j == 0 {
-                    nearest_on_polyline_everywhere(x, c.point, &mut seg)
-                } else {
-                    nearest_on_polyline(x, c.point, &mut seg)
-                };
-                let t = t.clamp(0.0, 1.0);
-                let moved = (v[s] * (1.0 - t) + v[s + 1] * t) * dt;
-                if let Some(n) = f.try_normalize(1e-12) {
-                    f -= n * (k * n.dot(&moved));
-                }
-            }
-            self.loads.push((c.point, f));
+            self.loads.push((c.point, -(c.normal * c.normal_force + c.friction)));
         }
         if lagged {
             self.set_wire_sheath();
         }
         self.catheter.set_point_loads(self.loads.iter().copied());
-        self.catheter.set_point_load_stiffness(k);
+        self.catheter
+            .set_point_load_stiffness(self.load_share * self.wire.params().contact_stiffness_n_per_m);
         self.catheter.set_core(Some((self.wire.params(), self.wire.inserted())));
     }
 
