@@ -340,8 +340,9 @@ pub fn bench_coaxial_tick(config: &Path, o: &CoaxialTickOptions) -> Result<Coaxi
     let (mut pool_rods, mut pool_haptic) = (0u64, 0u64);
     let tol = [wire_p.residual_tolerance_n, cat_p.residual_tolerance_n];
     let stream_every = (1.0 / (60.0 * dt)).round().max(1.0) as usize;
-    let (grant, rt_guard) = rt_ticks(rt_cpu);
-    // The worker's CPU kept awake too (a halted virtual CPU wakes late).
+    // The worker's CPU kept awake too (a halted virtual CPU wakes late),
+    // from here: a thread started after `rt_ticks` pins this one inherits
+    // its CPU and could not move.
     let awake_stop = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
     let mut worker_rt = worker_rt;
     let worker_awake = match (rt_cpu, parallel, worker_rt.as_mut()) {
@@ -350,6 +351,7 @@ pub fn bench_coaxial_tick(config: &Path, o: &CoaxialTickOptions) -> Result<Coaxi
         }
         _ => None,
     };
+    let (grant, rt_guard) = rt_ticks(rt_cpu);
     let pool = crate::rt::alloc::enter_rt(crate::service::running::RT_POOL_BYTES);
     let allocator_installed = pool.map(|p| p.installed).unwrap_or(false);
     let pool_allocs = || crate::rt::alloc::stats().pool_allocs;

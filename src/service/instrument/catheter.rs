@@ -627,3 +627,33 @@ fn coaxial_thread(mut p: CoaxialPlan) -> PairResult {
         coaxial_normal_force_max_n: normal_max,
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_parallel_catheter_refuses_the_wires_cpu() {
+        let (w, g) = (WireParams::default(), GuidewireConfig::default());
+        let c = CatheterConfig {
+            parallel: true,
+            cpu: g.cpu,
+            ..CatheterConfig::default()
+        };
+        let e = c.validate(Path::new("x.toml"), &w, &g).expect_err("same CPU");
+        assert_eq!(e.key, "catheter.cpu");
+        let ok = CatheterConfig {
+            parallel: true,
+            cpu: g.cpu + 1,
+            ..CatheterConfig::default()
+        };
+        assert!(ok.validate(Path::new("x.toml"), &w, &g).is_ok());
+        let e = CatheterConfig {
+            cpu: -2,
+            ..CatheterConfig::default()
+        }
+        .validate(Path::new("x.toml"), &w, &g)
+        .expect_err("range");
+        assert_eq!(e.key, "catheter.cpu");
+    }
+}

@@ -22,10 +22,10 @@
 //! - The worker never spins unbounded. A SCHED_FIFO thread that spins on a
 //!   CPU keeps every normal thread off it, and the kernel's RT throttling
 //!   (95 % of each second by default) would then stall every RT thread of
-//!   that CPU for the rest of the second. So it sleeps until the next
-//!   period's start ([`CatheterWorker::wake_at`], an absolute
-//!   `clock_nanosleep`, as the pair's thread sleeps), spins from there for
-//!   at most [`SPIN_NS`] while the pair's thread reads its hubs and hands
+//!   that CPU for the rest of the second. So it sleeps until just before
+//!   the next period's start ([`CatheterWorker::wake_at`] less
+//!   [`WAKE_LEAD_NS`], an absolute `clock_nanosleep`, as the pair's thread
+//!   sleeps), spins from there for at most [`SPIN_NS`] while the pair's thread reads its hubs and hands
 //!   the forces over, and parks if the work has not come by then (a
 //!   futex; the pair's thread unparks it, one atomic swap and, only when
 //!   it is parked, one system call). Woken by the clock, it is already
@@ -58,6 +58,11 @@ use std::thread::JoinHandle;
 /// How long the worker spins for its work past the period's start (or past
 /// its last result when no wake time is set) before it parks (ns).
 pub const SPIN_NS: Nanos = 300_000;
+
+/// How early the worker wakes before the period's start (ns): a timer's
+/// wake-up on a virtual CPU can be late by tens of µs, and the worker
+/// should be spinning when the work comes.
+pub const WAKE_LEAD_NS: Nanos = 50_000;
 
 /// Spins of the pair's thread waiting for the result before it starts to
 /// yield its CPU each round (about a millisecond).
@@ -276,8 +281,8 @@ impl Drop for Pending<'_> {
 fn serve(slot: &Slot) {
     loop {
         let wake = slot.wake_at.load(Ordering::Relaxed);
-        if wake > clock::now_ns() {
-            clock::sleep_until(wake);
+        if wake - WAKE_LEAD_NS > clock::now_ns() {
+            clock::sleep_until(wake - WAKE_LEAD_NS);
         }
         let until = clock::now_ns() + SPIN_NS;
         let state = loop {
