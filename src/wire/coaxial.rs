@@ -28,6 +28,7 @@ use super::rod::{StepReport, Wire, WireContact, WireError, WireFault};
 use super::WireParams;
 use crate::config::{Checker, ConfigError};
 use crate::math::Vec3;
+use crate::rt::reserved::Reserved;
 use std::path::Path;
 
 mod worker;
@@ -148,8 +149,8 @@ pub struct Coaxial {
     /// a lagged step then couples as Gauss–Seidel).
     primed: bool,
     /// The wire's contact forces on the catheter, as handed to it (sized
-    /// at construction).
-    loads: Vec<(Vec3, Vec3)>,
+    /// at construction, and so are a clone's).
+    loads: Reserved<(Vec3, Vec3)>,
 }
 
 impl Coaxial {
@@ -184,8 +185,8 @@ impl Coaxial {
         // its negative curvature is not the pair's (docs/CATHETER.md).
         w.set_buckling_check(false);
         c.set_buckling_check(false);
-        // A wire node touches the lumen at one point at most.
-        let loads = Vec::with_capacity(wire.max_nodes + 2);
+        // A wire node touches the catheter at one point at most.
+        let loads = Reserved::with_capacity(wire.max_nodes + 2);
         Ok(Coaxial {
             wire: w,
             catheter: c,
