@@ -284,6 +284,12 @@ enum BenchCmd {
         /// Time the coupled step of a wire inside a catheter instead: both of --nodes nodes (default 128) in a curved tube, the hubs moving in and out out of phase and rolling; per-step percentiles and each rod's Newton iterations (docs/CATHETER.md). With --tick: the whole tick with the pair in the branched arch (default config: rt-config/cannulate_left_subclavian.toml), both rods' wall loads on the reduced model.
         #[arg(long)]
         coaxial: bool,
+        /// With --tick --coaxial: couple the pair lagged (the catheter under the wire's contact forces of the period before, docs/CATHETER.md "The lagged coupling"), both rods in one thread.
+        #[arg(long)]
+        lagged: bool,
+        /// With --tick --coaxial: couple the pair lagged and step the catheter on a second thread pinned to this CPU while the ticks' thread steps the wire (with --rt: at the same SCHED_FIFO priority, its CPU kept awake).
+        #[arg(long, value_name = "CPU")]
+        parallel: Option<usize>,
         /// Print JSON.
         #[arg(long)]
         json: bool,
@@ -498,9 +504,13 @@ fn main() -> ExitCode {
                 follow_wall,
                 rt,
                 coaxial,
+                lagged,
+                parallel,
                 json,
             } => {
-                if coaxial && tick {
+                if (lagged || parallel.is_some()) && !(coaxial && tick) {
+                    Err("--lagged and --parallel: only with --tick --coaxial".into())
+                } else if coaxial && tick {
                     cli::wire::bench_coaxial_tick_cmd(
                         &config.unwrap_or_else(cli::wire::default_coaxial_config),
                         &nvtmm::bench::coaxial_tick::CoaxialTickOptions {
@@ -509,6 +519,8 @@ fn main() -> ExitCode {
                             line_load,
                             follow_wall,
                             rt_cpu: rt,
+                            lagged,
+                            parallel,
                         },
                         json,
                     )

@@ -29,6 +29,14 @@
 //! `residual_tolerance_n` are counted too: whether the coupled step
 //! converges in this scene.
 //!
+//! With `parallel` the pair is coupled lagged ([`Coupling::Lagged`]) and
+//! the catheter's half of each step runs on a [`CatheterWorker`] pinned to
+//! that CPU (SCHED_FIFO at the same priority with `rt_cpu`, its CPU kept
+//! awake too, woken for each period by the clock), while the ticks' thread
+//! steps the wire: the tick is timed with the two rods stepped at once.
+//! `lagged` alone couples the pair lagged in the one thread (what the
+//! coupling costs apart from the threads).
+//!
 //! Allocations in the timed ticks are counted with the project's RT
 //! allocator ([`crate::rt::alloc`]): the ticks' thread draws from the RT
 //! pool, as the service's threads do, and the benchmark reports the pool's
@@ -41,7 +49,7 @@ use crate::haptics::tick::{Contribution, TickInput};
 use crate::math::Vec3;
 use crate::rt::stats::Percentiles;
 use crate::service::script::HubRow;
-use crate::wire::coaxial::Coaxial;
+use crate::wire::coaxial::{CatheterWorker, Coaxial, Coupling};
 use crate::wire::coupling::{wall_loads, WallLoad, MAX_WALL_LOADS};
 use crate::wire::WireParams;
 use std::path::Path;
@@ -95,6 +103,17 @@ pub struct CoaxialTickBench {
     pub lumen_updates: usize,
     /// Whether the lumen followed the reduced model's deformed wall.
     pub follow_wall: bool,
+    /// How the two rods' steps were coupled (`gauss_seidel`, `lagged`).
+    pub coupling: Coupling,
+    /// The CPU the catheter's worker thread was asked to run on
+    /// (`--parallel`); None: both rods in the ticks' thread.
+    pub parallel_cpu: Option<usize>,
+    /// What the OS granted the catheter's worker thread.
+    pub worker_rt: Option<crate::rt::thread::RtGrant>,
+    /// System-allocator calls of the catheter's worker thread over its
+    /// life (set-up and timed ticks): 0 is the requirement (0 and
+    /// meaningless without the RT allocator).
+    pub worker_system_allocations: u64,
     /// Whether the ticks ran one a period (`--rt`), not back to back.
     pub paced: bool,
     /// What the OS granted the ticks' thread with `--rt`.
@@ -152,6 +171,12 @@ pub struct CoaxialTickOptions {
     /// Run the ticks as the service's pair thread does (pinned to this CPU,
     /// SCHED_FIFO, memory locked, one tick a period); None: back to back.
     pub rt_cpu: Option<usize>,
+    /// Couple the pair lagged ([`Coupling::Lagged`]) in the ticks' thread.
+    pub lagged: bool,
+    /// Couple the pair lagged and step the catheter on a worker thread
+    /// pinned to this CPU (with `rt_cpu`: SCHED_FIFO as the ticks' thread,
+    /// its CPU kept awake); implies `lagged`.
+    pub parallel: Option<usize>,
 }
 
 /// Where a rod's hub is at script time `t_s`: linear between that
@@ -195,6 +220,8 @@ pub fn bench_coaxial_tick(config: &Path, o: &CoaxialTickOptions) -> Result<Coaxi
         line_load,
         follow_wall,
         rt_cpu,
+        lagged,
+        parallel,
     } = *o;
     let arg = super::BenchError::Arg;
     if !(16..=1024).contains(&nodes) {
@@ -234,6 +261,26 @@ pub fn bench_coaxial_tick(config: &Path, o: &CoaxialTickOptions) -> Result<Coaxi
         Coaxial::new(&wire_p, &cat_p, access, axis, g.inserted_m, cat.inserted_m).map_err(|e| arg(e.to_string()))?;
     pair.set_friction(cat.wire_friction);
     pair.set_load_stiffness_share(cat.coupling_stiffness_share);
+    if lagged || parallel.is_some() {
+        pair.set_coupling(Coupling::Lagged);
+    }
+    // Set up as the ticks' thread will be (the RT pool only with `rt_cpu`:
+    // the process's pool is reserved by the first thread that enters it).
+    let mut worker = match parallel {
+        Some(cpu) => Some(
+            CatheterWorker::spawn(
+                &crate::rt::thread::RtRequest {
+                    fifo_priority: rt_cpu.map(|_| super::wire_tick::RT_PRIORITY),
+                    cpu: Some(cpu),
+                    prefault_stack_bytes: 256 * 1024,
+                },
+                rt_cpu.map(|_| crate::service::running::RT_POOL_BYTES),
+            )
+            .map_err(|e| arg(format!("--parallel {cpu}: the catheter's thread: {e}")))?,
+        ),
+        None => None,
+    };
+    let worker_rt = worker.as_ref().map(|w| w.grant().clone());
     let dt = wire_p.dt_s;
     let (wire_d, cat_d) = (wire_p.diameter_m, cat_p.diameter_m);
     let deep = |pair: &Coaxial, r: &Result<crate::wire::coaxial::CoaxialReport, _>| match r {
@@ -257,7 +304,10 @@ pub fn bench_coaxial_tick(config: &Path, o: &CoaxialTickOptions) -> Result<Coaxi
         let (ci, cr) = hub_at(&rows, 1, starts[1], t);
         pair.set_hubs(wi, wr, ci, cr);
         step += 1;
-        let r = pair.step(&lumen);
+        let r = match worker.as_mut() {
+            Some(w) => pair.step_on(&lumen, w),
+            None => pair.step(&lumen),
+        };
         if deep(&pair, &r) {
             pair.restore_good_state();
             resets_setup += 1;
@@ -290,6 +340,17 @@ pub fn bench_coaxial_tick(config: &Path, o: &CoaxialTickOptions) -> Result<Coaxi
     let (mut pool_rods, mut pool_haptic) = (0u64, 0u64);
     let tol = [wire_p.residual_tolerance_n, cat_p.residual_tolerance_n];
     let stream_every = (1.0 / (60.0 * dt)).round().max(1.0) as usize;
+    // The worker's CPU kept awake too (a halted virtual CPU wakes late),
+    // from here: a thread started after `rt_ticks` pins this one inherits
+    // its CPU and could not move.
+    let awake_stop = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
+    let mut worker_rt = worker_rt;
+    let worker_awake = match (rt_cpu, parallel, worker_rt.as_mut()) {
+        (Some(_), Some(cpu), Some(g)) => {
+            crate::rt::thread::spawn_keep_awake_noting(cpu, awake_stop.clone(), &mut g.refusals)
+        }
+        _ => None,
+    };
     let (grant, rt_guard) = rt_ticks(rt_cpu);
     let pool = crate::rt::alloc::enter_rt(crate::service::running::RT_POOL_BYTES);
     let allocator_installed = pool.map(|p| p.installed).unwrap_or(false);
@@ -328,7 +389,15 @@ pub fn bench_coaxial_tick(config: &Path, o: &CoaxialTickOptions) -> Result<Coaxi
             follow.swap_into(&mut lumen);
         }
         let t1 = Instant::now();
-        let rep = pair.step(&lumen);
+        let rep = match worker.as_mut() {
+            Some(w) => {
+                if rt_cpu.is_some() {
+                    w.wake_at(next + period_ns);
+                }
+                pair.step_on(&lumen, w)
+            }
+            None => pair.step(&lumen),
+        };
         let t2 = Instant::now();
         let bad = deep(&pair, &rep);
         if bad {
@@ -416,7 +485,12 @@ pub fn bench_coaxial_tick(config: &Path, o: &CoaxialTickOptions) -> Result<Coaxi
     let system_allocations = crate::rt::alloc::thread_system_calls() - system;
     crate::rt::alloc::leave_rt();
     let memory_locked = rt_guard.locked;
+    let worker_system_allocations = worker.take().map_or(0, CatheterWorker::stop);
     drop(rt_guard);
+    awake_stop.store(true, std::sync::atomic::Ordering::Relaxed);
+    if let Some(h) = worker_awake {
+        let _ = h.join();
+    }
     let per = |x: usize| x as f64 / ticks as f64;
     let [t_tick, t_pair, t_loads, t_haptic, t_qp, t_lumen] = &times;
     Ok(CoaxialTickBench {
@@ -440,6 +514,10 @@ pub fn bench_coaxial_tick(config: &Path, o: &CoaxialTickOptions) -> Result<Coaxi
         qp_solved,
         lumen_updates: t_lumen.len(),
         follow_wall,
+        coupling: pair.coupling(),
+        parallel_cpu: parallel,
+        worker_rt,
+        worker_system_allocations,
         paced: rt_cpu.is_some(),
         rt: grant,
         memory_locked,

@@ -3,6 +3,7 @@
 use nvtmm::bench::coaxial_tick::{bench_coaxial_tick, CoaxialTickOptions};
 use nvtmm::bench::wire::bench_wire;
 use nvtmm::bench::wire_tick::{bench_wire_tick, WireTickOptions};
+use nvtmm::wire::coaxial::Coupling;
 use std::path::{Path, PathBuf};
 
 /// `rt-config/guidewire.toml` in the working directory if it is there,
@@ -153,7 +154,8 @@ pub fn bench_wire_tick_cmd(config: &Path, o: &WireTickOptions, json: bool) -> Re
 }
 
 /// `nvtmm bench wire --tick --coaxial [--config C] [--nodes N] [--steps S]
-/// [--line-load F] [--follow-wall] [--rt CPU] [--json]`: the whole tick
+/// [--line-load F] [--follow-wall] [--rt CPU] [--lagged] [--parallel CPU]
+/// [--json]`: the whole tick
 /// with a wire inside a catheter in the branched arch, and its parts.
 pub fn bench_coaxial_tick_cmd(config: &Path, o: &CoaxialTickOptions, json: bool) -> Result<()> {
     let b = bench_coaxial_tick(config, o)?;
@@ -212,9 +214,31 @@ pub fn bench_coaxial_tick_cmd(config: &Path, o: &CoaxialTickOptions, json: bool)
         }
     );
     print_paced(b.paced, &b.rt, b.memory_locked);
+    let pair = match (b.coupling, &b.worker_rt) {
+        (Coupling::GaussSeidel, _) => "coupled step (Gauss–Seidel: wire, then catheter)",
+        (Coupling::Lagged, None) => "coupled step (lagged, one thread: wire, then catheter)",
+        (Coupling::Lagged, Some(_)) => "coupled step (lagged: wire and catheter at once)",
+    };
+    if let Some(g) = &b.worker_rt {
+        println!(
+            "the catheter's thread on CPU {}, {}{}; {} system-allocator calls",
+            g.cpu.map_or("(not pinned)".to_string(), |c| c.to_string()),
+            if g.fifo {
+                format!("SCHED_FIFO {}", g.priority)
+            } else {
+                "ordinary policy".to_string()
+            },
+            if g.refusals.is_empty() {
+                String::new()
+            } else {
+                format!(" (refused: {})", g.refusals.join("; "))
+            },
+            b.worker_system_allocations
+        );
+    }
     print_parts(&[
         ("whole tick", &b.tick_us),
-        ("coupled step (wire, then catheter)", &b.pair_us),
+        (pair, &b.pair_us),
         ("wall loads → reduced model (both rods)", &b.loads_us),
         ("haptic tick (contact, reduced step, QP)", &b.haptic_us),
         ("  of which the passivity filter", &b.qp_us),

@@ -14,6 +14,12 @@
 //!    bending stiffness acting on the change of the centreline's
 //!    curvature over the step.
 //!
+//! That is the default coupling, [`Coupling::GaussSeidel`]. The other,
+//! [`Coupling::Lagged`] (block Jacobi), hands the catheter the wire's
+//! contact forces of the period before, so that both rods step from the
+//! state at the period's start only, and their two steps can run at once
+//! on two cores ([`Coaxial::step_on`] with a [`CatheterWorker`]).
+//!
 //! Why this shape, and the measured cost: docs/CATHETER.md. Every buffer
 //! is sized at construction: a step allocates nothing.
 
@@ -22,7 +28,49 @@ use super::rod::{StepReport, Wire, WireContact, WireError, WireFault};
 use super::WireParams;
 use crate::config::{Checker, ConfigError};
 use crate::math::Vec3;
+use crate::rt::reserved::Reserved;
 use std::path::Path;
+
+mod worker;
+pub use worker::CatheterWorker;
+
+/// How the two rods' steps of one period depend on each other.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Coupling {
+    /// Block Gauss–Seidel: the wire steps inside the catheter as the last
+    /// period left it, then the catheter under the wire's contact forces of
+    /// this period. The two steps run one after the other.
+    #[default]
+    GaussSeidel,
+    /// Block Jacobi: the wire steps as in [`Coupling::GaussSeidel`], the
+    /// catheter under the wire's contact forces (and with its inserted
+    /// length) of the period before. Both steps start from the period's
+    /// state only, so they may run at once ([`Coaxial::step_on`]). The step
+    /// after construction or a restore, which has no forces of a period
+    /// before, is a Gauss–Seidel one (docs/CATHETER.md "The lagged
+    /// coupling").
+    Lagged,
+}
+
+impl Coupling {
+    /// Both, by name.
+    pub const ALL: [Coupling; 2] = [Coupling::GaussSeidel, Coupling::Lagged];
+
+    /// Its name in configuration files and reports (`gauss_seidel`,
+    /// `lagged`).
+    pub fn name(self) -> &'static str {
+        match self {
+            Coupling::GaussSeidel => "gauss_seidel",
+            Coupling::Lagged => "lagged",
+        }
+    }
+
+    /// The coupling named `name` ([`Coupling::name`]).
+    pub fn from_name(name: &str) -> Option<Coupling> {
+        Coupling::ALL.into_iter().find(|c| c.name() == name)
+    }
+}
 
 /// The default friction of the wire against the catheter's lumen (a
 /// PTFE-lined lumen).
@@ -66,6 +114,10 @@ pub enum CoaxialFault {
     /// The catheter's step.
     #[error("catheter: {0}")]
     Catheter(WireFault),
+    /// The catheter's step panicked on its worker thread
+    /// ([`Coaxial::step_on`]); the catheter's state is then unusable.
+    #[error("catheter: its step panicked on the worker thread")]
+    Worker,
 }
 
 /// What a coupled step did.
@@ -91,6 +143,14 @@ pub struct Coaxial {
     friction: f64,
     /// The stabilising spring's share of the wire's penalty (0: off).
     load_share: f64,
+    coupling: Coupling,
+    /// The wire's sheath contacts are those of the last period's step on
+    /// the pair's present state (false after construction and a restore:
+    /// a lagged step then couples as Gauss–Seidel).
+    primed: bool,
+    /// The wire's contact forces on the catheter, as handed to it (sized
+    /// at construction, and so are a clone's).
+    loads: Reserved<(Vec3, Vec3)>,
 }
 
 impl Coaxial {
@@ -125,11 +185,16 @@ impl Coaxial {
         // its negative curvature is not the pair's (docs/CATHETER.md).
         w.set_buckling_check(false);
         c.set_buckling_check(false);
+        // A wire node touches the catheter at one point at most.
+        let loads = Reserved::with_capacity(wire.max_nodes + 2);
         Ok(Coaxial {
             wire: w,
             catheter: c,
             friction: WIRE_CATHETER_FRICTION,
             load_share: LOAD_STIFFNESS_SHARE,
+            coupling: Coupling::GaussSeidel,
+            primed: false,
+            loads,
         })
     }
 
@@ -172,10 +237,74 @@ impl Coaxial {
         self.friction
     }
 
-    /// Advances the pair by one time step against the vessel `lumen`: the
-    /// wire inside the catheter as it is, then the catheter under the
-    /// wire's forces and with its stiffness (module docs).
+    /// Sets how the two rods' steps depend on each other ([`Coupling`];
+    /// Gauss–Seidel by default). Takes effect at the next step.
+    pub fn set_coupling(&mut self, coupling: Coupling) {
+        self.coupling = coupling;
+    }
+
+    /// How the two rods' steps depend on each other.
+    pub fn coupling(&self) -> Coupling {
+        self.coupling
+    }
+
+    /// Advances the pair by one time step against the vessel `lumen`, in
+    /// this thread: with [`Coupling::GaussSeidel`] the wire inside the
+    /// catheter as it is, then the catheter under the wire's forces and
+    /// with its stiffness (module docs); with [`Coupling::Lagged`] the
+    /// same two steps from the period's state, the catheter under the
+    /// wire's forces of the period before ([`Coaxial::step_on`] runs them
+    /// at once, with the same result to the bit).
     pub fn step(&mut self, lumen: &dyn Lumen) -> Result<CoaxialReport, CoaxialFault> {
+        if self.lagging() {
+            self.hand_over(true);
+            let rw = self.wire.step(lumen);
+            let rc = self.catheter.step(lumen).map_err(CoaxialFault::Catheter);
+            return self.finish(rw, rc);
+        }
+        self.set_wire_sheath();
+        let rw = self.wire.step(lumen);
+        if rw.is_err() {
+            return self.finish(rw, Ok(StepReport::default()));
+        }
+        self.hand_over(false);
+        let rc = self.catheter.step(lumen).map_err(CoaxialFault::Catheter);
+        self.finish(rw, rc)
+    }
+
+    /// [`Coaxial::step`] with the catheter's step of a lagged coupling on
+    /// `worker`'s thread while the wire steps in this one: the coupled
+    /// step takes about the longer of the two rods' steps instead of their
+    /// sum. The result is the one [`Coaxial::step`] gives to the bit (both
+    /// rods' steps depend on their inputs only, unless a time limit,
+    /// `residual_time_limit_us`, cuts one short). A Gauss–Seidel step (the
+    /// coupling, or a lagged one's first after construction or a restore)
+    /// runs in this thread. Neither thread allocates, locks or blocks in
+    /// it: this one waits for the worker spinning ([`CatheterWorker`]).
+    pub fn step_on<L: Lumen + Sync>(
+        &mut self,
+        lumen: &L,
+        worker: &mut CatheterWorker,
+    ) -> Result<CoaxialReport, CoaxialFault> {
+        if !self.lagging() {
+            return self.step(lumen);
+        }
+        self.hand_over(true);
+        let pending = worker.start(&mut self.catheter, lumen);
+        let rw = self.wire.step(lumen);
+        let rc = match pending.finish() {
+            Some(r) => r.map_err(CoaxialFault::Catheter),
+            None => Err(CoaxialFault::Worker),
+        };
+        self.finish(rw, rc)
+    }
+
+    fn lagging(&self) -> bool {
+        self.coupling == Coupling::Lagged && self.primed
+    }
+
+    /// The wire inside the catheter as the catheter now stands.
+    fn set_wire_sheath(&mut self) {
         let c = &self.catheter;
         self.wire.set_sheath(
             c.positions(),
@@ -184,22 +313,49 @@ impl Coaxial {
             0.5 * c.params().inner_diameter_m,
             self.friction,
         );
-        let rw = self.wire.step(lumen).map_err(CoaxialFault::Wire)?;
+    }
+
+    /// The exchange between the rods before the catheter's step: the
+    /// wire's contact forces on the catheter (equal and opposite), their
+    /// stabilising spring and the wire as the catheter's core. `lagged`:
+    /// before the wire's step too (the forces and the wire's inserted
+    /// length are the last period's), so the wire is also put inside the
+    /// catheter as it stands. The spring stays anchored at the catheter's
+    /// state at the step's start, as in the Gauss–Seidel step: anchored
+    /// where the wire found the forces (a period earlier) it resisted the
+    /// catheter twice over, and the pair settled more slowly
+    /// (docs/CATHETER.md "The lagged coupling").
+    fn hand_over(&mut self, lagged: bool) {
+        self.loads.clear();
+        for c in self.wire.sheath_contacts() {
+            if self.loads.len() == self.loads.capacity() {
+                break;
+            }
+            self.loads.push((c.point, -(c.normal * c.normal_force + c.friction)));
+        }
+        if lagged {
+            self.set_wire_sheath();
+        }
+        self.catheter.set_point_loads(self.loads.iter().copied());
+        self.catheter
+            .set_point_load_stiffness(self.load_share * self.wire.params().contact_stiffness_n_per_m);
+        self.catheter.set_core(Some((self.wire.params(), self.wire.inserted())));
+    }
+
+    /// The pair's report from its rods' steps (the wire's fault first).
+    fn finish(
+        &mut self,
+        rw: Result<StepReport, WireFault>,
+        rc: Result<StepReport, CoaxialFault>,
+    ) -> Result<CoaxialReport, CoaxialFault> {
+        self.primed = false;
+        let rw = rw.map_err(CoaxialFault::Wire)?;
+        let rc = rc?;
         let mut normal = 0.0;
         for k in self.wire.sheath_contacts() {
             normal += k.normal_force;
         }
-        // Equal and opposite: the wire's contact forces, on the catheter.
-        self.catheter.set_point_loads(
-            self.wire
-                .sheath_contacts()
-                .iter()
-                .map(|k| (k.point, -(k.normal * k.normal_force + k.friction))),
-        );
-        self.catheter
-            .set_point_load_stiffness(self.load_share * self.wire.params().contact_stiffness_n_per_m);
-        self.catheter.set_core(Some((self.wire.params(), self.wire.inserted())));
-        let rc = self.catheter.step(lumen).map_err(CoaxialFault::Catheter)?;
+        self.primed = true;
         Ok(CoaxialReport {
             wire: rw,
             catheter: rc,
@@ -257,5 +413,6 @@ impl Coaxial {
     pub fn restore_good_state(&mut self) {
         self.wire.restore_good_state();
         self.catheter.restore_good_state();
+        self.primed = false;
     }
 }

@@ -34,13 +34,13 @@ use super::guidewire::{
 use super::{BuildContext, Built, InstrumentReport, Kind, ServiceSide};
 use crate::config::{Checker, ConfigError};
 use crate::rt::clock::{self, Nanos};
-use crate::rt::thread::{setup_current, RtRequest};
+use crate::rt::thread::{setup_current, RtGrant, RtRequest};
 use crate::service::faults::FaultSwitches;
 use crate::service::report::Report;
 use crate::service::script::{parse_steps, planned_rows, switching_hand, HandStep, HubRow, SwitchingHand};
 use crate::service::ServiceError;
 use crate::wire::catheter::{catheter_params, TipShape, CATHETER_NEWTON_ITERATIONS};
-use crate::wire::coaxial::{Coaxial, LOAD_STIFFNESS_SHARE, WIRE_CATHETER_FRICTION};
+use crate::wire::coaxial::{CatheterWorker, Coaxial, Coupling, LOAD_STIFFNESS_SHARE, WIRE_CATHETER_FRICTION};
 use crate::wire::coupling::InnerWall;
 use crate::wire::{TriangleLumen, WireParams};
 use std::path::Path;
@@ -96,6 +96,15 @@ pub struct CatheterConfig {
     /// wire's contact penalty ([`Coaxial::set_load_stiffness_share`]; 0
     /// turns it off, and a shaped tip then swings the pair apart).
     pub coupling_stiffness_share: f64,
+    /// Couple the pair lagged ([`Coupling::Lagged`]: the catheter under
+    /// the wire's contact forces of the period before) and step the
+    /// catheter on its own thread, pinned to `cpu`, while the pair's
+    /// thread steps the wire (docs/CATHETER.md "The lagged coupling").
+    pub parallel: bool,
+    /// The CPU of the catheter's thread with `parallel` (−1: not pinned);
+    /// not `guidewire.cpu`. It runs at `guidewire.priority`, below the
+    /// haptic loop's when they share a CPU.
+    pub cpu: i32,
     /// The simulated hand's script: timed rows `[time_s, instrument,
     /// inserted_m, roll_rad]`, instrument 0 the guidewire and 1 the
     /// catheter (the switch button's order), where a row naming the other
@@ -124,6 +133,8 @@ impl Default for CatheterConfig {
             inserted_m: 0.02,
             newton_iterations: CATHETER_NEWTON_ITERATIONS,
             coupling_stiffness_share: LOAD_STIFFNESS_SHARE,
+            parallel: false,
+            cpu: 1,
             script: Vec::new(),
         }
     }
@@ -265,6 +276,16 @@ impl CatheterConfig {
             1.0,
             "",
         )?;
+        c.int_in("catheter.cpu", self.cpu, -1, 1023)?;
+        if self.parallel && self.cpu >= 0 && self.cpu == g.cpu {
+            return Err(c.err(
+                "catheter.cpu",
+                format!(
+                    "{}: with catheter.parallel the catheter's thread needs a CPU other than guidewire.cpu ({})",
+                    self.cpu, g.cpu
+                ),
+            ));
+        }
         p.validate(path).map_err(|mut e| {
             e.key = format!("catheter.({})", e.key);
             e
@@ -307,6 +328,8 @@ struct CoaxialPlan {
     pool_bytes: usize,
     good_every: u32,
     polyline_every: u64,
+    /// The catheter's thread (`catheter.parallel`).
+    worker: Option<CatheterWorker>,
 }
 
 /// What the pair's thread returns: each rod's figures, and the pair's.
@@ -319,6 +342,12 @@ struct PairResult {
     coaxial_normal_force_max_n: f64,
     /// The wire's tip beyond the catheter's at the end (m, along the rods).
     wire_lead_m: f64,
+    /// How the pair was coupled.
+    coupling: Coupling,
+    /// What the OS granted the catheter's thread (`catheter.parallel`).
+    worker: Option<RtGrant>,
+    /// The catheter thread's system-allocator calls after its set-up.
+    worker_allocations: u64,
 }
 
 /// The pair's thread, joined by whichever of the two service sides
@@ -346,6 +375,20 @@ pub fn build_instrument<const R: usize>(ctx: &BuildContext<'_, R>) -> Result<Vec
         .map_err(|e| ServiceError::Solver(format!("catheter: {e}")))?;
     pair.set_friction(cat.wire_friction);
     pair.set_load_stiffness_share(cat.coupling_stiffness_share);
+    let pool_bytes = crate::service::running::RT_POOL_BYTES;
+    let worker = if cat.parallel {
+        pair.set_coupling(Coupling::Lagged);
+        let request = RtRequest {
+            cpu: (cat.cpu >= 0).then_some(cat.cpu as usize),
+            ..rt_request(g)
+        };
+        Some(
+            CatheterWorker::spawn(&request, Some(pool_bytes))
+                .map_err(|e| ServiceError::Thread("catheter", e.to_string()))?,
+        )
+    } else {
+        None
+    };
     let frame = device_frame(ctx);
     let (w, c) = (pair.wire(), pair.catheter());
     let (wire_link, wire_pub, wire_end, _no_walls) =
@@ -365,9 +408,10 @@ pub fn build_instrument<const R: usize>(ctx: &BuildContext<'_, R>) -> Result<Vec
         request: rt_request(g),
         start: ctx.loop_start + WIRE_PHASE,
         period: (wp.dt_s * 1e9).round() as Nanos,
-        pool_bytes: crate::service::running::RT_POOL_BYTES,
+        pool_bytes,
         good_every: g.good_state_every,
         polyline_every: ctx.state_every.max(1),
+        worker,
     };
     let handle = std::thread::Builder::new()
         .name("nvtmm-coaxial".into())
@@ -433,7 +477,7 @@ impl ServiceSide for PairService {
                 .join()
                 .map_err(|_| ServiceError::Thread("wire", "the pair's thread panicked".into()))?;
             // Counted once, for both rods.
-            report.allocations_after_start += r.wire.allocations;
+            report.allocations_after_start += r.wire.allocations + r.worker_allocations;
             j.result = Some(r);
         }
         let r = j
@@ -452,6 +496,20 @@ impl ServiceSide for PairService {
                     k.insert("sheath_penetration_max_m".into(), r.sheath_penetration_max_m.into());
                     k.insert("coaxial_normal_force_max_n".into(), r.coaxial_normal_force_max_n.into());
                     k.insert("wire_lead_m".into(), r.wire_lead_m.into());
+                    k.insert("coupling".into(), r.coupling.name().into());
+                    k.insert("parallel".into(), r.worker.is_some().into());
+                    if let Some(g) = &r.worker {
+                        k.insert(
+                            "catheter_thread".into(),
+                            serde_json::json!({
+                                "cpu": g.cpu,
+                                "fifo": g.fifo,
+                                "priority": g.priority,
+                                "refusals": g.refusals,
+                                "allocations_after_start": r.worker_allocations,
+                            }),
+                        );
+                    }
                     // The pair's thread: its allocations are in the
                     // guidewire's section and the top-level key.
                     k.insert("allocations_after_start".into(), r.wire.allocations.into());
@@ -498,7 +556,15 @@ fn coaxial_thread(mut p: CoaxialPlan) -> PairResult {
             p.pair.wire_mut().poison_for_tests();
         }
         let t0 = clock::now_ns();
-        let step = p.pair.step(&*p.lumen);
+        let step = match p.worker.as_mut() {
+            Some(w) => {
+                // Woken by the clock for the next period (`wait_period`
+                // moved `next` on to it).
+                w.wake_at(next);
+                p.pair.step_on(&*p.lumen, w)
+            }
+            None => p.pair.step(&*p.lumen),
+        };
         let us = (clock::now_ns() - t0) as f64 * 1e-3;
         wire.step_us.record(us);
         cat.step_us.record(us);
@@ -546,13 +612,48 @@ fn coaxial_thread(mut p: CoaxialPlan) -> PairResult {
     wire.allocations = crate::rt::alloc::thread_system_calls() - sys0;
     cat.allocations = wire.allocations;
     crate::rt::alloc::leave_rt();
+    let worker = p.worker.as_ref().map(|w| w.grant().clone());
+    let worker_allocations = p.worker.take().map_or(0, CatheterWorker::stop);
     wire.finish(p.pair.wire(), &p.ends[0], &p.lumen);
     cat.finish(p.pair.catheter(), &p.ends[1], &p.lumen);
     PairResult {
+        coupling: p.pair.coupling(),
+        worker,
+        worker_allocations,
         wire_lead_m: p.pair.wire_lead_m(),
         wire,
         catheter: cat,
         sheath_penetration_max_m: sheath_max,
         coaxial_normal_force_max_n: normal_max,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_parallel_catheter_refuses_the_wires_cpu() {
+        let (w, g) = (WireParams::default(), GuidewireConfig::default());
+        let c = CatheterConfig {
+            parallel: true,
+            cpu: g.cpu,
+            ..CatheterConfig::default()
+        };
+        let e = c.validate(Path::new("x.toml"), &w, &g).expect_err("same CPU");
+        assert_eq!(e.key, "catheter.cpu");
+        let ok = CatheterConfig {
+            parallel: true,
+            cpu: g.cpu + 1,
+            ..CatheterConfig::default()
+        };
+        assert!(ok.validate(Path::new("x.toml"), &w, &g).is_ok());
+        let e = CatheterConfig {
+            cpu: -2,
+            ..CatheterConfig::default()
+        }
+        .validate(Path::new("x.toml"), &w, &g)
+        .expect_err("range");
+        assert_eq!(e.key, "catheter.cpu");
     }
 }

@@ -1,0 +1,127 @@
+//! After construction, lagged coupled steps with the catheter's half on a
+//! worker thread (`Coaxial::step_on`) allocate nothing, in either thread:
+//! the pair fed in and out and rolled in a curved tube, and the reset path.
+//! The allocator here counts every thread's allocations while counting is
+//! on (this file holds one test, so no other test's thread runs then).
+
+use nvtmm::math::Vec3;
+use nvtmm::rt::thread::RtRequest;
+use nvtmm::wire::catheter::{catheter_params, TipShape};
+use nvtmm::wire::coaxial::{CatheterWorker, Coaxial, Coupling};
+use nvtmm::wire::{CurvedTube, CurvedTubeShape, WireParams};
+use std::alloc::{GlobalAlloc, Layout, System};
+use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
+
+struct EveryThread;
+static ON: AtomicBool = AtomicBool::new(false);
+static COUNT: AtomicUsize = AtomicUsize::new(0);
+
+fn note() {
+    if ON.load(Ordering::Relaxed) {
+        COUNT.fetch_add(1, Ordering::Relaxed);
+    }
+}
+
+// SAFETY: forwards to the system allocator unchanged; only counts, with
+// atomics that never allocate.
+unsafe impl GlobalAlloc for EveryThread {
+    unsafe fn alloc(&self, l: Layout) -> *mut u8 {
+        note();
+        // SAFETY: same contract as the caller's.
+        unsafe { System.alloc(l) }
+    }
+    unsafe fn dealloc(&self, p: *mut u8, l: Layout) {
+        // SAFETY: same contract as the caller's.
+        unsafe { System.dealloc(p, l) }
+    }
+    unsafe fn alloc_zeroed(&self, l: Layout) -> *mut u8 {
+        note();
+        // SAFETY: same contract as the caller's.
+        unsafe { System.alloc_zeroed(l) }
+    }
+    unsafe fn realloc(&self, p: *mut u8, l: Layout, n: usize) -> *mut u8 {
+        note();
+        // SAFETY: same contract as the caller's.
+        unsafe { System.realloc(p, l, n) }
+    }
+}
+
+#[global_allocator]
+static GLOBAL: EveryThread = EveryThread;
+
+fn counted<R>(f: impl FnOnce() -> R) -> (R, usize) {
+    COUNT.store(0, Ordering::SeqCst);
+    ON.store(true, Ordering::SeqCst);
+    let r = f();
+    ON.store(false, Ordering::SeqCst);
+    (r, COUNT.load(Ordering::SeqCst))
+}
+
+#[test]
+fn the_threaded_coaxial_step_allocates_nothing() {
+    let tube = CurvedTube::new(&CurvedTubeShape {
+        start: Vec3::new(-0.01, 0.0, 0.0),
+        tangent: Vec3::x(),
+        toward: Vec3::y(),
+        inlet: 0.03,
+        bend_radius: 0.03,
+        angle: 2.0,
+        outlet: 0.2,
+        radius: 4e-3,
+    })
+    .expect("tube");
+    let w = WireParams {
+        max_nodes: 128,
+        ..WireParams::default()
+    };
+    let c = catheter_params(5.0, TipShape::Vertebral);
+    let mut pair = Coaxial::new(&w, &c, Vec3::zeros(), Vec3::x(), 0.02, 0.015).expect("pair");
+    pair.set_coupling(Coupling::Lagged);
+    let request = RtRequest {
+        fifo_priority: None,
+        cpu: None,
+        prefault_stack_bytes: 0,
+    };
+    let mut worker = CatheterWorker::spawn(&request, None).expect("worker");
+    let ((), one) = counted(|| {
+        let w = std::thread::spawn(|| drop(std::hint::black_box(Box::new(1u8))));
+        let _ = w.join();
+    });
+    assert!(one >= 1, "the counter does not see other threads");
+    let (mut sheath, mut walls, mut steps) = (0, 0, 0);
+    let ((), count) = counted(|| {
+        for k in 0..1500 {
+            let t = k as f64 * 1e-3;
+            let wi = if k < 1000 {
+                0.02 + 0.05 * t
+            } else {
+                0.07 - 0.08 * (t - 1.0)
+            };
+            pair.set_hubs(wi, 0.3 * t, 0.015 + 0.04 * t.min(1.0), -0.5 * t);
+            // Half the steps with the worker sleeping till a wake time.
+            if k % 2 == 0 {
+                worker.wake_at(nvtmm::rt::clock::now_ns() + 50_000);
+            }
+            match pair.step_on(&tube, &mut worker) {
+                Ok(r) => {
+                    steps += 1;
+                    sheath += r.wire.sheath_contacts;
+                    walls += pair.wall_contacts().count();
+                    if k % 100 == 0 {
+                        pair.save_good_state();
+                    }
+                }
+                Err(_) => pair.restore_good_state(),
+            }
+            if k == 700 {
+                pair.restore_good_state();
+            }
+        }
+    });
+    assert!(
+        sheath > 0 && walls > 0 && steps > 1000,
+        "no test: {steps} steps, {sheath} sheath and {walls} wall contacts"
+    );
+    assert_eq!(count, 0, "{count} allocations in the threaded coupled steps");
+    drop(worker);
+}
