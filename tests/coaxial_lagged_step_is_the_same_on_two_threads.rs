@@ -135,3 +135,33 @@ fn a_gauss_seidel_pair_steps_in_the_callers_thread_as_before() {
         Some(Coupling::GaussSeidel)
     );
 }
+
+/// A worker asleep past the steps (its wake time seconds ahead): the
+/// pair's thread takes each step back and runs it itself, with the same
+/// result to the bit.
+#[test]
+fn a_step_the_worker_has_not_begun_is_taken_back_with_the_same_result() {
+    let lumen = tube();
+    let mut one = pair(Coupling::Lagged);
+    let mut two = pair(Coupling::Lagged);
+    let request = RtRequest {
+        fifo_priority: None,
+        cpu: None,
+        prefault_stack_bytes: 0,
+    };
+    let mut worker = CatheterWorker::spawn(&request, None).expect("worker");
+    // After its first step the worker sleeps until 2 s from now.
+    worker.wake_at(nvtmm::rt::clock::now_ns() + 2_000_000_000);
+    for k in 0..300 {
+        hubs(&mut one, k);
+        hubs(&mut two, k);
+        let a = one.step(&lumen);
+        let b = two.step_on(&lumen, &mut worker);
+        assert!(same(&a, &b), "step {k}: reports differ\n{a:?}\n{b:?}");
+        assert!(bits(&one) == bits(&two), "step {k}: states differ");
+    }
+    // Every lagged step but the first (a Gauss-Seidel one) and the one the
+    // worker may have claimed before it slept.
+    assert!(worker.taken_back() >= 297, "{} taken back", worker.taken_back());
+    assert_eq!(worker.stop(), 0);
+}

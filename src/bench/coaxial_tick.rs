@@ -114,6 +114,10 @@ pub struct CoaxialTickBench {
     /// life (set-up and timed ticks): 0 is the requirement (0 and
     /// meaningless without the RT allocator).
     pub worker_system_allocations: u64,
+    /// Timed ticks whose catheter step the ticks' thread took back and ran
+    /// itself, the worker not having begun it when the wire's step was done
+    /// (`CatheterWorker::taken_back`).
+    pub worker_taken_back: u64,
     /// Whether the ticks ran one a period (`--rt`), not back to back.
     pub paced: bool,
     /// What the OS granted the ticks' thread with `--rt`.
@@ -359,9 +363,11 @@ pub fn bench_coaxial_tick(config: &Path, o: &CoaxialTickOptions) -> Result<Coaxi
     let period_ns = (dt * 1e9).round() as i64;
     let mut next = crate::rt::clock::now_ns();
     let mut system = 0u64;
+    let mut taken0 = 0u64;
     for k in 0..cap {
         if k == settle {
             system = crate::rt::alloc::thread_system_calls();
+            taken0 = worker.as_ref().map_or(0, CatheterWorker::taken_back);
         }
         if rt_cpu.is_some() {
             next += period_ns;
@@ -485,6 +491,7 @@ pub fn bench_coaxial_tick(config: &Path, o: &CoaxialTickOptions) -> Result<Coaxi
     let system_allocations = crate::rt::alloc::thread_system_calls() - system;
     crate::rt::alloc::leave_rt();
     let memory_locked = rt_guard.locked;
+    let worker_taken_back = worker.as_ref().map_or(0, |w| w.taken_back() - taken0);
     let worker_system_allocations = worker.take().map_or(0, CatheterWorker::stop);
     drop(rt_guard);
     awake_stop.store(true, std::sync::atomic::Ordering::Relaxed);
@@ -518,6 +525,7 @@ pub fn bench_coaxial_tick(config: &Path, o: &CoaxialTickOptions) -> Result<Coaxi
         parallel_cpu: parallel,
         worker_rt,
         worker_system_allocations,
+        worker_taken_back,
         paced: rt_cpu.is_some(),
         rt: grant,
         memory_locked,

@@ -221,7 +221,7 @@ pub fn bench_coaxial_tick_cmd(config: &Path, o: &CoaxialTickOptions, json: bool)
     };
     if let Some(g) = &b.worker_rt {
         println!(
-            "the catheter's thread on CPU {}, {}{}; {} system-allocator calls",
+            "the catheter's thread on CPU {}, {}{}; {} system-allocator calls; {} of the timed steps taken back by the ticks' thread",
             g.cpu.map_or("(not pinned)".to_string(), |c| c.to_string()),
             if g.fifo {
                 format!("SCHED_FIFO {}", g.priority)
@@ -233,7 +233,8 @@ pub fn bench_coaxial_tick_cmd(config: &Path, o: &CoaxialTickOptions, json: bool)
             } else {
                 format!(" (refused: {})", g.refusals.join("; "))
             },
-            b.worker_system_allocations
+            b.worker_system_allocations,
+            b.worker_taken_back
         );
     }
     print_parts(&[

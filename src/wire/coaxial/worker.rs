@@ -31,6 +31,11 @@
 //!   it is parked, one system call). Woken by the clock, it is already
 //!   running when the work comes, so the wake-up's latency (tens of µs
 //!   for a futex wake across CPUs) stays off the tick's critical path.
+//! - A step the worker has not begun when the pair's thread is done
+//!   with the wire (the worker woken late) is taken back by the pair's
+//!   thread and run there: one atomic exchange from GO decides who runs
+//!   it, and such a tick costs the two steps one after the other instead
+//!   of the worker's lateness (the result is the same to the bit).
 //! - The pair's thread waits for the result spinning: the wait is the
 //!   difference between the two rods' steps (tens of µs) on its own CPU,
 //!   and a futex wait would add the wake-up's latency to every tick. Past
@@ -51,7 +56,7 @@ use crate::rt::thread::{setup_current, RtGrant, RtRequest};
 use crate::wire::lumen::Lumen;
 use crate::wire::rod::{StepReport, Wire, WireFault};
 use std::cell::UnsafeCell;
-use std::sync::atomic::{AtomicI64, AtomicU8, Ordering};
+use std::sync::atomic::{AtomicI64, AtomicU64, AtomicU8, Ordering};
 use std::sync::Arc;
 use std::thread::JoinHandle;
 
@@ -72,6 +77,8 @@ const IDLE: u8 = 0;
 const GO: u8 = 1;
 const DONE: u8 = 2;
 const STOP: u8 = 3;
+/// The worker has claimed the step (from GO): the pair's thread waits.
+const RUNNING: u8 = 4;
 
 /// One step's work: the catheter, the lumen (type-erased) and how to step
 /// the one in the other; then its result (None: the step panicked).
@@ -101,6 +108,8 @@ struct Slot {
     state: AtomicU8,
     /// The next period's start (ns, absolute); 0: none.
     wake_at: AtomicI64,
+    /// Steps the pair's thread took back and ran itself.
+    taken_back: AtomicU64,
     job: UnsafeCell<Job>,
 }
 
@@ -141,6 +150,7 @@ impl CatheterWorker {
         let slot = Arc::new(Slot {
             state: AtomicU8::new(IDLE),
             wake_at: AtomicI64::new(0),
+            taken_back: AtomicU64::new(0),
             job: UnsafeCell::new(Job {
                 run: no_job,
                 rod: std::ptr::null_mut(),
@@ -180,6 +190,12 @@ impl CatheterWorker {
     /// What the OS granted the worker's thread.
     pub fn grant(&self) -> &RtGrant {
         &self.grant
+    }
+
+    /// Steps the pair's thread took back because the worker had not begun
+    /// them when the wire's step was done ([`Pending::finish`]).
+    pub fn taken_back(&self) -> u64 {
+        self.slot.taken_back.load(Ordering::Relaxed)
     }
 
     /// The next period's start (ns on [`clock::now_ns`]'s clock): the
@@ -244,8 +260,27 @@ pub(super) struct Pending<'a> {
 
 impl Pending<'_> {
     /// Waits for the worker (module docs) and returns its step's result
-    /// (None: the step panicked).
+    /// (None: the step panicked). A step the worker has not begun by now
+    /// (its wake-up late: a parked worker's futex wake, a virtual CPU's
+    /// timer) is taken back and run in this thread: the tick then costs
+    /// the two steps' sum, not the worker's lateness.
     pub(super) fn finish(self) -> Option<Result<StepReport, WireFault>> {
+        if self
+            .slot
+            .state
+            .compare_exchange(GO, IDLE, Ordering::Acquire, Ordering::Relaxed)
+            .is_ok()
+        {
+            // SAFETY: the exchange from GO excludes the worker's (it claims
+            // the step by the same exchange to RUNNING); the job and what it
+            // points to are this thread's until the next start.
+            let job = unsafe { *self.slot.job.get() };
+            self.slot.taken_back.fetch_add(1, Ordering::Relaxed);
+            std::mem::forget(self);
+            // SAFETY: as in `serve`: the rod and the lumen are borrowed for
+            // this Pending's lifetime, which the caller holds.
+            return std::panic::catch_unwind(|| unsafe { (job.run)(job.rod, job.lumen) }).ok();
+        }
         self.wait();
         // SAFETY: DONE was seen with acquire: the worker wrote the result
         // before it and no longer touches the slot.
@@ -271,7 +306,16 @@ impl Pending<'_> {
 impl Drop for Pending<'_> {
     fn drop(&mut self) {
         // Reached only when unwinding past a step: the worker must be done
-        // with the catheter and the lumen before they can go.
+        // with the catheter and the lumen before they can go (a step it has
+        // not begun is withdrawn).
+        if self
+            .slot
+            .state
+            .compare_exchange(GO, IDLE, Ordering::Acquire, Ordering::Relaxed)
+            .is_ok()
+        {
+            return;
+        }
         self.wait();
         self.slot.state.store(IDLE, Ordering::Relaxed);
     }
@@ -287,7 +331,17 @@ fn serve(slot: &Slot) {
         let until = clock::now_ns() + SPIN_NS;
         let state = loop {
             let s = slot.state.load(Ordering::Acquire);
-            if s == GO || s == STOP {
+            // Claim the step, unless the pair's thread took it back first
+            // (`Pending::finish`).
+            if s == GO
+                && slot
+                    .state
+                    .compare_exchange(GO, RUNNING, Ordering::Acquire, Ordering::Relaxed)
+                    .is_ok()
+            {
+                break GO;
+            }
+            if s == STOP {
                 break s;
             }
             if clock::now_ns() < until {
