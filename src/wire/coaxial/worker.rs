@@ -193,7 +193,7 @@ impl CatheterWorker {
     }
 
     /// Steps the pair's thread took back because the worker had not begun
-    /// them when the wire's step was done ([`Pending::finish`]).
+    /// them when the wire's step was done (`Coaxial::step_on` runs it then).
     pub fn taken_back(&self) -> u64 {
         self.slot.taken_back.load(Ordering::Relaxed)
     }
