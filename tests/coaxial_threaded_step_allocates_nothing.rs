@@ -1,61 +1,20 @@
 //! After construction, lagged coupled steps with the catheter's half on a
 //! worker thread (`Coaxial::step_on`) allocate nothing, in either thread:
 //! the pair fed in and out and rolled in a curved tube, and the reset path.
-//! The allocator here counts every thread's allocations while counting is
-//! on (this file holds one test, so no other test's thread runs then).
+//! The allocator counts every thread's allocations while counting is on
+//! (this file holds one test, so no other test's thread runs then).
 
 use nvtmm::math::Vec3;
 use nvtmm::rt::thread::RtRequest;
 use nvtmm::wire::catheter::{catheter_params, TipShape};
 use nvtmm::wire::coaxial::{CatheterWorker, Coaxial, Coupling};
 use nvtmm::wire::{CurvedTube, CurvedTubeShape, WireParams};
-use std::alloc::{GlobalAlloc, Layout, System};
-use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
 
-struct EveryThread;
-static ON: AtomicBool = AtomicBool::new(false);
-static COUNT: AtomicUsize = AtomicUsize::new(0);
-
-fn note() {
-    if ON.load(Ordering::Relaxed) {
-        COUNT.fetch_add(1, Ordering::Relaxed);
-    }
-}
-
-// SAFETY: forwards to the system allocator unchanged; only counts, with
-// atomics that never allocate.
-unsafe impl GlobalAlloc for EveryThread {
-    unsafe fn alloc(&self, l: Layout) -> *mut u8 {
-        note();
-        // SAFETY: same contract as the caller's.
-        unsafe { System.alloc(l) }
-    }
-    unsafe fn dealloc(&self, p: *mut u8, l: Layout) {
-        // SAFETY: same contract as the caller's.
-        unsafe { System.dealloc(p, l) }
-    }
-    unsafe fn alloc_zeroed(&self, l: Layout) -> *mut u8 {
-        note();
-        // SAFETY: same contract as the caller's.
-        unsafe { System.alloc_zeroed(l) }
-    }
-    unsafe fn realloc(&self, p: *mut u8, l: Layout, n: usize) -> *mut u8 {
-        note();
-        // SAFETY: same contract as the caller's.
-        unsafe { System.realloc(p, l, n) }
-    }
-}
+mod common;
+use common::counting::{count_every_thread_allocations as counted, EveryThread};
 
 #[global_allocator]
 static GLOBAL: EveryThread = EveryThread;
-
-fn counted<R>(f: impl FnOnce() -> R) -> (R, usize) {
-    COUNT.store(0, Ordering::SeqCst);
-    ON.store(true, Ordering::SeqCst);
-    let r = f();
-    ON.store(false, Ordering::SeqCst);
-    (r, COUNT.load(Ordering::SeqCst))
-}
 
 #[test]
 fn the_threaded_coaxial_step_allocates_nothing() {
