@@ -460,7 +460,11 @@ pub struct Wire {
     buckling_check: bool,
     hub_grad: Vec3,
     hub_dtheta: f64,
+    /// The hub's axial force at the end of the last step (N): while it is
+    /// at the grip's limit the next step feeds nothing in.
     last_axial: f64,
+    /// `last_axial` as it was when the good state was saved.
+    good_axial: f64,
     /// The last step's residual (`StepReport::residual_n`; infinite before
     /// the first step and after a restore): whether the next push slides.
     last_residual: f64,
@@ -1041,6 +1045,7 @@ impl Wire {
             hub_grad: Vec3::zeros(),
             hub_dtheta: 0.0,
             last_axial: 0.0,
+            good_axial: 0.0,
             last_residual: f64::INFINITY,
             eval_pen: 0.0,
             contacts: Reserved::with_capacity(cap),
@@ -1202,6 +1207,7 @@ impl Wire {
     /// buffers sized at construction: no allocation).
     pub fn save_good_state(&mut self) {
         self.good.copy_from(&self.s);
+        self.good_axial = self.last_axial;
     }
 
     /// Returns to the last good state (velocities zeroed), e.g. after a
@@ -1216,6 +1222,9 @@ impl Wire {
         self.contacts.clear();
         self.cx.sheath_contacts.clear();
         self.last_residual = f64::INFINITY;
+        // The hub force goes back with the state: the failed step's, at the
+        // grip's limit, would hold back the next step's feed.
+        self.last_axial = self.good_axial;
         self.cx.forget_inside();
     }
 
@@ -3830,6 +3839,38 @@ mod tests {
         assert!(
             (back - 100.0 * back_c).abs() < 0.05 * back && (back - d).abs() < 0.05 * d,
             "the tip came back {back:e} m of {d:e}, the short pull's {back_c:e}: {r:?}"
+        );
+    }
+
+    /// A restore takes the hub force back with the state: a wire whose
+    /// failed step left its hub force at the grip's limit, returned to a
+    /// good state saved at rest, feeds in again on the next step (with the
+    /// failed step's hub force it fed nothing).
+    #[test]
+    fn a_restored_wire_feeds_in_again_after_a_step_at_the_grips_limit() {
+        let p = WireParams {
+            segment_length_m: 2e-3,
+            max_nodes: 40,
+            ..WireParams::default()
+        };
+        let mut w = Wire::new(&p, Vec3::zeros(), Vec3::x(), 0.03).unwrap();
+        let tube = StraightTube::new(Vec3::new(-0.01, 0.0, 0.0), Vec3::x(), 0.2, 1.5e-3, false).unwrap();
+        for _ in 0..20 {
+            w.step(&tube).unwrap();
+        }
+        w.save_good_state();
+        let good = w.inserted();
+        // A step that failed pushing against the grip's limit (a fault the
+        // service resets from) leaves that hub force behind.
+        w.last_axial = p.max_hub_force_n;
+        w.restore_good_state();
+        assert_eq!(w.inserted(), good);
+        w.set_hub(good + 1e-3, 0.0);
+        w.step(&tube).unwrap();
+        assert!(
+            w.inserted() > good + 1e-4,
+            "fed {} m after the restore",
+            w.inserted() - good
         );
     }
 
