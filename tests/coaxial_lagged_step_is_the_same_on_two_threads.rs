@@ -4,24 +4,16 @@
 //! pair rolled, the wire pulled back inside, a restore to the last good
 //! state on the way. And the lagged coupling is not the Gauss–Seidel one.
 
+mod common;
+
 use nvtmm::math::Vec3;
 use nvtmm::rt::thread::RtRequest;
 use nvtmm::wire::catheter::{catheter_params, TipShape};
 use nvtmm::wire::coaxial::{CatheterWorker, Coaxial, CoaxialReport, Coupling};
-use nvtmm::wire::{CurvedTube, CurvedTubeShape, WireParams};
+use nvtmm::wire::WireParams;
 
-fn tube() -> CurvedTube {
-    CurvedTube::new(&CurvedTubeShape {
-        start: Vec3::new(-0.01, 0.0, 0.0),
-        tangent: Vec3::x(),
-        toward: Vec3::y(),
-        inlet: 0.03,
-        bend_radius: 0.03,
-        angle: 2.0,
-        outlet: 0.2,
-        radius: 4e-3,
-    })
-    .expect("tube")
+fn tube() -> nvtmm::wire::CurvedTube {
+    common::two_radian_bend(4e-3)
 }
 
 fn pair(coupling: Coupling) -> Coaxial {

@@ -8,24 +8,14 @@ use common::counting::count_allocations;
 use nvtmm::math::Vec3;
 use nvtmm::wire::catheter::{catheter_params, TipShape};
 use nvtmm::wire::coaxial::Coaxial;
-use nvtmm::wire::{CurvedTube, CurvedTubeShape, WireParams};
+use nvtmm::wire::WireParams;
 
 #[global_allocator]
 static GLOBAL: common::counting::Counting = common::counting::Counting;
 
 #[test]
 fn coaxial_step_allocates_nothing() {
-    let tube = CurvedTube::new(&CurvedTubeShape {
-        start: Vec3::new(-0.01, 0.0, 0.0),
-        tangent: Vec3::x(),
-        toward: Vec3::y(),
-        inlet: 0.03,
-        bend_radius: 0.03,
-        angle: 2.0,
-        outlet: 0.2,
-        radius: 4e-3,
-    })
-    .expect("tube");
+    let tube = common::two_radian_bend(4e-3);
     let w = WireParams {
         max_nodes: 128,
         ..WireParams::default()

@@ -8,7 +8,7 @@ use nvtmm::math::Vec3;
 use nvtmm::rt::thread::RtRequest;
 use nvtmm::wire::catheter::{catheter_params, TipShape};
 use nvtmm::wire::coaxial::{CatheterWorker, Coaxial, Coupling};
-use nvtmm::wire::{CurvedTube, CurvedTubeShape, WireParams};
+use nvtmm::wire::WireParams;
 
 mod common;
 use common::counting::{count_every_thread_allocations as counted, EveryThread};
@@ -18,17 +18,7 @@ static GLOBAL: EveryThread = EveryThread;
 
 #[test]
 fn the_threaded_coaxial_step_allocates_nothing() {
-    let tube = CurvedTube::new(&CurvedTubeShape {
-        start: Vec3::new(-0.01, 0.0, 0.0),
-        tangent: Vec3::x(),
-        toward: Vec3::y(),
-        inlet: 0.03,
-        bend_radius: 0.03,
-        angle: 2.0,
-        outlet: 0.2,
-        radius: 4e-3,
-    })
-    .expect("tube");
+    let tube = common::two_radian_bend(4e-3);
     let w = WireParams {
         max_nodes: 128,
         ..WireParams::default()

@@ -11,23 +11,13 @@ use common::counting::count_allocations;
 use nvtmm::math::Vec3;
 use nvtmm::wire::catheter::{catheter_params, TipShape};
 use nvtmm::wire::coaxial::Coaxial;
-use nvtmm::wire::{CurvedTube, CurvedTubeShape, Wire, WireParams};
+use nvtmm::wire::{CurvedTube, Wire, WireParams};
 
 #[global_allocator]
 static GLOBAL: common::counting::Counting = common::counting::Counting;
 
 fn bend(radius: f64) -> CurvedTube {
-    CurvedTube::new(&CurvedTubeShape {
-        start: Vec3::new(-0.01, 0.0, 0.0),
-        tangent: Vec3::x(),
-        toward: Vec3::y(),
-        inlet: 0.03,
-        bend_radius: 0.03,
-        angle: 2.0,
-        outlet: 0.2,
-        radius,
-    })
-    .expect("tube")
+    common::two_radian_bend(radius)
 }
 
 #[test]

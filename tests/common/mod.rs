@@ -92,6 +92,23 @@ pub fn axpy(u: &[Vec3], s: f64, v: &[Vec3]) -> Vec<Vec3> {
     u.iter().zip(v).map(|(a, b)| a + b * s).collect()
 }
 
+/// The coaxial tests' bend: a tube of inner `radius` (m) from
+/// (−10 mm, 0, 0) along x, 30 mm straight, then turning toward +y by 2 rad
+/// on a 30 mm radius, then 200 mm straight.
+pub fn two_radian_bend(radius: f64) -> nvtmm::wire::CurvedTube {
+    nvtmm::wire::CurvedTube::new(&nvtmm::wire::CurvedTubeShape {
+        start: Vec3::new(-0.01, 0.0, 0.0),
+        tangent: Vec3::x(),
+        toward: Vec3::y(),
+        inlet: 0.03,
+        bend_radius: 0.03,
+        angle: 2.0,
+        outlet: 0.2,
+        radius,
+    })
+    .expect("tube")
+}
+
 /// Mean edge length of a mesh (m).
 pub fn mean_edge(mesh: &TetMesh) -> f64 {
     let r = mesh.rest();
