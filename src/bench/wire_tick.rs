@@ -226,6 +226,10 @@ pub fn bench_wire_tick(config: &Path, o: &WireTickOptions) -> Result<WireTickBen
     let script_end = g.script.last().map(|r| r[0]).unwrap_or(0.0) + 0.5;
     let mut step = 0usize;
     let fail = |step: usize, reason: String| super::BenchError::Step { step, reason };
+    // The script and the settling ticks below run with no time limit on
+    // the extra iterations, so that the timed ticks begin where they began
+    // last time however busy the machine was.
+    wire.set_residual_time_limit_us(0.0);
     while (step as f64) * dt < script_end {
         let (ins, roll) = g.script_at(step as f64 * dt);
         wire.set_hub(ins, roll);
@@ -267,6 +271,10 @@ pub fn bench_wire_tick(config: &Path, o: &WireTickOptions) -> Result<WireTickBen
     let period_ns = (dt * 1e9).round() as i64;
     let mut next = crate::rt::clock::now_ns();
     for k in 0..cap {
+        if k == settle {
+            // The timed ticks with the time limit, as the service's.
+            wire.set_residual_time_limit_us(params.residual_time_limit_us);
+        }
         if rt_cpu.is_some() {
             next += period_ns;
             crate::rt::clock::sleep_until(next);
