@@ -4,7 +4,9 @@ use nvtmm::service::{Handle, Service, Snapshot, StartOptions};
 use std::time::{Duration, Instant};
 
 /// Starts a small service (1458-node arch, r = 16) with the basis refresh
-/// every 0.3 s and short model timeouts, in `dir`.
+/// every 0.3 s (at nice 0: at the service's default of 19, other jobs on a
+/// loaded machine starve it for tens of seconds) and short model
+/// timeouts, in `dir`.
 pub fn start(dir: &std::path::Path) -> Handle {
     Service::start(options(dir)).unwrap()
 }
@@ -65,6 +67,7 @@ model_max_age_ms = 1000.0
 [background]
 basis_refresh_s = 0.3
 basis_refresh_m = 0.0
+basis_nice = 0
 [stream]
 enabled = false
 "#,
