@@ -32,6 +32,57 @@ pub struct ReplayArgs {
     /// With --igtl: how long to wait for a first client (s).
     #[arg(long, default_value_t = 60.0)]
     wait: f64,
+    /// Instead of sending, print where each instrument's tip went: a row
+    /// every --every seconds of simulation time and at each frame where a
+    /// tip changed segment, named from the recorded run's scene file
+    /// (its mesh's segment labels on the inner wall).
+    #[arg(long, value_name = "SCENE")]
+    tips: Option<PathBuf>,
+    /// With --tips: seconds of simulation time between rows.
+    #[arg(long, default_value_t = 0.5)]
+    every: f64,
+}
+
+/// `nvtmm replay FILE --tips SCENE`: the tips' table.
+fn tips(file: &std::path::Path, scene: &std::path::Path, every_s: f64) -> Result<()> {
+    if !(every_s.is_finite() && every_s >= 0.0) {
+        return Err(format!("--every {every_s}: must be a finite number of seconds, 0 or more").into());
+    }
+    let mesh = nvtmm::scene::Scene::load(scene)?.build_mesh()?;
+    let map = match nvtmm::task::SegmentMap::from_mesh(&mesh, "inner_wall") {
+        Ok(m) => Some(m),
+        Err(e) => {
+            eprintln!("note: {}: {e}; the tips are printed without segments", scene.display());
+            None
+        }
+    };
+    let segment_of = |p: nvtmm::math::Vec3| map.as_ref().and_then(|m| m.segment_at(p)).map(str::to_string);
+    let (rows, stats) = record::tip_trace(file, every_s, &segment_of)?;
+    println!("t (s), then per instrument: kind#id, tip x y z (mm), segment; * where a tip changed segment");
+    for r in &rows {
+        let mut line = format!("{}{:8.3}", if r.entered { '*' } else { ' ' }, r.time_s);
+        for t in &r.tips {
+            let kind = nvtmm::stream::instrument_kind(t.kind).unwrap_or("instrument");
+            let p = t.tip_m * 1e3;
+            line += &format!(
+                "  {kind}#{} {:7.1} {:7.1} {:7.1} {}",
+                t.id,
+                p.x,
+                p.y,
+                p.z,
+                t.segment.as_deref().unwrap_or("-")
+            );
+        }
+        println!("{line}");
+    }
+    if stats.gaps > 0 || stats.total_rejected() > 0 {
+        eprintln!(
+            "note: {} messages missing, {} datagrams rejected",
+            stats.gaps,
+            stats.total_rejected()
+        );
+    }
+    Ok(())
 }
 
 /// `nvtmm view`.
@@ -140,6 +191,9 @@ pub struct DemoArgs {
 
 /// Replays a recording to UDP or exports it for ParaView.
 pub fn replay(a: ReplayArgs) -> Result<()> {
+    if let Some(scene) = &a.tips {
+        return tips(&a.file, scene, a.every);
+    }
     if let Some(dir) = a.vtu {
         let s = record::export_vtu(&a.file, &dir)?;
         println!(

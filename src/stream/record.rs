@@ -347,9 +347,153 @@ pub fn export_vtu(path: &Path, dir: &Path) -> Result<ReplaySummary, StreamError>
     Ok(s)
 }
 
+/// One instrument's tip in a row of [`tip_trace`].
+#[derive(Debug, Clone, PartialEq)]
+pub struct TipSample {
+    /// The instrument's id in the recorded run.
+    pub id: u8,
+    /// Its kind code ([`super::instrument_kind`]).
+    pub kind: u8,
+    /// The tip: the polyline's last point (m).
+    pub tip_m: Vec3,
+    /// The segment the caller's `segment_of` gave for the tip.
+    pub segment: Option<String>,
+}
+
+/// One row of [`tip_trace`]: a state frame's time and its instruments' tips.
+#[derive(Debug, Clone, PartialEq)]
+pub struct TipRow {
+    /// Simulation time of the frame (s).
+    pub time_s: f64,
+    /// Every instrument's tip, in the frame's order.
+    pub tips: Vec<TipSample>,
+    /// Whether an instrument's segment differs from the row before (the
+    /// first row: false).
+    pub entered: bool,
+}
+
+/// Where each instrument's tip went in a recording: the first state frame,
+/// then a frame at least every `every_s` of simulation time, every frame in
+/// which a tip's segment (`segment_of` of the tip) changed, and the last
+/// frame. For scripted scenarios: which branch a tip entered, and when.
+pub fn tip_trace(
+    path: &Path,
+    every_s: f64,
+    segment_of: &dyn Fn(Vec3) -> Option<String>,
+) -> Result<(Vec<TipRow>, DecoderStats), StreamError> {
+    let mut dec = Decoder::new();
+    let mut rows: Vec<TipRow> = Vec::new();
+    // The newest frame not yet written, and the last row's time.
+    let mut pending: Option<TipRow> = None;
+    let mut last_t = f64::NEG_INFINITY;
+    for r in RecordReader::open(path)? {
+        let (_, d) = r?;
+        let Ok(Some(Decoded::State(st))) = dec.push(&d) else {
+            continue;
+        };
+        let tips: Vec<TipSample> = st
+            .instruments
+            .iter()
+            .filter_map(|l| {
+                let p = l.points.last()?;
+                let tip = v3(p);
+                Some(TipSample {
+                    id: l.id,
+                    kind: l.kind,
+                    tip_m: tip,
+                    segment: segment_of(tip),
+                })
+            })
+            .collect();
+        let before = pending.as_ref().or(rows.last());
+        let entered = before.is_some_and(|b| {
+            tips.iter()
+                .any(|t| b.tips.iter().any(|u| u.id == t.id && u.segment != t.segment))
+        });
+        let row = TipRow {
+            time_s: st.time_s,
+            tips,
+            entered,
+        };
+        if rows.is_empty() || entered || st.time_s - last_t >= every_s {
+            last_t = st.time_s;
+            rows.push(row);
+            pending = None;
+        } else {
+            pending = Some(row);
+        }
+    }
+    rows.extend(pending);
+    Ok((rows, dec.stats().clone()))
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A recording of a wire whose tip rises 1 mm a frame (every 10 ms)
+    /// into a "branch" above z = 5.5 mm: the trace keeps the first frame, one
+    /// every 0.1 s, the frame the tip entered the branch (marked), and the
+    /// last.
+    #[test]
+    fn the_tip_trace_keeps_each_change_of_segment() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("tips.nvts");
+        let mut w = RecordWriter::create(&p).unwrap();
+        let (mut msg, mut buf) = (Vec::new(), Vec::new());
+        let topology = super::super::Topology {
+            epoch: 0,
+            rest_positions: vec![[0.0; 3], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]],
+            triangles: vec![[0, 1, 2]],
+            node_ids: vec![0, 1, 2],
+        };
+        format::encode_topology(&topology, &mut msg);
+        format::chunk_message(format::KIND_TOPOLOGY, 0, 0, &msg, 1400, &mut buf, |d| {
+            w.write(0, d).unwrap()
+        })
+        .unwrap();
+        for k in 0..30u32 {
+            let pts = [[0.0f32, 0.0, 0.0], [0.0, 0.0, k as f32 * 1e-3]];
+            let lines = [super::super::InstrumentLine {
+                id: 1,
+                kind: 2,
+                points: &pts,
+            }];
+            let frame = super::super::StateFrame {
+                time_s: k as f64 * 0.01,
+                positions: &topology.rest_positions,
+                tool_position: [0.0; 3],
+                tool_radius: 0.0,
+                force: [0.0; 3],
+                flags: 0,
+                loop_rate_hz: 1000.0,
+                tick_p99_us: 0.0,
+                instruments: &lines,
+            };
+            msg.clear();
+            format::encode_state(&frame, &mut msg);
+            format::chunk_message(format::KIND_STATE, k + 1, 0, &msg, 1400, &mut buf, |d| {
+                w.write(u64::from(k) * 10_000_000, d).unwrap()
+            })
+            .unwrap();
+        }
+        w.finish().unwrap();
+        let segment = |x: Vec3| Some(if x.z > 5.5e-3 { "branch" } else { "aorta" }.to_string());
+        let (rows, stats) = tip_trace(&p, 0.1, &segment).unwrap();
+        assert_eq!(stats.total_rejected(), 0);
+        let at: Vec<(u32, bool)> = rows
+            .iter()
+            .map(|r| ((r.time_s * 100.0).round() as u32, r.entered))
+            .collect();
+        assert_eq!(
+            at,
+            [(0, false), (6, true), (16, false), (26, false), (29, false)],
+            "{rows:?}"
+        );
+        assert_eq!(rows[1].tips[0].segment.as_deref(), Some("branch"));
+        assert!((rows[1].tips[0].tip_m.z - 6e-3).abs() < 1e-9);
+        assert_eq!((rows[1].tips[0].id, rows[1].tips[0].kind), (1, 2));
+    }
 
     #[test]
     fn bad_recordings_are_refused_with_the_place() {
