@@ -340,12 +340,11 @@ impl Coaxial {
         // its axis: as a dead load it stretched the catheter axially by
         // several times the friction's smoothing, the wire slipped back
         // the next step, and the pair held still buzzed (docs/CATHETER.md
-        // "The wire's friction on the catheter"). Lagged, the slips were
-        // measured against the catheter a step back.
+        // "The wire's friction on the catheter"). Lagged, the slips are a
+        // step old and taken as they are, as the normal forces are.
         self.catheter.set_point_frictions(
             self.wire.sheath_frictions().iter().copied(),
             self.wire.params().friction_smoothing_m,
-            lagged,
         );
         if lagged {
             self.set_wire_sheath();

@@ -175,9 +175,6 @@ struct Coax {
     point_frictions: Reserved<PointFriction>,
     /// Their smoothing length (m).
     point_friction_smoothing: f64,
-    /// Their slips were measured one step behind this rod's state (a lagged
-    /// coupling): this rod's last motion is taken off them.
-    point_frictions_behind: bool,
     /// The point frictions of this step, each on the segment nearest its
     /// point.
     frictions: Reserved<SegmentFriction>,
@@ -231,8 +228,7 @@ pub struct PointFriction {
     pub limit_n: f64,
 }
 
-/// A [`PointFriction`] on this rod's segment `k`, at its parameter `t`,
-/// its slip with this rod's motion until the step's start taken off.
+/// A [`PointFriction`] on this rod's segment `k`, at its parameter `t`.
 #[derive(Debug, Clone, Copy, PartialEq)]
 struct SegmentFriction {
     k: usize,
@@ -312,7 +308,6 @@ impl Coax {
             node_spring: vec![Mat3::zeros(); cap],
             point_frictions: Reserved::with_capacity(MAX_POINT_LOADS),
             point_friction_smoothing: FRICTION_SMOOTHING_M,
-            point_frictions_behind: false,
             frictions: Reserved::with_capacity(MAX_POINT_LOADS),
             core: None,
             kb0: vec![Vec3::zeros(); cap],
@@ -3250,16 +3245,9 @@ impl Wire {
     /// ([`PointFriction`]). Along this rod's axis the friction follows
     /// its motion within the step: it sticks instead of being a dead load
     /// that the next exchange reverses (docs/CATHETER.md "The wire's
-    /// friction on the catheter"). `behind`: the slips were measured against this
-    /// rod's state one step before this step's start (a lagged coupling),
-    /// so its motion over the last step counts too. At most
-    /// [`MAX_POINT_LOADS`]; the rest, and those not finite, are dropped.
-    pub fn set_point_frictions(
-        &mut self,
-        frictions: impl IntoIterator<Item = PointFriction>,
-        smoothing_m: f64,
-        behind: bool,
-    ) {
+    /// friction on the catheter"). At most [`MAX_POINT_LOADS`]; the rest,
+    /// and those not finite, are dropped.
+    pub fn set_point_frictions(&mut self, frictions: impl IntoIterator<Item = PointFriction>, smoothing_m: f64) {
         self.cx.point_frictions.clear();
         for f in frictions {
             if self.cx.point_frictions.len() == self.cx.point_frictions.capacity() {
@@ -3280,7 +3268,6 @@ impl Wire {
         } else {
             FRICTION_SMOOTHING_M
         };
-        self.cx.point_frictions_behind = behind;
     }
 
     /// The stiffness (N/m, ≥ 0; 0 by default) with which each point load
@@ -3426,15 +3413,7 @@ impl Wire {
                 // jitter as often as a trend, and a dead load that follows
                 // it shook the catheter.
                 let goes_on = along * axis.dot(&f.motion);
-                let mut slip = pm * f.slip + goes_on;
-                if cx.point_frictions_behind {
-                    // Measured a step before this one's start: by the
-                    // source's step that sees this one's motion, the
-                    // source will have moved on for another step, and its
-                    // anchor with this rod's last motion.
-                    let v = self.s.v[k] * (1.0 - t) + self.s.v[k + 1] * t;
-                    slip += goes_on - along * (axis.dot(&v) * dt);
-                }
+                let slip = pm * f.slip + goes_on;
                 // Across the axis the friction stays a dead load, at its
                 // value with this rod unmoved along it.
                 let f0 = friction_gradient(slip, slip.norm(), f.limit_n, cx.point_friction_smoothing);
@@ -3674,7 +3653,8 @@ mod tests {
 
     /// The coaxial terms' gradient is the energy's too: a rod inside a
     /// sheath (a bent polyline around it, with friction), with a core's
-    /// stiffness on its curvature change and point loads on it.
+    /// stiffness on its curvature change, point loads and a core's
+    /// friction on it.
     #[test]
     fn the_coaxial_terms_gradient_matches_finite_differences() {
         let p = WireParams {
@@ -3720,6 +3700,27 @@ mod tests {
             w.sheath_contacts().len()
         );
         w.set_point_loads([(Vec3::new(0.01, 0.0, 0.0), Vec3::new(0.0, 0.02, 0.01))]);
+        // A core's friction, one sticking and one sliding (smoothed over
+        // 1 mm, so that the differences' steps stay on one side of it).
+        w.set_point_frictions(
+            [
+                PointFriction {
+                    point: Vec3::new(0.006, 0.0, 0.0),
+                    normal: Vec3::y(),
+                    slip: Vec3::new(2e-4, 0.0, 1e-4),
+                    motion: Vec3::new(1e-4, 0.0, 0.0),
+                    limit_n: 0.3,
+                },
+                PointFriction {
+                    point: Vec3::new(0.013, 1e-4, 0.0),
+                    normal: Vec3::z(),
+                    slip: Vec3::new(-4e-3, 1e-3, 0.0),
+                    motion: Vec3::zeros(),
+                    limit_n: 0.2,
+                },
+            ],
+            1e-3,
+        );
         w.set_hub(0.0215, 0.5);
         let (worst, scale) = gradient_gap(&mut w, &NoWall, 2e-5);
         assert!(worst < 1e-4 * scale, "worst {worst:e} of {scale:e}");
