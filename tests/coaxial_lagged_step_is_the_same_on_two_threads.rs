@@ -13,12 +13,7 @@ use nvtmm::wire::coaxial::{CatheterWorker, Coaxial, CoaxialReport, Coupling};
 use nvtmm::wire::WireParams;
 
 fn tube() -> nvtmm::wire::CurvedTube {
-    // 3 mm, so that the catheter's shaped tip meets the wall in the bend:
-    // in a 4 mm tube it did only while the stabilising spring acted along
-    // the wire's friction as well as its normal force and pushed the fed
-    // catheter sideways (docs/CATHETER.md "The wire's friction on the
-    // catheter").
-    common::two_radian_bend(3e-3)
+    common::two_radian_bend(4e-3)
 }
 
 fn pair(coupling: Coupling) -> Coaxial {

@@ -9,11 +9,10 @@
 //!    radius, friction measured against the catheter's motion), and the
 //!    vessel for the rest;
 //! 2. the catheter, against the vessel, loaded by the opposite of the
-//!    wire's contact forces on its inner wall (the normal forces as dead
-//!    loads, the friction as a function of the catheter's own motion along
-//!    its axis: the wire's slip less that motion), and stiffened where the
-//!    wire lies inside it by the wire's bending stiffness acting on the
-//!    change of the centreline's curvature over the step.
+//!    wire's contact forces on its inner wall (normal and friction, dead
+//!    loads), and stiffened where the wire lies inside it by the wire's
+//!    bending stiffness acting on the change of the centreline's
+//!    curvature over the step.
 //!
 //! That is the default coupling, [`Coupling::GaussSeidel`]. The other,
 //! [`Coupling::Lagged`] (block Jacobi), hands the catheter the wire's
@@ -149,7 +148,7 @@ pub struct Coaxial {
     /// the pair's present state (false after construction and a restore:
     /// a lagged step then couples as Gauss–Seidel).
     primed: bool,
-    /// The wire's normal forces on the catheter, as handed to it (sized
+    /// The wire's contact forces on the catheter, as handed to it (sized
     /// at construction, and so are a clone's).
     loads: Reserved<(Vec3, Vec3)>,
 }
@@ -317,10 +316,8 @@ impl Coaxial {
     }
 
     /// The exchange between the rods before the catheter's step: the
-    /// wire's contact forces on the catheter (equal and opposite: the
-    /// normal forces as dead loads, the friction on the catheter's motion),
-    /// the normal forces' stabilising spring and the wire as the
-    /// catheter's core. `lagged`:
+    /// wire's contact forces on the catheter (equal and opposite), their
+    /// stabilising spring and the wire as the catheter's core. `lagged`:
     /// before the wire's step too (the forces and the wire's inserted
     /// length are the last period's), so the wire is also put inside the
     /// catheter as it stands. The spring stays anchored at the catheter's
@@ -334,18 +331,8 @@ impl Coaxial {
             if self.loads.len() == self.loads.capacity() {
                 break;
             }
-            self.loads.push((c.point, -(c.normal * c.normal_force)));
+            self.loads.push((c.point, -(c.normal * c.normal_force + c.friction)));
         }
-        // The friction on the wire's slip less the catheter's motion along
-        // its axis: as a dead load it stretched the catheter axially by
-        // several times the friction's smoothing, the wire slipped back
-        // the next step, and the pair held still buzzed (docs/CATHETER.md
-        // "The wire's friction on the catheter"). Lagged, the slips are a
-        // step old and taken as they are, as the normal forces are.
-        self.catheter.set_point_frictions(
-            self.wire.sheath_frictions().iter().copied(),
-            self.wire.params().friction_smoothing_m,
-        );
         if lagged {
             self.set_wire_sheath();
         }

@@ -152,14 +152,8 @@ struct Coax {
     /// enough that it does not overlap the wall; the funnel closes as the
     /// node comes in, and by [`FUNNEL_CLOSING_M_PER_S`] at least.
     funnel: Vec<f64>,
-    /// Per node: how far the step's start carried it with the sheath's
-    /// last motion across its axis (m).
-    carried: Vec<Vec3>,
     /// The sheath contacts of the last step.
     sheath_contacts: Reserved<WireContact>,
-    /// Their friction as a function of the sheath's motion, one for each
-    /// of `sheath_contacts`.
-    sheath_frictions: Reserved<PointFriction>,
     /// Dead point loads for the next step (point, force), spread onto the
     /// nearest segment's two nodes when the step begins.
     point_loads: Reserved<(Vec3, Vec3)>,
@@ -170,14 +164,6 @@ struct Coax {
     load_stiffness: f64,
     /// Per node: that stiffness's share, k n nᵀ summed (N/m).
     node_spring: Vec<Mat3>,
-    /// Friction from a core sliding inside, for the next step only
-    /// ([`Wire::set_point_frictions`]).
-    point_frictions: Reserved<PointFriction>,
-    /// Their smoothing length (m).
-    point_friction_smoothing: f64,
-    /// The point frictions of this step, each on the segment nearest its
-    /// point.
-    frictions: Reserved<SegmentFriction>,
     /// The core's bending stiffness along this rod, if a core runs inside.
     core: Option<CoreStiffness>,
     /// Per node: the curvature binormal at the step's start, from which
@@ -197,50 +183,8 @@ struct CoreStiffness {
     tip_factor: f64,
 }
 
-/// Point loads a rod takes at most per step ([`Wire::set_point_loads`],
-/// and as many point frictions, [`Wire::set_point_frictions`]).
+/// Point loads a rod takes at most per step ([`Wire::set_point_loads`]).
 pub const MAX_POINT_LOADS: usize = 4096;
-
-/// The friction of a contact on a rod as a function of the rod's own
-/// motion: a wire's friction on its catheter's inner wall. The wire's next
-/// step will find it slipped against the catheter by `slip`, plus its own
-/// motion along the catheter's axis (taken to go on as over its step),
-/// less the catheter's motion along its axis over the catheter's step;
-/// the friction on the catheter is the smoothed Coulomb law of the wire's
-/// own contact on that slip, at most `limit_n`. Along the axis it follows
-/// the catheter's motion in the step; across it, it is a dead load
-/// (docs/CATHETER.md "The wire's friction on the catheter").
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct PointFriction {
-    /// Where the contact is (m).
-    pub point: Vec3,
-    /// The normal of the contact's tangent plane (unit).
-    pub normal: Vec3,
-    /// The source's slip against this rod left from its stick anchor, in
-    /// the tangent plane (m).
-    pub slip: Vec3,
-    /// The slip the source's own motion over its step added, in the
-    /// tangent plane (m): its translation beyond what this rod's last
-    /// motion carried it by, and its surface's turn (this rod takes the
-    /// part along its axis).
-    pub motion: Vec3,
-    /// Coulomb's limit μλ (N, ≥ 0).
-    pub limit_n: f64,
-}
-
-/// A [`PointFriction`] on this rod's segment `k`, at its parameter `t`.
-#[derive(Debug, Clone, Copy, PartialEq)]
-struct SegmentFriction {
-    k: usize,
-    t: f64,
-    /// The segment's direction at the step's start (unit).
-    axis: Vec3,
-    /// The slip that a unit motion along `axis` takes off: the axis in
-    /// the contact's tangent plane.
-    along: Vec3,
-    slip: Vec3,
-    limit: f64,
-}
 
 /// How fast a sheath's lip funnel closes on a node that entered it
 /// outside the lumen, at least (m/s): at the rod's contact stiffness
@@ -299,16 +243,11 @@ impl Coax {
             sheath_seg: vec![0; cap],
             inside: vec![false; cap],
             funnel: vec![0.0; cap],
-            carried: vec![Vec3::zeros(); cap],
             sheath_contacts: Reserved::with_capacity(cap),
-            sheath_frictions: Reserved::with_capacity(cap),
             point_loads: Reserved::with_capacity(MAX_POINT_LOADS),
             node_load: vec![Vec3::zeros(); cap],
             load_stiffness: 0.0,
             node_spring: vec![Mat3::zeros(); cap],
-            point_frictions: Reserved::with_capacity(MAX_POINT_LOADS),
-            point_friction_smoothing: FRICTION_SMOOTHING_M,
-            frictions: Reserved::with_capacity(MAX_POINT_LOADS),
             core: None,
             kb0: vec![Vec3::zeros(); cap],
         }
@@ -2865,58 +2804,6 @@ impl Wire {
                 }
             }
         }
-        // Friction from a source slipping along this rod, on this rod's
-        // motion s over the step along its axis at each point:
-        // μλ φ(|u₀ − a s|), φ the smoothed Coulomb potential of the
-        // source's own contact, a the axis in its tangent plane
-        // (`Wire::set_point_frictions`). Only along the axis: the source's
-        // next step carries its nodes with this rod's motion across it.
-        // Its nodes below 2 are fixed.
-        if !self.cx.frictions.is_empty() {
-            let eps = self.cx.point_friction_smoothing;
-            for fr in self.cx.frictions.iter() {
-                let (k, t) = (fr.k, fr.t);
-                let w = [1.0 - t, t];
-                let d = (self.xt[k] - self.x0[k]) * w[0] + (self.xt[k + 1] - self.x0[k + 1]) * w[1];
-                let u = fr.slip - fr.along * fr.axis.dot(&d);
-                let un = u.norm();
-                energy += fr.limit * if un < eps { 0.5 * un * un / eps } else { un - 0.5 * eps };
-                if assemble {
-                    let g = fr.axis * -fr.along.dot(&friction_gradient(u, un, fr.limit, eps));
-                    let h_along = if un < eps {
-                        fr.along.norm_squared() * fr.limit / eps
-                    } else {
-                        let uh = u / un;
-                        (fr.along.norm_squared() - uh.dot(&fr.along).powi(2)) * fr.limit / un
-                    };
-                    let hf = outer(&fr.axis, &fr.axis) * h_along;
-                    for (a, &wa) in w.iter().enumerate() {
-                        let ia = k + a;
-                        if ia < 2 {
-                            continue;
-                        }
-                        for r in 0..3 {
-                            self.grad[4 * ia + r] += wa * g[r];
-                        }
-                        if hess {
-                            for r in 0..3 {
-                                for c in 0..=r {
-                                    self.h.add(4 * ia + r, 4 * ia + c, wa * wa * hf[(r, c)]);
-                                }
-                            }
-                        }
-                    }
-                    if hess && k >= 2 {
-                        let wab = w[0] * w[1];
-                        for r in 0..3 {
-                            for c in 0..3 {
-                                self.h.add(4 * (k + 1) + r, 4 * k + c, wab * hf[(r, c)]);
-                            }
-                        }
-                    }
-                }
-            }
-        }
         // A core's bending stiffness on the change of the curvature vector
         // over the step: ½ b |κb − κb₀|² (docs/CATHETER.md "The coupled
         // step"). κb = 2 e × f / (|e||f| + e·f) in space, so a core that
@@ -3026,7 +2913,6 @@ impl Wire {
         let eps_v = self.p.friction_smoothing_m;
         self.contacts.clear();
         self.cx.sheath_contacts.clear();
-        self.cx.sheath_frictions.clear();
         for i in 2..n {
             // The wall's penalty force at the evaluation: its size is the
             // contact's normal force, its direction the contact's normal
@@ -3054,19 +2940,9 @@ impl Wire {
             // Friction as the step's energy had it: the lagged normal force
             // and normal.
             let lam_prev = self.s.lam[i];
-            let nrm_prev = self.s.nrm[i];
             let mu = if self.cx.inside[i] { self.cx.sheath_mu } else { mu };
-            // The slip left from the anchor as it stands for the next step,
-            // and what this step's own motion added to it.
-            let (mut slip_left, mut motion) = (Vec3::zeros(), Vec3::zeros());
             let friction = if mu > 0.0 && lam_prev > 0.0 {
                 let (pm, ut, un) = self.slip(i);
-                slip_left = ut;
-                if self.cx.inside[i] {
-                    // Its own motion, beyond the sheath's carry.
-                    motion = pm * (self.xt[i] - self.x0[i] - self.cx.carried[i])
-                        + self.spin[i] * (self.tht[j] - self.th0[j]);
-                }
                 // The anchor stays while the contact sticks (slip below the
                 // smoothing) and trails the node by the smoothing once it
                 // slips: its slip, translation and spin alike, is cut back
@@ -3076,7 +2952,6 @@ impl Wire {
                     let (a, at) = (self.s.anchor[i], self.s.anchor_twist[i]);
                     self.s.anchor[i] = a + pm * (self.xt[i] - a) * cut;
                     self.s.anchor_twist[i] = at + (self.tht[j] - at) * cut;
-                    slip_left = ut * (eps_v / un);
                 }
                 -friction_gradient(ut, un, mu * lam_prev, eps_v)
             } else {
@@ -3103,16 +2978,6 @@ impl Wire {
                     wall_deflection: lam * c_step,
                     triangle: hit.triangle,
                 });
-                // One for each sheath contact (both hold as many).
-                if self.cx.inside[i] {
-                    self.cx.sheath_frictions.push(PointFriction {
-                        point: hit.point,
-                        normal: nrm_prev,
-                        slip: slip_left,
-                        motion,
-                        limit_n: if mu > 0.0 { mu * lam_prev } else { 0.0 },
-                    });
-                }
             }
         }
     }
@@ -3244,48 +3109,6 @@ impl Wire {
         }
     }
 
-    /// The friction of each sheath contact of the last step as a function
-    /// of the sheath's motion, one for each of [`Wire::sheath_contacts`]
-    /// (the catheter takes them, [`Wire::set_point_frictions`]): the slip
-    /// left from each contact's stick anchor as the next step finds it, in
-    /// the tangent plane the step's friction had, and μλ.
-    pub fn sheath_frictions(&self) -> &[PointFriction] {
-        &self.cx.sheath_frictions
-    }
-
-    /// Friction on this rod from a source that slips along it (a wire's on
-    /// its catheter's inner wall), for the next step only: each a smoothed
-    /// Coulomb law over `smoothing_m` of the source's slip minus this
-    /// rod's motion at the point (interpolated on the segment nearest the
-    /// point when the step begins), in the step's incremental potential
-    /// ([`PointFriction`]). Along this rod's axis the friction follows
-    /// its motion within the step: it sticks instead of being a dead load
-    /// that the next exchange reverses (docs/CATHETER.md "The wire's
-    /// friction on the catheter"). At most [`MAX_POINT_LOADS`]; the rest,
-    /// and those not finite, are dropped.
-    pub fn set_point_frictions(&mut self, frictions: impl IntoIterator<Item = PointFriction>, smoothing_m: f64) {
-        self.cx.point_frictions.clear();
-        for f in frictions {
-            if self.cx.point_frictions.len() == self.cx.point_frictions.capacity() {
-                break;
-            }
-            let finite = f
-                .point
-                .iter()
-                .chain(f.normal.iter())
-                .chain(f.slip.iter())
-                .all(|c| c.is_finite());
-            if finite && f.limit_n.is_finite() && f.limit_n > 0.0 {
-                self.cx.point_frictions.push(f);
-            }
-        }
-        self.cx.point_friction_smoothing = if smoothing_m.is_finite() && smoothing_m > 0.0 {
-            smoothing_m
-        } else {
-            FRICTION_SMOOTHING_M
-        };
-    }
-
     /// The stiffness (N/m, ≥ 0; 0 by default) with which each point load
     /// ([`Wire::set_point_loads`]) also resists this rod's motion over the
     /// step along the load's own direction: a contact force whose source
@@ -3325,7 +3148,6 @@ impl Wire {
         let has_sheath = cx.sheath.len() >= 2;
         for i in 0..n {
             let inside = has_sheath && i >= 2 && self.s.inserted - self.s.u[i] <= cx.sheath_reach;
-            cx.carried[i] = Vec3::zeros();
             if inside && !cx.inside[i] {
                 // Entering: search the whole sheath once (a downhill search
                 // from its hub stops on the wrong leg of a sheath bent back
@@ -3360,7 +3182,6 @@ impl Wire {
                 };
                 self.s.x[i] += across;
                 self.xt[i] = self.s.x[i];
-                cx.carried[i] = across;
                 self.s.anchor[i] += d;
                 // The funnel closes as the node comes in, and steadily.
                 if cx.funnel[i] > cx.sheath_radius {
@@ -3407,45 +3228,6 @@ impl Wire {
                 }
             }
             cx.point_loads.clear();
-        }
-        cx.frictions.clear();
-        if !cx.point_frictions.is_empty() && n >= 3 {
-            let poly = &self.s.x[..n];
-            let mut seg = 0;
-            for (j, f) in cx.point_frictions.iter().enumerate() {
-                let (k, t, _) = if j == 0 {
-                    nearest_on_polyline_everywhere(poly, f.point, &mut seg)
-                } else {
-                    nearest_on_polyline(poly, f.point, &mut seg)
-                };
-                let t = t.clamp(0.0, 1.0);
-                let Some(axis) = (poly[k + 1] - poly[k]).try_normalize(1e-300) else {
-                    continue;
-                };
-                let pm = Mat3::identity() - outer(&f.normal, &f.normal);
-                let along = pm * axis;
-                // The source's own motion is taken to go on along the axis
-                // only: across it, and in its turn, a step's motion is
-                // jitter as often as a trend, and a dead load that follows
-                // it shook the catheter.
-                let goes_on = along * axis.dot(&f.motion);
-                let slip = pm * f.slip + goes_on;
-                // Across the axis the friction stays a dead load, at its
-                // value with this rod unmoved along it.
-                let f0 = friction_gradient(slip, slip.norm(), f.limit_n, cx.point_friction_smoothing);
-                let across = f0 - axis * axis.dot(&f0);
-                cx.node_load[k] += across * (1.0 - t);
-                cx.node_load[k + 1] += across * t;
-                cx.frictions.push(SegmentFriction {
-                    k,
-                    t,
-                    axis,
-                    along,
-                    slip,
-                    limit: f.limit_n,
-                });
-            }
-            cx.point_frictions.clear();
         }
         if cx.core.is_some() {
             let x = &self.s.x;
@@ -3669,8 +3451,7 @@ mod tests {
 
     /// The coaxial terms' gradient is the energy's too: a rod inside a
     /// sheath (a bent polyline around it, with friction), with a core's
-    /// stiffness on its curvature change, point loads and a core's
-    /// friction on it.
+    /// stiffness on its curvature change and point loads on it.
     #[test]
     fn the_coaxial_terms_gradient_matches_finite_differences() {
         let p = WireParams {
@@ -3716,27 +3497,6 @@ mod tests {
             w.sheath_contacts().len()
         );
         w.set_point_loads([(Vec3::new(0.01, 0.0, 0.0), Vec3::new(0.0, 0.02, 0.01))]);
-        // A core's friction, one sticking and one sliding (smoothed over
-        // 1 mm, so that the differences' steps stay on one side of it).
-        w.set_point_frictions(
-            [
-                PointFriction {
-                    point: Vec3::new(0.006, 0.0, 0.0),
-                    normal: Vec3::y(),
-                    slip: Vec3::new(2e-4, 0.0, 1e-4),
-                    motion: Vec3::new(1e-4, 0.0, 0.0),
-                    limit_n: 0.3,
-                },
-                PointFriction {
-                    point: Vec3::new(0.013, 1e-4, 0.0),
-                    normal: Vec3::z(),
-                    slip: Vec3::new(-4e-3, 1e-3, 0.0),
-                    motion: Vec3::zeros(),
-                    limit_n: 0.2,
-                },
-            ],
-            1e-3,
-        );
         w.set_hub(0.0215, 0.5);
         let (worst, scale) = gradient_gap(&mut w, &NoWall, 2e-5);
         assert!(worst < 1e-4 * scale, "worst {worst:e} of {scale:e}");
