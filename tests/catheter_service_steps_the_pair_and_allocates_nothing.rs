@@ -98,24 +98,7 @@ script = [
         assert!(c.get(k).is_some(), "catheter.{k} missing");
     }
     assert_eq!(c["steps"], json["wire"]["steps"], "one thread steps both");
-    assert!(w.steps > 3000, "{} pair steps", w.steps);
-    assert!(
-        w.max_penetration_m < 0.2e-3,
-        "wire penetration {} m",
-        w.max_penetration_m
-    );
-    assert!(
-        f("max_penetration_m") < 0.2e-3,
-        "catheter penetration {} m",
-        f("max_penetration_m")
-    );
-    assert!(
-        f("sheath_penetration_max_m") < 0.2e-3,
-        "wire into the catheter {} m",
-        f("sheath_penetration_max_m")
-    );
-    assert_eq!(w.resets, 0, "resets");
-    assert!(report.allocator_installed);
+    common::guidewire::assert_pair_ran_clean(&report, c);
     assert_eq!(w.allocations_after_start, 0, "pair thread allocations");
     assert_eq!(report.allocations_after_start, 0, "loop + device + pair allocations");
 }

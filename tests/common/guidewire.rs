@@ -195,3 +195,30 @@ pub fn assert_cannulated(report: &nvtmm::service::Report, target: &str) {
     assert_eq!((w.resets, w.stalls), (0, 0), "resets and stalls");
     assert_eq!(report.allocations_after_start, 0, "loop + device + pair allocations");
 }
+
+/// The catheter service tests' common checks on `report` and its catheter
+/// section's keys `c`: more than 3000 pair steps, neither rod more than
+/// 0.2 mm into the vessel's wall nor the wire into the catheter's, no
+/// reset, and the RT allocator installed.
+pub fn assert_pair_ran_clean(report: &nvtmm::service::Report, c: &serde_json::Value) {
+    let w = report.wire.as_ref().expect("wire.* keys: the pair's wire");
+    let f = |k: &str| c[k].as_f64().unwrap_or_else(|| panic!("catheter key {k}: {}", c[k]));
+    assert!(w.steps > 3000, "{} pair steps", w.steps);
+    assert!(
+        w.max_penetration_m < 0.2e-3,
+        "wire penetration {} m",
+        w.max_penetration_m
+    );
+    assert!(
+        f("max_penetration_m") < 0.2e-3,
+        "catheter penetration {} m",
+        f("max_penetration_m")
+    );
+    assert!(
+        f("sheath_penetration_max_m") < 0.2e-3,
+        "wire into the catheter {} m",
+        f("sheath_penetration_max_m")
+    );
+    assert_eq!(w.resets, 0, "resets");
+    assert!(report.allocator_installed);
+}
